@@ -1,0 +1,1 @@
+//! placeholder-free stub: filled by the fusion_core work.

@@ -1,0 +1,51 @@
+"""The ``insulator-rs`` command: one entry point, one module per subcommand.
+
+Each subcommand module exposes ``register(subparsers)`` which adds its parser
+and sets ``func`` to a callable taking the parsed namespace and returning an
+exit code. Modules are imported lazily so that ``insulator-rs --help`` stays fast
+and a heavy optional dependency (Ultralytics) is only loaded by its command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+# (subcommand, module that registers it)
+SUBCOMMANDS: tuple[tuple[str, str], ...] = (
+    ("inspect", "insulator_rs.mission.inspect_command"),
+    ("eval", "insulator_rs.evaluation.commands"),
+    ("detect", "insulator_rs.detection.commands"),
+    ("train", "insulator_rs.detection.train_command"),
+    ("dataset", "insulator_rs.sim.dataset_command"),
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="insulator-rs",
+        description="Insulator detection, localization and single-flight inspection for UAVs.",
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    for _name, module_name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            # Only tolerate the module itself being absent (an optional part not
+            # installed); a missing dependency inside it must surface.
+            if exc.name != module_name:
+                raise
+            continue
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,22 @@
+"""Every exception the package raises, under one base class.
+
+The compiled core raises ``LocalizationError`` (and ``ValueError``/``TypeError``
+for bad arguments); the Python layers raise the others.
+"""
+
+from __future__ import annotations
+
+
+class InsulatorError(Exception):
+    """Base class of every insulator_rs-specific error."""
+
+
+class ConfigError(InsulatorError, ValueError):
+    """A mission, scene or calibration file is missing a field or holds a bad value.
+
+    The message names the file and the field.
+    """
+
+
+class VehicleError(InsulatorError):
+    """The vehicle refused a command or reported a fault (the message says which)."""
