@@ -1,0 +1,30 @@
+"""``insulator-rs eval <study>``: each study module exposes ``add_arguments(parser)``
+and ``run(args) -> int``; they are imported only when their study runs."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+# (study name, module, one-line help)
+STUDIES: tuple[tuple[str, str, str], ...] = (
+    ("localization", "insulator_rs.evaluation.localization_study",
+     "localization error of the four methods on towers A and B (paper Tables I and II)"),
+    ("efficiency", "insulator_rs.evaluation.efficiency_study",
+     "single-flight vs two-flight inspection time (paper efficiency figure)"),
+)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("eval", help="run an evaluation study")
+    studies = parser.add_subparsers(dest="study", required=True)
+    for name, module_name, help_text in STUDIES:
+        study_parser = studies.add_parser(name, help=help_text)
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue
+        module.add_arguments(study_parser)
+        study_parser.set_defaults(func=module.run)
