@@ -1,0 +1,624 @@
+"""An in-process kinematic multirotor that behaves like a PX4 vehicle.
+
+Two layers:
+
+* ``MultirotorModel``: the motion. It tracks a ``Setpoint`` (position and/or
+  velocity feed-forward and/or yaw or yaw rate) with a proportional position
+  loop whose speed is capped so that the vehicle can always stop within its
+  acceleration limit, then limits horizontal/vertical velocity and
+  acceleration and the yaw rate. No attitude dynamics: a multirotor flying
+  slowly near an insulator is well described by its translational kinematics.
+* ``KinematicVehicle``: the autopilot around it, with PX4's flight modes and
+  rules (offboard needs a setpoint stream, offboard-loss failsafe after
+  ``COM_OF_LOSS_T``, auto-disarm on the ground after ``COM_DISARM_LAND``,
+  disarming refused in the air, arming refused without a position estimate or
+  with a critical battery), odometry with configurable Gaussian noise, a
+  simulation clock, an image-capture log with the pose of every image, and
+  fault injection (pilot mode change, GPS glitch or loss). It implements
+  ``insulator_rs.vehicle.Vehicle``. The simulated PX4 on MAVLink
+  (``insulator_rs.mavlink.px4_sim``) wraps this same class, so the in-process
+  path and the MAVLink path fly the same vehicle.
+
+Everything here is in the world frame W (ENU, metres, radians, seconds).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from insulator_rs.exceptions import VehicleError
+from insulator_rs.vehicle import VehicleState
+
+# Integration step: the model is sub-stepped so that ``advance`` with a large
+# dt stays accurate (the position loop gain times this step is << 1).
+MAX_INTEGRATION_STEP_S = 0.01
+# Landed when this close to the ground and slower than LANDED_SPEED_MPS.
+LANDED_HEIGHT_M = 0.05
+LANDED_SPEED_MPS = 0.2
+# Takeoff is complete (mode goes to HOLD) within this distance of the target.
+TAKEOFF_REACHED_M = 0.3
+
+
+class FlightMode(str, Enum):
+    """PX4 navigation states the vehicle can be in (names as PX4 prints them)."""
+
+    MANUAL = "MANUAL"
+    POSCTL = "POSCTL"
+    HOLD = "HOLD"  # AUTO_LOITER
+    TAKEOFF = "TAKEOFF"  # AUTO_TAKEOFF
+    LAND = "LAND"  # AUTO_LAND
+    RTL = "RTL"  # AUTO_RTL
+    MISSION = "MISSION"  # AUTO_MISSION (not flown here: treated as HOLD)
+    OFFBOARD = "OFFBOARD"
+
+
+class CommandRefused(VehicleError):
+    """The autopilot refused a command; ``command`` and ``reason`` say which and why.
+
+    ``temporary`` is True where PX4 answers TEMPORARILY_REJECTED (the command may
+    succeed later, e.g. arming once a position estimate exists) and False where it
+    answers DENIED.
+    """
+
+    def __init__(self, command: str, reason: str, *, temporary: bool = True) -> None:
+        super().__init__(f"{command} refused: {reason}")
+        self.command = command
+        self.reason = reason
+        self.temporary = temporary
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """Kinematic limits of the multirotor (W frame, SI units).
+
+    Defaults cover the paper's planning limits (3 m/s, 12 m/s^2) with margin
+    for the position loop. ``position_gain`` (1/s) is the proportional gain
+    of the position loop (PX4's MPC_XY_P/MPC_Z_P are about 1).
+    """
+
+    max_horizontal_speed: float = 5.0
+    max_vertical_speed: float = 3.0
+    max_horizontal_acceleration: float = 12.0
+    max_vertical_acceleration: float = 6.0
+    max_yaw_rate: float = math.radians(90.0)
+    position_gain: float = 1.5
+
+    def __post_init__(self) -> None:
+        for name in (
+            "max_horizontal_speed",
+            "max_vertical_speed",
+            "max_horizontal_acceleration",
+            "max_vertical_acceleration",
+            "max_yaw_rate",
+            "position_gain",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class OdometryNoise:
+    """Standard deviations of the Gaussian noise on published odometry.
+
+    ``position`` in m, ``velocity`` in m/s, ``yaw`` in rad, per axis.
+    """
+
+    position: float = 0.0
+    velocity: float = 0.0
+    yaw: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("position", "velocity", "yaw"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"noise {name} must be a finite number >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class AutopilotParameters:
+    """PX4 parameters the vehicle honours (PX4 names in brackets, PX4 defaults).
+
+    offboard_loss_timeout [COM_OF_LOSS_T] s; disarm_land_delay [COM_DISARM_LAND]
+    s; preflight_disarm_delay [COM_DISARM_PRFLT] s; takeoff_speed [MPC_TKO_SPEED]
+    m/s; land_speed [MPC_LAND_SPEED] m/s; return_altitude [RTL_RETURN_ALT] m
+    above home; battery_critical [BAT_CRIT_THR] fraction (below it: RTL, and
+    arming is refused); battery_drain_per_s: fraction of a full battery used
+    per armed second (1/1200: a 20 min flight).
+    """
+
+    offboard_loss_timeout: float = 1.0
+    disarm_land_delay: float = 2.0
+    preflight_disarm_delay: float = 10.0
+    takeoff_speed: float = 1.5
+    land_speed: float = 0.7
+    return_altitude: float = 30.0
+    battery_critical: float = 0.07
+    battery_drain_per_s: float = 1.0 / 1200.0
+
+    def __post_init__(self) -> None:
+        for name in ("offboard_loss_timeout", "takeoff_speed", "land_speed"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude",
+                     "battery_drain_per_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not 0.0 <= self.battery_critical < 1.0:
+            raise ValueError(f"battery_critical must be in [0, 1), got {self.battery_critical!r}")
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """What the position controller tracks (W frame).
+
+    Any field may be None: no position means velocity control; no velocity means
+    zero feed-forward (or, with no position either, stop); ``yaw`` (rad, from
+    east, counter-clockwise) takes precedence over ``yaw_rate`` (rad/s); with
+    neither, the heading is held.
+    """
+
+    position: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    yaw: float | None = None
+    yaw_rate: float | None = None
+    max_speed: float | None = None  # m/s, tighter cap than the limits (takeoff speed)
+
+
+@dataclass(frozen=True)
+class CapturedImage:
+    """One camera trigger with the true pose at that instant (W frame)."""
+
+    index: int
+    time: float
+    position: np.ndarray
+    yaw: float
+
+
+def wrap_angle(angle: float) -> float:
+    """Wrap an angle in rad to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def as_vector3(value: object, name: str) -> np.ndarray:
+    """Validate a 3-vector argument: a (3,) finite float64 copy, or ValueError/TypeError naming it."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be a sequence of 3 numbers, got {type(value).__name__}") from exc
+    if array.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,), got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {array.tolist()}")
+    return array.copy()
+
+
+def as_finite(value: object, name: str) -> float:
+    """Validate a scalar argument: a finite float, or ValueError/TypeError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    result = float(value)
+    if not math.isfinite(result):
+        raise ValueError(f"{name} must be finite, got {result!r}")
+    return result
+
+
+def _clamp_norm(vector: np.ndarray, limit: float) -> np.ndarray:
+    norm = float(np.linalg.norm(vector))
+    if norm > limit:
+        return vector * (limit / norm)
+    return vector
+
+
+def _position_correction(error: np.ndarray, gain: float, max_acceleration: float) -> np.ndarray:
+    """Velocity that closes ``error``: gain * error, capped at sqrt(2 a |e|) so the
+    vehicle can still stop at the target with acceleration ``max_acceleration``."""
+    distance = float(np.linalg.norm(error))
+    if distance == 0.0:
+        return np.zeros_like(error)
+    speed = min(gain * distance, math.sqrt(2.0 * max_acceleration * distance))
+    return error * (speed / distance)
+
+
+@dataclass
+class MultirotorModel:
+    """True kinematic state of the multirotor (W frame) and its tracking law."""
+
+    limits: MotionLimits = field(default_factory=MotionLimits)
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw: float = 0.0
+    ground_z: float = 0.0
+
+    def desired_velocity(self, setpoint: Setpoint) -> np.ndarray:
+        """Velocity command for ``setpoint`` before the acceleration limit (m/s, W)."""
+        lim = self.limits
+        desired = np.zeros(3) if setpoint.velocity is None else np.array(setpoint.velocity, dtype=float)
+        if setpoint.position is not None:
+            error = np.asarray(setpoint.position, dtype=float) - self.position
+            desired[:2] += _position_correction(error[:2], lim.position_gain, lim.max_horizontal_acceleration)
+            desired[2:] += _position_correction(error[2:], lim.position_gain, lim.max_vertical_acceleration)
+        desired[:2] = _clamp_norm(desired[:2], lim.max_horizontal_speed)
+        desired[2] = float(np.clip(desired[2], -lim.max_vertical_speed, lim.max_vertical_speed))
+        if setpoint.max_speed is not None:
+            desired = _clamp_norm(desired, setpoint.max_speed)
+        return desired
+
+    def step(self, dt: float, setpoint: Setpoint | None) -> None:
+        """Advance the true state by ``dt`` seconds toward ``setpoint``.
+
+        ``None`` means motors off: the vehicle stays where it is on the ground (it
+        is only ever disarmed on the ground).
+        """
+        remaining = dt
+        while remaining > 1e-12:
+            h = min(MAX_INTEGRATION_STEP_S, remaining)
+            remaining -= h
+            if setpoint is None:
+                self.velocity = np.zeros(3)
+                continue
+            self._substep(h, setpoint)
+
+    def _substep(self, h: float, setpoint: Setpoint) -> None:
+        lim = self.limits
+        change = self.desired_velocity(setpoint) - self.velocity
+        change[:2] = _clamp_norm(change[:2], lim.max_horizontal_acceleration * h)
+        change[2] = float(np.clip(change[2], -lim.max_vertical_acceleration * h,
+                                  lim.max_vertical_acceleration * h))
+        new_velocity = self.velocity + change
+        self.position = self.position + 0.5 * (self.velocity + new_velocity) * h
+        self.velocity = new_velocity
+        if self.position[2] <= self.ground_z and self.velocity[2] <= 0.0:
+            # Ground contact: no sinking, no sliding.
+            self.position[2] = self.ground_z
+            self.velocity = np.zeros(3)
+        max_turn = lim.max_yaw_rate * h
+        if setpoint.yaw is not None:
+            error = wrap_angle(setpoint.yaw - self.yaw)
+            self.yaw = wrap_angle(self.yaw + float(np.clip(error, -max_turn, max_turn)))
+        elif setpoint.yaw_rate is not None:
+            self.yaw = wrap_angle(self.yaw + float(np.clip(setpoint.yaw_rate * h, -max_turn, max_turn)))
+
+    def on_ground(self) -> bool:
+        """Landed: within LANDED_HEIGHT_M of the ground and slower than LANDED_SPEED_MPS."""
+        return bool(self.position[2] - self.ground_z <= LANDED_HEIGHT_M
+                    and np.linalg.norm(self.velocity) < LANDED_SPEED_MPS)
+
+
+class SimClock:
+    """Simulated time in seconds; shared by the vehicle and the simulated sensors."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self.now = as_finite(start, "start")
+
+    def advance(self, dt: float) -> float:
+        """Move time forward by ``dt`` s and return the new time."""
+        self.now += dt
+        return self.now
+
+
+class KinematicVehicle:
+    """A PX4-like multirotor simulated in process; implements ``Vehicle``.
+
+    Flight sequence as with PX4: stream ``send_setpoint`` (offboard needs the
+    stream), ``arm``, ``start_offboard`` (or ``takeoff`` first: AUTO_TAKEOFF
+    climbs during ``advance`` calls and switches to HOLD on arrival), keep
+    streaming setpoints every tick while calling ``advance(dt)``, then ``land``.
+    If setpoints stop for ``params.offboard_loss_timeout`` of simulated time in
+    OFFBOARD, the vehicle falls back to HOLD and ``state().fault`` says why.
+    """
+
+    def __init__(
+        self,
+        *,
+        start_position: object = (0.0, 0.0, 0.0),
+        start_yaw: float = 0.0,
+        limits: MotionLimits | None = None,
+        params: AutopilotParameters | None = None,
+        noise: OdometryNoise | None = None,
+        seed: int | None = 0,
+        clock: SimClock | None = None,
+    ) -> None:
+        position = as_vector3(start_position, "start_position")
+        self.model = MultirotorModel(
+            limits=limits or MotionLimits(),
+            position=position,
+            yaw=wrap_angle(as_finite(start_yaw, "start_yaw")),
+            ground_z=float(position[2]),
+        )
+        self.params = params or AutopilotParameters()
+        self.noise = noise or OdometryNoise()
+        self.clock = clock or SimClock()
+        self.home = position.copy()
+        self.armed = False
+        self.mode = FlightMode.HOLD
+        self.battery_fraction = 1.0
+        self.fault: str | None = None
+        self.captures: list[CapturedImage] = []
+        self.position_valid = True
+        self._rng = np.random.default_rng(seed)
+        self._gps_offset = np.zeros(3)
+        self._setpoint: Setpoint | None = None
+        self._last_setpoint_time = -math.inf
+        self._hold_position = position.copy()
+        self._hold_yaw = self.model.yaw
+        self._takeoff_target: np.ndarray | None = None
+        self._rtl_phase = ""
+        self._landed_since: float | None = self.clock.now
+        self._armed_since = -math.inf
+        self._has_taken_off = False
+        self._closed = False
+
+    # -- Vehicle protocol ------------------------------------------------------
+
+    def state(self) -> VehicleState:
+        """Odometry as published: true state plus noise (and any GPS glitch offset)."""
+        self._check_open()
+        model = self.model
+        position = model.position + self._gps_offset
+        velocity = model.velocity.copy()
+        yaw = model.yaw
+        if self.noise.position > 0.0:
+            position = position + self._rng.normal(0.0, self.noise.position, 3)
+        if self.noise.velocity > 0.0:
+            velocity = velocity + self._rng.normal(0.0, self.noise.velocity, 3)
+        if self.noise.yaw > 0.0:
+            yaw = wrap_angle(yaw + float(self._rng.normal(0.0, self.noise.yaw)))
+        return VehicleState(
+            time=self.clock.now,
+            position=position,
+            velocity=velocity,
+            yaw=yaw,
+            armed=self.armed,
+            mode=self.mode.value,
+            landed=self.landed,
+            battery_fraction=self.battery_fraction,
+            healthy=self.fault is None and self.position_valid,
+            fault=self.fault,
+        )
+
+    def arm(self) -> None:
+        """Arm the motors; a no-op when already armed (PX4 answers ACCEPTED)."""
+        self._check_open()
+        if self.armed:
+            return
+        if not self.position_valid:
+            raise CommandRefused("arm", "no valid position estimate")
+        if self.battery_fraction <= self.params.battery_critical:
+            raise CommandRefused("arm", f"battery critical ({self.battery_fraction:.0%})")
+        if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():
+            raise CommandRefused("arm", "offboard mode without a setpoint stream")
+        self.armed = True
+        self._armed_since = self.clock.now
+        self._has_taken_off = False
+        self.home = self.model.position.copy()
+        if self.mode == FlightMode.HOLD:
+            self._enter_hold_here()
+
+    def disarm(self) -> None:
+        """Disarm; refused in the air as PX4 does (no forced disarm here)."""
+        self._check_open()
+        if not self.armed:
+            return
+        if not self.landed:
+            raise CommandRefused("disarm", "not landed")
+        self._disarm()
+
+    def set_mode(self, mode: FlightMode | str) -> None:
+        """Switch flight mode as MAV_CMD_DO_SET_MODE does (PX4's mode requirements)."""
+        self._check_open()
+        try:
+            target = FlightMode(mode)
+        except ValueError as exc:
+            raise ValueError(f"mode must be one of {[m.value for m in FlightMode]}, got {mode!r}") from exc
+        if target == self.mode:
+            return
+        if target == FlightMode.OFFBOARD:
+            if not self._setpoints_fresh():
+                raise CommandRefused("set mode OFFBOARD", "no offboard setpoint stream")
+            if not self.position_valid:
+                raise CommandRefused("set mode OFFBOARD", "no valid position estimate")
+        elif target in (FlightMode.POSCTL, FlightMode.HOLD, FlightMode.TAKEOFF,
+                        FlightMode.RTL, FlightMode.MISSION) and not self.position_valid:
+            raise CommandRefused(f"set mode {target.value}", "no valid position estimate")
+        if target == FlightMode.TAKEOFF:
+            self._begin_takeoff(self.params.return_altitude if self._takeoff_target is None
+                                else float(self._takeoff_target[2] - self.home[2]))
+            return
+        self._switch(target)
+
+    def start_offboard(self) -> None:
+        """Switch to OFFBOARD; refused unless setpoints arrived within COM_OF_LOSS_T."""
+        self.set_mode(FlightMode.OFFBOARD)
+
+    def takeoff(self, altitude: float) -> None:
+        """Start AUTO_TAKEOFF to ``altitude`` m above home; the climb happens in ``advance``.
+
+        Refused while disarmed (the mission must arm first).
+        """
+        self._check_open()
+        altitude = as_finite(altitude, "altitude")
+        if altitude <= 0.0:
+            raise ValueError(f"altitude must be > 0 m, got {altitude!r}")
+        if not self.armed:
+            raise CommandRefused("takeoff", "vehicle is disarmed")
+        if not self.position_valid:
+            raise CommandRefused("takeoff", "no valid position estimate")
+        self._begin_takeoff(altitude)
+
+    def send_setpoint(
+        self, position: np.ndarray, velocity: np.ndarray | None = None, yaw: float | None = None
+    ) -> None:
+        """Stream a position (+ velocity feed-forward, + yaw) setpoint in W."""
+        self.command_setpoint(Setpoint(
+            position=as_vector3(position, "position"),
+            velocity=None if velocity is None else as_vector3(velocity, "velocity"),
+            yaw=None if yaw is None else as_finite(yaw, "yaw"),
+        ))
+
+    def command_setpoint(self, setpoint: Setpoint) -> None:
+        """Accept any offboard setpoint (used by the MAVLink sim for every type_mask)."""
+        self._check_open()
+        self._setpoint = setpoint
+        self._last_setpoint_time = self.clock.now
+
+    def advance(self, dt: float) -> VehicleState:
+        """Let ``dt`` seconds of simulated time pass, run the autopilot, return ``state()``."""
+        self._check_open()
+        dt = as_finite(dt, "dt")
+        if dt <= 0.0:
+            raise ValueError(f"dt must be > 0 s, got {dt!r}")
+        remaining = dt
+        while remaining > 1e-12:
+            h = min(MAX_INTEGRATION_STEP_S, remaining)
+            remaining -= h
+            self._autopilot_step(h)
+        return self.state()
+
+    def capture_image(self) -> None:
+        """Trigger the camera; the true pose at this instant is appended to ``captures``."""
+        self._check_open()
+        self.captures.append(CapturedImage(
+            index=len(self.captures),
+            time=self.clock.now,
+            position=self.model.position.copy(),
+            yaw=self.model.yaw,
+        ))
+
+    def land(self) -> None:
+        """Switch to AUTO_LAND at the current position (always accepted, as in PX4)."""
+        self._check_open()
+        self._switch(FlightMode.LAND)
+
+    def return_to_launch(self) -> None:
+        """Switch to AUTO_RTL: climb to RTL altitude, fly home, land."""
+        self.set_mode(FlightMode.RTL)
+
+    def close(self) -> None:
+        """Release the vehicle; later calls raise VehicleError."""
+        self._closed = True
+
+    # -- fault injection -------------------------------------------------------
+
+    def inject_gps_glitch(self, offset: object) -> None:
+        """Offset the published position by ``offset`` (m, W) until cleared with zeros."""
+        self._gps_offset = as_vector3(offset, "offset")
+
+    def inject_position_loss(self, lost: bool = True) -> None:
+        """Lose (or regain) the position estimate: the vehicle holds in place (PX4
+        would descend) and refuses arming and position modes while lost."""
+        self.position_valid = not lost
+        if lost and self.armed and self.mode != FlightMode.LAND:
+            self.fault = "position estimate lost"
+            self._switch(FlightMode.LAND)
+
+    # -- internals ---------------------------------------------------------------
+
+    @property
+    def landed(self) -> bool:
+        return self.model.on_ground()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise VehicleError("vehicle is closed")
+
+    def _setpoints_fresh(self) -> bool:
+        return self.clock.now - self._last_setpoint_time <= self.params.offboard_loss_timeout
+
+    def _switch(self, mode: FlightMode) -> None:
+        self.mode = mode
+        if mode in (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.MISSION):
+            self._enter_hold_here()
+        elif mode == FlightMode.RTL:
+            self._rtl_phase = "climb"
+
+    def _enter_hold_here(self) -> None:
+        self._hold_position = self.model.position.copy()
+        self._hold_yaw = self.model.yaw
+
+    def _begin_takeoff(self, altitude: float) -> None:
+        self._takeoff_target = np.array([self.model.position[0], self.model.position[1],
+                                         self.home[2] + altitude])
+        self.mode = FlightMode.TAKEOFF
+
+    def _disarm(self) -> None:
+        self.armed = False
+        self._takeoff_target = None
+        self.mode = FlightMode.HOLD
+        self._enter_hold_here()
+
+    def _failsafe(self, mode: FlightMode, reason: str) -> None:
+        self.fault = reason
+        self._switch(mode)
+
+    def _active_setpoint(self) -> Setpoint:
+        """The setpoint the position controller tracks in the current mode."""
+        mode = self.mode
+        if mode == FlightMode.OFFBOARD and self._setpoint is not None:
+            return self._setpoint
+        if mode == FlightMode.TAKEOFF and self._takeoff_target is not None:
+            return Setpoint(position=self._takeoff_target, yaw=self._hold_yaw,
+                            max_speed=self.params.takeoff_speed)
+        if mode == FlightMode.LAND:
+            return Setpoint(velocity=np.array([0.0, 0.0, -self.params.land_speed]))
+        if mode == FlightMode.RTL:
+            return self._rtl_setpoint()
+        if not self.position_valid:
+            return Setpoint(velocity=np.zeros(3))
+        return Setpoint(position=self._hold_position, yaw=self._hold_yaw)
+
+    def _rtl_setpoint(self) -> Setpoint:
+        pos = self.model.position
+        cruise_z = max(pos[2], self.home[2] + self.params.return_altitude)
+        if self._rtl_phase == "climb":
+            if pos[2] >= self.home[2] + self.params.return_altitude - TAKEOFF_REACHED_M:
+                self._rtl_phase = "return"
+            else:
+                return Setpoint(position=np.array([pos[0], pos[1], cruise_z]))
+        above_home = np.array([self.home[0], self.home[1], cruise_z])
+        if self._rtl_phase == "return":
+            if np.linalg.norm(above_home[:2] - pos[:2]) < TAKEOFF_REACHED_M:
+                self._rtl_phase = "land"
+            else:
+                return Setpoint(position=above_home)
+        return Setpoint(position=np.array([self.home[0], self.home[1], pos[2]]),
+                        velocity=np.array([0.0, 0.0, -self.params.land_speed]))
+
+    def _autopilot_step(self, h: float) -> None:
+        p = self.params
+        now = self.clock.advance(h)
+        if self.armed:
+            self.battery_fraction = max(0.0, self.battery_fraction - p.battery_drain_per_s * h)
+            if (self.battery_fraction <= p.battery_critical and not self.landed
+                    and self.mode not in (FlightMode.RTL, FlightMode.LAND)):
+                self._failsafe(FlightMode.RTL, f"battery critical ({self.battery_fraction:.0%})")
+            if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():
+                self._failsafe(FlightMode.HOLD,
+                               f"offboard setpoints lost for more than {p.offboard_loss_timeout:g} s")
+        self.model.step(h, self._active_setpoint() if self.armed else None)
+        if self.armed and self.mode == FlightMode.TAKEOFF and self._takeoff_target is not None \
+                and np.linalg.norm(self._takeoff_target - self.model.position) < TAKEOFF_REACHED_M:
+            self._takeoff_target = None
+            self._switch(FlightMode.HOLD)
+        landed = self.landed
+        if not landed and self.armed:
+            self._has_taken_off = True
+            self._landed_since = None
+        elif self._landed_since is None:
+            self._landed_since = now
+        if self.armed and landed:
+            # PX4: COM_DISARM_LAND after a landing, COM_DISARM_PRFLT when no
+            # takeoff followed arming; a value of 0 disables the check.
+            if self._has_taken_off:
+                since = now if self._landed_since is None else self._landed_since
+                delay = p.disarm_land_delay
+            else:
+                since, delay = self._armed_since, p.preflight_disarm_delay
+            if delay > 0.0 and now - since >= delay:
+                self._disarm()
