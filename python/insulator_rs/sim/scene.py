@@ -20,13 +20,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from insulator_rs.exceptions import ConfigError
+
 InsulatorKind = Literal["strain", "suspension"]
 INSULATOR_KINDS: tuple[str, ...] = ("strain", "suspension")
 
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 
-class SceneError(ValueError):
+class SceneError(ConfigError):
     """A scene description is missing a field or holds an invalid or contradictory value."""
 
 
