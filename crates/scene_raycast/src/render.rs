@@ -1,0 +1,298 @@
+//! A ray-cast camera renderer: Lambert shading with sun shadows, sky gradient,
+//! an infinite ground plane beyond the scene, exponential haze and sensor noise.
+//!
+//! The camera is described only by a per-pixel table of unit rays in its optical
+//! frame C (z forward, x right, y down), so any lens model (OpenCV distortion
+//! included) is handled by whoever builds the table. Colours are linear RGB in
+//! [0, 1]; the output is gamma-encoded 8-bit RGB.
+
+use nalgebra::{Matrix3, Point3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+
+use crate::error::RaycastError;
+use crate::scene::{check_finite_rows, unit_directions, Scene};
+
+/// Shadow rays start this far (m) off the surface, along its normal, so that
+/// they do not hit the surface they leave.
+pub const SHADOW_OFFSET: f64 = 2e-3;
+/// Display gamma of the 8-bit output.
+const GAMMA: f64 = 2.2;
+
+/// Lighting, atmosphere and sensor settings of one render.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lighting {
+    /// Unit vector from the scene toward the sun, W.
+    pub sun_direction: Vector3<f64>,
+    /// Sun irradiance colour (linear RGB, a surface facing the sun gets albedo * this).
+    pub sun_color: [f64; 3],
+    /// Ambient (sky) irradiance colour, linear RGB.
+    pub ambient: [f64; 3],
+    /// Sky colour straight up, linear RGB.
+    pub sky_zenith: [f64; 3],
+    /// Sky colour at the horizon; also the colour haze fades toward.
+    pub sky_horizon: [f64; 3],
+    /// Albedo of the infinite ground plane z = `ground_height` beyond the scene.
+    pub ground_color: [f64; 3],
+    /// Height of that plane in W, m.
+    pub ground_height: f64,
+    /// Haze extinction coefficient, 1/m (0 = clear air).
+    pub haze_density: f64,
+    /// Standard deviation of the additive Gaussian image noise, 8-bit counts.
+    pub noise_sigma: f64,
+    /// Seed of the noise.
+    pub seed: u64,
+    /// Cast a shadow ray toward the sun from every lit surface point.
+    pub shadows: bool,
+    /// Farthest geometry seen, m (> 0, may be infinite).
+    pub max_range: f64,
+}
+
+impl Default for Lighting {
+    fn default() -> Self {
+        Self {
+            sun_direction: Vector3::new(0.5, 0.3, 0.81).normalize(),
+            sun_color: [1.0, 0.97, 0.9],
+            ambient: [0.35, 0.38, 0.45],
+            sky_zenith: [0.25, 0.45, 0.85],
+            sky_horizon: [0.75, 0.82, 0.92],
+            ground_color: [0.3, 0.35, 0.22],
+            ground_height: 0.0,
+            haze_density: 0.0,
+            noise_sigma: 0.0,
+            seed: 0,
+            shadows: true,
+            max_range: 1000.0,
+        }
+    }
+}
+
+impl Lighting {
+    fn validate(&self) -> Result<Vector3<f64>, RaycastError> {
+        let sun_norm = self.sun_direction.norm();
+        if !(sun_norm.is_finite() && sun_norm > 0.0) {
+            return Err(RaycastError::BadParameter {
+                name: "sun_direction",
+                reason: "must be a finite non-zero vector",
+                value: sun_norm,
+            });
+        }
+        let colours = [
+            ("sun_color", self.sun_color),
+            ("ambient", self.ambient),
+            ("sky_zenith", self.sky_zenith),
+            ("sky_horizon", self.sky_horizon),
+            ("ground_color", self.ground_color),
+        ];
+        for (name, colour) in colours {
+            if let Some(&bad) = colour.iter().find(|c| !(c.is_finite() && **c >= 0.0)) {
+                return Err(RaycastError::BadParameter {
+                    name,
+                    reason: "components must be finite and >= 0",
+                    value: bad,
+                });
+            }
+        }
+        let scalars = [
+            ("haze_density", self.haze_density),
+            ("noise_sigma", self.noise_sigma),
+        ];
+        for (name, value) in scalars {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(RaycastError::BadParameter {
+                    name,
+                    reason: "must be finite and >= 0",
+                    value,
+                });
+            }
+        }
+        if !self.ground_height.is_finite() {
+            return Err(RaycastError::BadParameter {
+                name: "ground_height",
+                reason: "must be finite",
+                value: self.ground_height,
+            });
+        }
+        crate::scene::validate_max_range(self.max_range)?;
+        Ok(self.sun_direction / sun_norm)
+    }
+}
+
+/// A rendered frame: row-major, `width * height` pixels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub width: usize,
+    pub height: usize,
+    /// Gamma-encoded RGB, 3 bytes per pixel.
+    pub rgb: Vec<u8>,
+    /// Instance id seen by each pixel, -1 for sky and the ground beyond the scene.
+    pub instance_id: Vec<i32>,
+    /// Distance along the pixel's ray to the scene, m (infinite where id is -1).
+    pub depth: Vec<f32>,
+}
+
+/// Renders the scene from a camera at `position` (W, m) with orientation
+/// `rotation_w_c` (maps C vectors to W), through `rays_c` (one ray per pixel
+/// in C, row-major, need not be unit), into a `width` x `height` image.
+/// `albedo[id]` is the linear RGB colour of instance `id` (ids beyond the table
+/// are mid-grey).
+#[allow(clippy::too_many_arguments)]
+pub fn render(
+    scene: &Scene,
+    rotation_w_c: &Matrix3<f64>,
+    position: &Point3<f64>,
+    rays_c: &[[f64; 3]],
+    width: usize,
+    height: usize,
+    albedo: &[[f64; 3]],
+    lighting: &Lighting,
+) -> Result<Image, RaycastError> {
+    if width == 0 || height == 0 {
+        return Err(RaycastError::BadParameter {
+            name: "width/height",
+            reason: "image size must be at least 1x1",
+            value: (width.min(height)) as f64,
+        });
+    }
+    let n_pixels = width.checked_mul(height).ok_or(RaycastError::BadParameter {
+        name: "width/height",
+        reason: "image too large",
+        value: width as f64,
+    })?;
+    if rays_c.len() != n_pixels {
+        return Err(RaycastError::LengthMismatch {
+            name: "rays_c",
+            expected: n_pixels,
+            got: rays_c.len(),
+        });
+    }
+    if !(rotation_w_c.iter().all(|c| c.is_finite())
+        && (rotation_w_c.transpose() * rotation_w_c - Matrix3::identity()).norm() < 1e-6
+        && rotation_w_c.determinant() > 0.0)
+    {
+        return Err(RaycastError::BadParameter {
+            name: "T_w_c",
+            reason: "rotation part must be a proper rotation matrix",
+            value: rotation_w_c.determinant(),
+        });
+    }
+    check_finite_rows("position", &[[position.x, position.y, position.z]])?;
+    if let Some(&bad) = albedo
+        .iter()
+        .flatten()
+        .find(|c| !(c.is_finite() && **c >= 0.0))
+    {
+        return Err(RaycastError::BadParameter {
+            name: "albedo",
+            reason: "components must be finite and >= 0",
+            value: bad,
+        });
+    }
+    let sun = lighting.validate()?;
+    let rays = unit_directions("rays_c", rays_c)?;
+
+    let mut rgb = vec![0u8; n_pixels * 3];
+    let mut ids = vec![-1i32; n_pixels];
+    let mut depth = vec![f32::INFINITY; n_pixels];
+    rgb.par_chunks_mut(width * 3)
+        .zip(ids.par_chunks_mut(width))
+        .zip(depth.par_chunks_mut(width))
+        .enumerate()
+        .for_each(|(row, ((rgb_row, id_row), depth_row))| {
+            // One generator per row keeps the noise independent of the thread count.
+            let mut rng = Pcg64Mcg::seed_from_u64(
+                lighting
+                    .seed
+                    .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                    .wrapping_add(row as u64),
+            );
+            for col in 0..width {
+                let dir = rotation_w_c * rays[row * width + col];
+                let (colour, id, dist) = shade(scene, position, &dir, albedo, lighting, &sun);
+                id_row[col] = id;
+                depth_row[col] = dist as f32;
+                for k in 0..3 {
+                    let encoded = 255.0 * colour[k].clamp(0.0, 1.0).powf(1.0 / GAMMA);
+                    let noisy = if lighting.noise_sigma > 0.0 {
+                        encoded + lighting.noise_sigma * standard_normal(&mut rng)
+                    } else {
+                        encoded
+                    };
+                    rgb_row[col * 3 + k] = noisy.round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        });
+    Ok(Image {
+        width,
+        height,
+        rgb,
+        instance_id: ids,
+        depth,
+    })
+}
+
+/// Colour (linear RGB), instance id and distance seen along one unit ray in W.
+fn shade(
+    scene: &Scene,
+    origin: &Point3<f64>,
+    dir: &Vector3<f64>,
+    albedo: &[[f64; 3]],
+    lighting: &Lighting,
+    sun: &Vector3<f64>,
+) -> ([f64; 3], i32, f64) {
+    let haze = |colour: [f64; 3], distance: f64| -> [f64; 3] {
+        let transmission = (-lighting.haze_density * distance).exp();
+        std::array::from_fn(|k| {
+            colour[k] * transmission + lighting.sky_horizon[k] * (1.0 - transmission)
+        })
+    };
+    let sun_elevation_factor = sun.z.max(0.0);
+    if let Some(hit) = scene.cast_one(origin, dir, lighting.max_range) {
+        // Face-forward normal: thin open surfaces are lit from whichever side is seen.
+        let normal = if hit.normal.dot(dir) > 0.0 {
+            -hit.normal
+        } else {
+            hit.normal
+        };
+        let mut direct = normal.dot(sun).max(0.0);
+        if direct > 0.0 && lighting.shadows {
+            let point = origin + dir * hit.distance + normal * SHADOW_OFFSET;
+            if scene.cast_one(&point, sun, lighting.max_range).is_some() {
+                direct = 0.0;
+            }
+        }
+        let base = usize::try_from(hit.instance_id)
+            .ok()
+            .and_then(|i| albedo.get(i))
+            .copied()
+            .unwrap_or([0.5; 3]);
+        let lit = std::array::from_fn(|k| {
+            base[k] * (lighting.ambient[k] + lighting.sun_color[k] * direct)
+        });
+        return (haze(lit, hit.distance), hit.instance_id, hit.distance);
+    }
+    let height_above_ground = origin.z - lighting.ground_height;
+    if dir.z < 0.0 && height_above_ground > 0.0 {
+        // The ground beyond the scene: flat, lit, never shadowed, hazed by distance.
+        let distance = height_above_ground / -dir.z;
+        let lit = std::array::from_fn(|k| {
+            lighting.ground_color[k]
+                * (lighting.ambient[k] + lighting.sun_color[k] * sun_elevation_factor)
+        });
+        return (haze(lit, distance), -1, f64::INFINITY);
+    }
+    // Sky: horizon colour blending into the zenith colour with elevation.
+    let up = dir.z.clamp(0.0, 1.0).sqrt();
+    let sky = std::array::from_fn(|k| {
+        lighting.sky_horizon[k] * (1.0 - up) + lighting.sky_zenith[k] * up
+    });
+    (sky, -1, f64::INFINITY)
+}
+
+/// One standard normal sample (Box-Muller; rand 0.9 without rand_distr).
+fn standard_normal(rng: &mut Pcg64Mcg) -> f64 {
+    let u1: f64 = 1.0 - rng.random::<f64>(); // (0, 1]
+    let u2: f64 = rng.random::<f64>();
+    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+}

@@ -1,0 +1,308 @@
+//! A triangle scene in the world frame W and batched ray casting against it.
+//!
+//! The BVH is parry3d's (`TriMesh`, single precision). parry3d 0.25 is f32, which
+//! alone would put hit distances off by ~1e-5 m at tower scale, so the BVH only
+//! picks the triangle: the distance is then recomputed in f64 against that
+//! triangle's plane from the original f64 vertices. Vertices are stored relative
+//! to the centre of the scene's bounds to keep the f32 BVH as precise as it can be.
+
+use nalgebra::{Point3, Vector3};
+use parry3d::query::Ray;
+use parry3d::shape::{CompositeShapeRef, TriMesh};
+use rayon::prelude::*;
+
+use crate::error::RaycastError;
+
+/// Triangles with a smaller area (m^2) are refused as degenerate.
+pub const MIN_TRIANGLE_AREA: f64 = 1e-14;
+/// Rays handed to one rayon task at a time.
+const RAYS_PER_TASK: usize = 512;
+/// |n . d| below this keeps the BVH's distance instead of the plane refinement
+/// (a ray grazing a triangle's plane has an ill-conditioned plane intersection).
+const GRAZING_DENOMINATOR: f64 = 1e-9;
+
+/// The result of one ray.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Distance along the unit direction, m.
+    pub distance: f64,
+    /// Index of the triangle hit.
+    pub triangle: u32,
+    /// Instance id of that triangle.
+    pub instance_id: i32,
+    /// Unit geometric normal of the triangle in W, oriented by its winding
+    /// (counter-clockwise = front); it may face away from the ray (a back face).
+    pub normal: Vector3<f64>,
+}
+
+/// Hits of a batch of rays, one entry per ray (structure of arrays).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Hits {
+    /// m; `f64::INFINITY` on a miss.
+    pub distance: Vec<f64>,
+    /// -1 on a miss.
+    pub instance_id: Vec<i32>,
+    /// -1 on a miss.
+    pub triangle: Vec<i64>,
+    /// Unit winding normal in W; zero on a miss.
+    pub normal: Vec<[f64; 3]>,
+}
+
+impl Hits {
+    fn from_options(hits: Vec<Option<Hit>>) -> Self {
+        let n = hits.len();
+        let mut out = Hits {
+            distance: Vec::with_capacity(n),
+            instance_id: Vec::with_capacity(n),
+            triangle: Vec::with_capacity(n),
+            normal: Vec::with_capacity(n),
+        };
+        for hit in hits {
+            match hit {
+                Some(h) => {
+                    out.distance.push(h.distance);
+                    out.instance_id.push(h.instance_id);
+                    out.triangle.push(i64::from(h.triangle));
+                    out.normal.push([h.normal.x, h.normal.y, h.normal.z]);
+                }
+                None => {
+                    out.distance.push(f64::INFINITY);
+                    out.instance_id.push(-1);
+                    out.triangle.push(-1);
+                    out.normal.push([0.0; 3]);
+                }
+            }
+        }
+        out
+    }
+
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.distance.len()
+    }
+
+    /// True when the batch held no ray.
+    pub fn is_empty(&self) -> bool {
+        self.distance.is_empty()
+    }
+}
+
+/// A static triangle scene in W with one instance id per triangle.
+pub struct Scene {
+    bvh_mesh: TriMesh,
+    /// W coordinates of the origin of the BVH's (f32) frame.
+    center: Vector3<f64>,
+    vertices: Vec<Point3<f64>>,
+    triangles: Vec<[u32; 3]>,
+    normals: Vec<Vector3<f64>>,
+    instance_ids: Vec<i32>,
+}
+
+impl std::fmt::Debug for Scene {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Scene")
+            .field("n_vertices", &self.vertices.len())
+            .field("n_triangles", &self.triangles.len())
+            .finish()
+    }
+}
+
+impl Scene {
+    /// Builds a scene, validating every input.
+    ///
+    /// `vertices` in W (m), `triangles` as vertex indices, `instance_ids` one
+    /// non-negative id per triangle.
+    pub fn new(
+        vertices: &[[f64; 3]],
+        triangles: &[[u32; 3]],
+        instance_ids: &[i32],
+    ) -> Result<Self, RaycastError> {
+        if triangles.is_empty() {
+            return Err(RaycastError::EmptyScene);
+        }
+        if instance_ids.len() != triangles.len() {
+            return Err(RaycastError::InstanceCountMismatch {
+                expected: triangles.len(),
+                got: instance_ids.len(),
+            });
+        }
+        if let Some(index) = vertices
+            .iter()
+            .position(|v| !v.iter().all(|c| c.is_finite()))
+        {
+            return Err(RaycastError::NonFiniteVertex { index });
+        }
+        if let Some((triangle, &id)) = instance_ids.iter().enumerate().find(|(_, &id)| id < 0) {
+            return Err(RaycastError::NegativeInstanceId { triangle, id });
+        }
+        let points: Vec<Point3<f64>> = vertices
+            .iter()
+            .map(|v| Point3::new(v[0], v[1], v[2]))
+            .collect();
+        let mut normals = Vec::with_capacity(triangles.len());
+        for (t, tri) in triangles.iter().enumerate() {
+            for &vertex in tri {
+                if vertex as usize >= points.len() {
+                    return Err(RaycastError::IndexOutOfRange {
+                        triangle: t,
+                        vertex,
+                        n_vertices: points.len(),
+                    });
+                }
+            }
+            let [a, b, c] = tri.map(|i| points[i as usize]);
+            let cross = (b - a).cross(&(c - a));
+            let area = 0.5 * cross.norm();
+            // `!(area >= MIN)` also catches a NaN area from overflowing coordinates.
+            if area.is_nan() || area < MIN_TRIANGLE_AREA {
+                return Err(RaycastError::DegenerateTriangle { triangle: t, area });
+            }
+            normals.push(cross / (2.0 * area));
+        }
+        let (lo, hi) = points.iter().fold(
+            (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
+        );
+        let center = 0.5 * (lo + hi);
+        let local: Vec<Point3<f32>> = points
+            .iter()
+            .map(|p| Point3::from((p.coords - center).map(|c| c as f32)))
+            .collect();
+        let bvh_mesh = TriMesh::new(local, triangles.to_vec())
+            .map_err(|e| RaycastError::Build(e.to_string()))?;
+        Ok(Self {
+            bvh_mesh,
+            center,
+            vertices: points,
+            triangles: triangles.to_vec(),
+            normals,
+            instance_ids: instance_ids.to_vec(),
+        })
+    }
+
+    /// Number of triangles.
+    pub fn n_triangles(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Unit winding normal of triangle `t` in W (None if out of range).
+    pub fn triangle_normal(&self, t: usize) -> Option<Vector3<f64>> {
+        self.normals.get(t).copied()
+    }
+
+    /// Instance id of triangle `t` (None if out of range).
+    pub fn triangle_instance(&self, t: usize) -> Option<i32> {
+        self.instance_ids.get(t).copied()
+    }
+
+    /// Casts one ray; `direction` must be a unit vector, `max_range` > 0 (may be
+    /// infinite). Returns the nearest hit with distance in [0, max_range].
+    pub fn cast_one(
+        &self,
+        origin: &Point3<f64>,
+        direction: &Vector3<f64>,
+        max_range: f64,
+    ) -> Option<Hit> {
+        let local = origin.coords - self.center;
+        let ray = Ray::new(
+            Point3::from(local.map(|c| c as f32)),
+            direction.map(|c| c as f32),
+        );
+        // A little slack so that f32 rounding cannot lose a hit right at max_range.
+        let bvh_max = if max_range.is_finite() {
+            (max_range * (1.0 + 1e-5) + 1e-3) as f32
+        } else {
+            f32::MAX
+        };
+        let (tri, toi) = CompositeShapeRef(&self.bvh_mesh).cast_local_ray(&ray, bvh_max, true)?;
+        let t = tri as usize;
+        let normal = *self.normals.get(t)?;
+        let denom = normal.dot(direction);
+        let mut distance = f64::from(toi);
+        if denom.abs() > GRAZING_DENOMINATOR {
+            let v0 = self.vertices[self.triangles[t][0] as usize];
+            let refined = normal.dot(&(v0 - origin)) / denom;
+            // The refinement only corrects f32 rounding; a large disagreement means
+            // an ill-conditioned case, where the BVH's answer is kept.
+            if refined.is_finite() && (refined - distance).abs() <= 1e-3 * (1.0 + distance) {
+                distance = refined.max(0.0);
+            }
+        }
+        (distance <= max_range).then(|| Hit {
+            distance,
+            triangle: tri,
+            instance_id: self.instance_ids[t],
+            normal,
+        })
+    }
+
+    /// Casts a batch of rays in parallel.
+    ///
+    /// `origins` and `directions` in W, one row per ray; directions need not be
+    /// unit (they are normalised; distances are in metres along them).
+    /// `max_range` > 0 (m), `f64::INFINITY` allowed.
+    pub fn cast(
+        &self,
+        origins: &[[f64; 3]],
+        directions: &[[f64; 3]],
+        max_range: f64,
+    ) -> Result<Hits, RaycastError> {
+        validate_max_range(max_range)?;
+        if directions.len() != origins.len() {
+            return Err(RaycastError::LengthMismatch {
+                name: "directions",
+                expected: origins.len(),
+                got: directions.len(),
+            });
+        }
+        let units = unit_directions("directions", directions)?;
+        check_finite_rows("origins", origins)?;
+        let hits: Vec<Option<Hit>> = origins
+            .par_iter()
+            .zip(units.par_iter())
+            .with_min_len(RAYS_PER_TASK)
+            .map(|(o, d)| self.cast_one(&Point3::new(o[0], o[1], o[2]), d, max_range))
+            .collect();
+        Ok(Hits::from_options(hits))
+    }
+}
+
+/// `max_range` must be > 0 (infinity allowed), never NaN.
+pub(crate) fn validate_max_range(max_range: f64) -> Result<(), RaycastError> {
+    if max_range.is_nan() || max_range <= 0.0 {
+        return Err(RaycastError::BadParameter {
+            name: "max_range",
+            reason: "must be > 0",
+            value: max_range,
+        });
+    }
+    Ok(())
+}
+
+pub(crate) fn check_finite_rows(name: &'static str, rows: &[[f64; 3]]) -> Result<(), RaycastError> {
+    match rows.iter().position(|r| !r.iter().all(|c| c.is_finite())) {
+        Some(index) => Err(RaycastError::NonFiniteRay { name, index }),
+        None => Ok(()),
+    }
+}
+
+/// Normalises ray directions, refusing non-finite and zero-length rows.
+pub(crate) fn unit_directions(
+    name: &'static str,
+    directions: &[[f64; 3]],
+) -> Result<Vec<Vector3<f64>>, RaycastError> {
+    check_finite_rows(name, directions)?;
+    directions
+        .iter()
+        .enumerate()
+        .map(|(index, d)| {
+            let v = Vector3::new(d[0], d[1], d[2]);
+            let norm = v.norm();
+            if norm > 0.0 && norm.is_finite() {
+                Ok(v / norm)
+            } else {
+                Err(RaycastError::ZeroDirection { name, index })
+            }
+        })
+        .collect()
+}

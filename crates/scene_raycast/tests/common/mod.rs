@@ -1,0 +1,108 @@
+//! Analytic shapes as triangle meshes, shared by the tests and the bench.
+#![allow(dead_code)]
+
+use std::f64::consts::PI;
+
+/// A triangle soup: vertices, triangles, instance ids.
+#[derive(Default, Clone)]
+pub struct Soup {
+    pub vertices: Vec<[f64; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+    pub ids: Vec<i32>,
+}
+
+impl Soup {
+    pub fn add(&mut self, other: Soup) {
+        let offset = self.vertices.len() as u32;
+        self.vertices.extend(other.vertices);
+        self.triangles
+            .extend(other.triangles.iter().map(|t| t.map(|i| i + offset)));
+        self.ids.extend(other.ids);
+    }
+}
+
+/// The square [-h, h]^2 in the plane z = `z`, facing +z.
+pub fn plane_z(z: f64, h: f64, id: i32) -> Soup {
+    Soup {
+        vertices: vec![[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+        ids: vec![id; 2],
+    }
+}
+
+/// The axis-aligned box [lo, hi], outward winding.
+pub fn aabb(lo: [f64; 3], hi: [f64; 3], id: i32) -> Soup {
+    let mut vertices = Vec::new();
+    for ix in 0..2 {
+        for iy in 0..2 {
+            for iz in 0..2 {
+                vertices.push([
+                    if ix == 0 { lo[0] } else { hi[0] },
+                    if iy == 0 { lo[1] } else { hi[1] },
+                    if iz == 0 { lo[2] } else { hi[2] },
+                ]);
+            }
+        }
+    }
+    let quads = [
+        [0, 1, 3, 2],
+        [4, 6, 7, 5],
+        [0, 4, 5, 1],
+        [2, 3, 7, 6],
+        [0, 2, 6, 4],
+        [1, 5, 7, 3],
+    ];
+    let triangles = quads
+        .iter()
+        .flat_map(|[a, b, c, d]| [[*a, *b, *c], [*a, *c, *d]])
+        .collect::<Vec<_>>();
+    let n = triangles.len();
+    Soup {
+        vertices,
+        triangles,
+        ids: vec![id; n],
+    }
+}
+
+/// A capped vertical cylinder around the z axis through (cx, cy), from z0 to
+/// z1, its `segments` polygon vertices on the circle of radius `r` at angles
+/// 2 pi k / segments.
+pub fn cylinder_z(cx: f64, cy: f64, r: f64, z0: f64, z1: f64, segments: u32, id: i32) -> Soup {
+    let mut vertices = Vec::new();
+    for &z in &[z0, z1] {
+        for k in 0..segments {
+            let a = 2.0 * PI * f64::from(k) / f64::from(segments);
+            vertices.push([cx + r * a.cos(), cy + r * a.sin(), z]);
+        }
+    }
+    vertices.push([cx, cy, z0]);
+    vertices.push([cx, cy, z1]);
+    let n = segments;
+    let mut triangles = Vec::new();
+    for i in 0..n {
+        let j = (i + 1) % n;
+        triangles.push([i, j, n + j]);
+        triangles.push([i, n + j, n + i]);
+        triangles.push([2 * n, j, i]);
+        triangles.push([2 * n + 1, n + i, n + j]);
+    }
+    let count = triangles.len();
+    Soup {
+        vertices,
+        triangles,
+        ids: vec![id; count],
+    }
+}
+
+/// A tower-sized test scene: a ground plane and a lattice of `n_members`
+/// slender vertical and diagonal-free members as faceted cylinders.
+pub fn lattice(n_members: u32, segments: u32) -> Soup {
+    let mut soup = plane_z(0.0, 200.0, 0);
+    let side = (f64::from(n_members)).sqrt().ceil() as u32;
+    for m in 0..n_members {
+        let x = -5.0 + 10.0 * f64::from(m % side) / f64::from(side);
+        let y = -5.0 + 10.0 * f64::from(m / side) / f64::from(side);
+        soup.add(cylinder_z(x, y, 0.04, 0.0, 25.0, segments, 1 + (m % 50) as i32));
+    }
+    soup
+}
