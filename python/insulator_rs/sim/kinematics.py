@@ -126,7 +126,8 @@ class AutopilotParameters:
     offboard_loss_timeout [COM_OF_LOSS_T] s; disarm_land_delay [COM_DISARM_LAND]
     s; preflight_disarm_delay [COM_DISARM_PRFLT] s; takeoff_speed [MPC_TKO_SPEED]
     m/s; land_speed [MPC_LAND_SPEED] m/s; return_altitude [RTL_RETURN_ALT] m
-    above home; battery_critical [BAT_CRIT_THR] fraction (below it: RTL, and
+    above home; takeoff_altitude [MIS_TAKEOFF_ALT] m above home, when a takeoff
+    names none; battery_critical [BAT_CRIT_THR] fraction (below it: RTL, and
     arming is refused); battery_drain_per_s: fraction of a full battery used
     per armed second (1/1200: a 20 min flight).
     """
@@ -137,11 +138,12 @@ class AutopilotParameters:
     takeoff_speed: float = 1.5
     land_speed: float = 0.7
     return_altitude: float = 30.0
+    takeoff_altitude: float = 2.5
     battery_critical: float = 0.07
     battery_drain_per_s: float = 1.0 / 1200.0
 
     def __post_init__(self) -> None:
-        for name in ("offboard_loss_timeout", "takeoff_speed", "land_speed"):
+        for name in ("offboard_loss_timeout", "takeoff_speed", "land_speed", "takeoff_altitude"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
@@ -158,7 +160,8 @@ class AutopilotParameters:
 class Setpoint:
     """What the position controller tracks (W frame).
 
-    Any field may be None: no position means velocity control; no velocity means
+    Any field may be None (and position/velocity components NaN, per axis): no
+    position means velocity control; no velocity means
     zero feed-forward (or, with no position either, stop); ``yaw`` (rad, from
     east, counter-clockwise) takes precedence over ``yaw_rate`` (rad/s); with
     neither, the heading is held.
@@ -239,9 +242,12 @@ class MultirotorModel:
     def desired_velocity(self, setpoint: Setpoint) -> np.ndarray:
         """Velocity command for ``setpoint`` before the acceleration limit (m/s, W)."""
         lim = self.limits
-        desired = np.zeros(3) if setpoint.velocity is None else np.array(setpoint.velocity, dtype=float)
+        # A NaN component means "not controlled on this axis" (PX4's convention for
+        # ignored type_mask fields): no feed-forward, no position correction.
+        desired = np.zeros(3) if setpoint.velocity is None \
+            else np.nan_to_num(np.asarray(setpoint.velocity, dtype=float), nan=0.0)
         if setpoint.position is not None:
-            error = np.asarray(setpoint.position, dtype=float) - self.position
+            error = np.nan_to_num(np.asarray(setpoint.position, dtype=float) - self.position, nan=0.0)
             desired[:2] += _position_correction(error[:2], lim.position_gain, lim.max_horizontal_acceleration)
             desired[2:] += _position_correction(error[2:], lim.position_gain, lim.max_vertical_acceleration)
         desired[:2] = _clamp_norm(desired[:2], lim.max_horizontal_speed)
@@ -401,12 +407,12 @@ class KinematicVehicle:
         if self.mode == FlightMode.HOLD:
             self._enter_hold_here()
 
-    def disarm(self) -> None:
-        """Disarm; refused in the air as PX4 does (no forced disarm here)."""
+    def disarm(self, *, force: bool = False) -> None:
+        """Disarm; refused in the air as PX4 does unless ``force`` (PX4's 21196)."""
         self._check_open()
         if not self.armed:
             return
-        if not self.landed:
+        if not self.landed and not force:
             raise CommandRefused("disarm", "not landed")
         self._disarm()
 
@@ -428,8 +434,7 @@ class KinematicVehicle:
                         FlightMode.RTL, FlightMode.MISSION) and not self.position_valid:
             raise CommandRefused(f"set mode {target.value}", "no valid position estimate")
         if target == FlightMode.TAKEOFF:
-            self._begin_takeoff(self.params.return_altitude if self._takeoff_target is None
-                                else float(self._takeoff_target[2] - self.home[2]))
+            self.request_takeoff(self.params.takeoff_altitude)
             return
         self._switch(target)
 
@@ -448,6 +453,15 @@ class KinematicVehicle:
             raise ValueError(f"altitude must be > 0 m, got {altitude!r}")
         if not self.armed:
             raise CommandRefused("takeoff", "vehicle is disarmed")
+        self.request_takeoff(altitude)
+
+    def request_takeoff(self, altitude: float) -> None:
+        """Enter AUTO_TAKEOFF to ``altitude`` m above home, as PX4's NAV_TAKEOFF does:
+        accepted while disarmed too (the climb starts once armed)."""
+        self._check_open()
+        altitude = as_finite(altitude, "altitude")
+        if altitude <= 0.0:
+            raise ValueError(f"altitude must be > 0 m, got {altitude!r}")
         if not self.position_valid:
             raise CommandRefused("takeoff", "no valid position estimate")
         self._begin_takeoff(altitude)
