@@ -1,1 +1,21 @@
-//! placeholder-free stub: filled by the fusion_core work.
+//! fusion_core: camera/LiDAR fusion and insulator localization kernels (pure Rust).
+//!
+//! Frames: L (LiDAR), B (body, FLU), C (camera optical, OpenCV). `T_a_b` maps frame-b
+//! coordinates into frame a. Units: metres, radians, pixels.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
+pub mod camera;
+pub mod culling;
+pub mod dbscan;
+pub mod error;
+pub mod points;
+pub mod projection;
+pub mod transform;
+
+pub use camera::{CameraModel, NEAR_LIMIT};
+pub use culling::{points_in_boxes, PixelBox};
+pub use dbscan::{dbscan, NOISE};
+pub use error::{FusionError, Result};
+pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
+pub use projection::{project_points, Projection};
+pub use transform::{chain, rigid_from_matrix};

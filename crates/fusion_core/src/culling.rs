@@ -1,0 +1,154 @@
+//! Box culling: which points of a LiDAR frame project inside each detection box.
+
+use nalgebra::Isometry3;
+
+use crate::camera::CameraModel;
+use crate::error::{invalid, Result};
+use crate::points::PointCloud;
+use crate::projection::Projector;
+
+/// An axis-aligned pixel box, half-open: x1 <= u < x2, y1 <= v < y2.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelBox {
+    pub x1: f64,
+    pub y1: f64,
+    pub x2: f64,
+    pub y2: f64,
+}
+
+impl PixelBox {
+    /// Validated constructor: finite corners with x2 > x1 and y2 > y1.
+    pub fn new(x1: f64, y1: f64, x2: f64, y2: f64) -> Result<Self> {
+        let b = Self { x1, y1, x2, y2 };
+        b.validate("box")?;
+        Ok(b)
+    }
+
+    fn validate(&self, name: &'static str) -> Result<()> {
+        let c = [self.x1, self.y1, self.x2, self.y2];
+        if c.iter().any(|v| !v.is_finite()) {
+            return Err(invalid(name, format!("corners must be finite, got {c:?}")));
+        }
+        if self.x2 <= self.x1 || self.y2 <= self.y1 {
+            return Err(invalid(name, format!("needs x2 > x1 and y2 > y1 (non-empty area), got {c:?}")));
+        }
+        Ok(())
+    }
+
+    /// True when the pixel is inside the half-open box.
+    #[inline(always)]
+    pub fn contains(&self, uv: [f64; 2]) -> bool {
+        uv[0] >= self.x1 && uv[0] < self.x2 && uv[1] >= self.y1 && uv[1] < self.y2
+    }
+}
+
+/// For each box, the ascending indices of the points that are valid (in front of the
+/// camera, inside the image) and project inside the box. One pass over the cloud.
+///
+/// A box partly outside the image is used as is; a box wholly outside gives an empty list.
+/// Errors (naming `boxes`) on a non-finite, inverted or zero-area box, or `cam` on a bad camera.
+pub fn points_in_boxes<P: PointCloud + ?Sized>(
+    points: &P,
+    t_c_l: &Isometry3<f64>,
+    cam: &CameraModel,
+    boxes: &[PixelBox],
+) -> Result<Vec<Vec<usize>>> {
+    cam.validate()?;
+    for b in boxes {
+        b.validate("boxes")?;
+    }
+    let mut out: Vec<Vec<usize>> = vec![Vec::new(); boxes.len()];
+    if boxes.is_empty() {
+        return Ok(out);
+    }
+    // Union of the boxes clipped to the image: a cheap reject before the per-box tests.
+    let u_lo = boxes.iter().map(|b| b.x1).fold(f64::INFINITY, f64::min).max(0.0);
+    let v_lo = boxes.iter().map(|b| b.y1).fold(f64::INFINITY, f64::min).max(0.0);
+    let u_hi = boxes.iter().map(|b| b.x2).fold(f64::NEG_INFINITY, f64::max).min(f64::from(cam.width));
+    let v_hi = boxes.iter().map(|b| b.y2).fold(f64::NEG_INFINITY, f64::max).min(f64::from(cam.height));
+    if u_hi <= u_lo || v_hi <= v_lo {
+        return Ok(out);
+    }
+    let projector = Projector::new(t_c_l, cam);
+    for i in 0..points.len() {
+        let Some(uv) = projector.pixel(points.point(i)) else { continue };
+        if !(uv[0] >= u_lo && uv[0] < u_hi && uv[1] >= v_lo && uv[1] < v_hi) {
+            continue;
+        }
+        for (b, list) in boxes.iter().zip(out.iter_mut()) {
+            if b.contains(uv) {
+                list.push(i);
+            }
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::projection::project_points;
+    use nalgebra::Vector3;
+    use proptest::prelude::*;
+
+    fn brute(points: &[[f64; 3]], t: &Isometry3<f64>, cam: &CameraModel, boxes: &[PixelBox]) -> Vec<Vec<usize>> {
+        let pr = project_points(points, t, cam);
+        boxes
+            .iter()
+            .map(|b| (0..points.len()).filter(|&i| pr.valid[i] && b.contains(pr.uv[i])).collect())
+            .collect()
+    }
+
+    #[test]
+    fn hand_made_scene() {
+        let cam = CameraModel::new(100.0, 100.0, 50.0, 50.0, 100, 100, [0.0; 5]).unwrap();
+        let t = Isometry3::identity();
+        // Pixels: (50,50), (60,50), (5,5), behind, (150, 50) outside the image.
+        let pts = vec![[0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [-0.45, -0.45, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 1.0]];
+        let boxes = [
+            PixelBox::new(40.0, 40.0, 70.0, 70.0).unwrap(),
+            PixelBox::new(0.0, 0.0, 10.0, 10.0).unwrap(),
+            PixelBox::new(40.0, 40.0, 200.0, 60.0).unwrap(), // partly outside: point 4 must not appear
+            PixelBox::new(300.0, 300.0, 400.0, 400.0).unwrap(), // wholly outside
+            PixelBox::new(60.0, 0.0, 61.0, 100.0).unwrap(),  // u = 60 is on the inclusive edge
+        ];
+        let got = points_in_boxes(&pts, &t, &cam, &boxes).unwrap();
+        assert_eq!(got, vec![vec![0, 1], vec![2], vec![0, 1], vec![], vec![1]]);
+        assert_eq!(got, brute(&pts, &t, &cam, &boxes));
+        assert_eq!(points_in_boxes(&pts, &t, &cam, &[]).unwrap(), Vec::<Vec<usize>>::new());
+    }
+
+    #[test]
+    fn bad_boxes_are_rejected() {
+        assert!(PixelBox::new(10.0, 0.0, 10.0, 5.0).is_err());
+        assert!(PixelBox::new(10.0, 0.0, 5.0, 5.0).is_err());
+        assert!(PixelBox::new(0.0, f64::NAN, 5.0, 5.0).is_err());
+        let cam = CameraModel::new(100.0, 100.0, 50.0, 50.0, 100, 100, [0.0; 5]).unwrap();
+        let inverted = PixelBox { x1: 5.0, y1: 0.0, x2: 1.0, y2: 4.0 };
+        match points_in_boxes(&vec![[0.0, 0.0, 1.0]], &Isometry3::identity(), &cam, &[inverted]) {
+            Err(crate::FusionError::InvalidArgument { name, .. }) => assert_eq!(name, "boxes"),
+            other => panic!("expected InvalidArgument, got {other:?}"),
+        }
+    }
+
+    proptest! {
+        /// Culling equals the brute-force filter of project_points for random intrinsics,
+        /// distortion, poses and boxes (including boxes partly or wholly off the image).
+        #[test]
+        fn culling_matches_brute_force(
+            fx in 50.0f64..2000.0, fy in 50.0f64..2000.0, w in 1u32..2000, h in 1u32..2000,
+            cxf in -0.2f64..1.2, cyf in -0.2f64..1.2,
+            k1 in -0.5f64..0.5, k2 in -0.2f64..0.2, p1 in -0.01f64..0.01, p2 in -0.01f64..0.01, k3 in -0.1f64..0.1,
+            rot in prop::array::uniform3(-3.1f64..3.1), trans in prop::array::uniform3(-5.0f64..5.0),
+            pts in prop::collection::vec(prop::array::uniform3(-20.0f64..20.0), 0..300),
+            raw_boxes in prop::collection::vec((-500.0f64..2500.0, -500.0f64..2500.0, 1.0f64..1500.0, 1.0f64..1500.0), 0..5),
+        ) {
+            let cam = CameraModel::new(fx, fy, cxf * f64::from(w), cyf * f64::from(h), w, h, [k1, k2, p1, p2, k3]).unwrap();
+            let t = Isometry3::new(Vector3::from(trans), Vector3::from(rot));
+            let boxes: Vec<PixelBox> = raw_boxes.iter()
+                .map(|&(x, y, bw, bh)| PixelBox::new(x, y, x + bw, y + bh).unwrap()).collect();
+            let got = points_in_boxes(&pts, &t, &cam, &boxes).unwrap();
+            prop_assert_eq!(got, brute(&pts, &t, &cam, &boxes));
+        }
+    }
+}

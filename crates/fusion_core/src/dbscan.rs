@@ -1,0 +1,278 @@
+//! DBSCAN on 3-D points with scikit-learn's semantics, on kiddo's ImmutableKdTree.
+//!
+//! The immutable tree is used on purpose: kiddo's mutable tree panics when a bucket
+//! fills with equal coordinates, which LiDAR scan lines produce routinely.
+
+use kiddo::immutable::float::kdtree::ImmutableKdTree;
+use kiddo::SquaredEuclidean;
+
+use crate::error::{check_positive, invalid, Result};
+use crate::points::{collect_finite, PointCloud};
+
+/// Label of points that belong to no cluster.
+pub const NOISE: i32 = -1;
+
+/// Points per kd-tree leaf bucket (kiddo's default).
+const BUCKET: usize = 32;
+type Tree = ImmutableKdTree<f64, u32, 3, BUCKET>;
+
+/// Labels each point with its cluster (0, 1, ...) or [`NOISE`].
+///
+/// scikit-learn semantics: a point is core when at least `min_points` points (itself
+/// included) lie within distance `eps` (inclusive, compared as squared distances like
+/// sklearn's trees); clusters are the connected components of core points plus the
+/// border points they reach, numbered in the order of their first core point (index
+/// order). Non-finite points are labelled [`NOISE`] and take no part.
+/// Errors: `eps` not finite and > 0, `min_points` < 1, more than `u32::MAX` points.
+pub fn dbscan<P: PointCloud + ?Sized>(points: &P, eps: f64, min_points: usize) -> Result<Vec<i32>> {
+    check_positive("eps", eps)?;
+    if min_points < 1 {
+        return Err(invalid("min_points", "must be >= 1"));
+    }
+    let n = points.len();
+    if u32::try_from(n).is_err() {
+        return Err(invalid("points", format!("at most {} points are supported, got {n}", u32::MAX)));
+    }
+    let finite = collect_finite(points);
+    let local = dbscan_finite(&finite.coords, eps, min_points);
+    let mut labels = vec![NOISE; n];
+    for (&i, &l) in finite.indices.iter().zip(&local) {
+        labels[i] = l;
+    }
+    Ok(labels)
+}
+
+/// DBSCAN on points already known to be finite (validated arguments). Crate-internal so
+/// localize can cluster its finite copy without re-scanning it.
+pub(crate) fn dbscan_finite(coords: &[[f64; 3]], eps: f64, min_points: usize) -> Vec<i32> {
+    let m = coords.len();
+    let mut labels = vec![NOISE; m];
+    if m == 0 {
+        return labels;
+    }
+    let tree = Tree::new_from_slice(coords);
+    let eps2 = eps * eps;
+
+    // Pass 1: neighbourhood of every point; only core neighbourhoods are kept (only they
+    // are expanded), in one flat buffer indexed by `starts`.
+    let mut is_core = vec![false; m];
+    let mut starts = vec![0usize; m + 1];
+    let mut neighbours: Vec<u32> = Vec::with_capacity(m * min_points.min(64));
+    for (k, q) in coords.iter().enumerate() {
+        let found = tree.within_unsorted::<SquaredEuclidean>(q, eps2);
+        if found.len() >= min_points {
+            is_core[k] = true;
+            neighbours.extend(found.iter().map(|nn| nn.item));
+        }
+        starts[k + 1] = neighbours.len();
+    }
+
+    // Pass 2: expand clusters from core points in index order (sklearn's dbscan_inner).
+    let mut stack: Vec<usize> = Vec::new();
+    let mut next_label: i32 = 0;
+    for seed in 0..m {
+        if labels[seed] != NOISE || !is_core[seed] {
+            continue;
+        }
+        stack.push(seed);
+        while let Some(i) = stack.pop() {
+            if labels[i] != NOISE {
+                continue;
+            }
+            labels[i] = next_label;
+            if is_core[i] {
+                for &j in &neighbours[starts[i]..starts[i + 1]] {
+                    let j = j as usize;
+                    if labels[j] == NOISE {
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        next_label += 1;
+    }
+    labels
+}
+
+/// Number of clusters in a label vector (largest label + 1).
+pub fn n_clusters(labels: &[i32]) -> usize {
+    labels.iter().copied().max().map_or(0, |m| usize::try_from(m + 1).unwrap_or(0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::collections::HashMap;
+
+    /// Independent O(N^2) DBSCAN, written straight from the definition.
+    fn brute_dbscan(pts: &[[f64; 3]], eps: f64, min_points: usize) -> Vec<i32> {
+        let n = pts.len();
+        let ok = |p: &[f64; 3]| p.iter().all(|v| v.is_finite());
+        let d2 = |a: &[f64; 3], b: &[f64; 3]| {
+            let (x, y, z) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+            x * x + y * y + z * z
+        };
+        let nb: Vec<Vec<usize>> = (0..n)
+            .map(|i| if ok(&pts[i]) { (0..n).filter(|&j| ok(&pts[j]) && d2(&pts[i], &pts[j]) <= eps * eps).collect() } else { vec![] })
+            .collect();
+        let core: Vec<bool> = nb.iter().map(|v| v.len() >= min_points).collect();
+        let mut labels = vec![-1; n];
+        let mut c = 0;
+        for s in 0..n {
+            if !core[s] || labels[s] != -1 {
+                continue;
+            }
+            let mut queue = std::collections::VecDeque::from([s]);
+            labels[s] = c;
+            while let Some(i) = queue.pop_front() {
+                if !core[i] {
+                    continue;
+                }
+                for &j in &nb[i] {
+                    if labels[j] == -1 {
+                        labels[j] = c;
+                        queue.push_back(j);
+                    }
+                }
+            }
+            c += 1;
+        }
+        labels
+    }
+
+    /// Same noise, identical core labels (both number clusters by first core point), and every
+    /// border point carries the label of some core neighbour.
+    fn assert_equivalent(pts: &[[f64; 3]], eps: f64, min_points: usize) {
+        let got = dbscan(pts, eps, min_points).unwrap();
+        let want = brute_dbscan(pts, eps, min_points);
+        let ok = |p: &[f64; 3]| p.iter().all(|v| v.is_finite());
+        let d2 = |a: &[f64; 3], b: &[f64; 3]| (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum::<f64>();
+        let n = pts.len();
+        let core: Vec<bool> = (0..n)
+            .map(|i| ok(&pts[i]) && (0..n).filter(|&j| ok(&pts[j]) && d2(&pts[i], &pts[j]) <= eps * eps).count() >= min_points)
+            .collect();
+        for i in 0..n {
+            assert_eq!(got[i] == -1, want[i] == -1, "noise differs at {i}");
+            if core[i] {
+                assert_eq!(got[i], want[i], "core label differs at {i}");
+            } else if got[i] != -1 {
+                let has_core_nb =
+                    (0..n).any(|j| core[j] && got[j] == got[i] && d2(&pts[i], &pts[j]) <= eps * eps);
+                assert!(has_core_nb, "border point {i} not adjacent to a core of its cluster");
+            }
+        }
+    }
+
+    #[test]
+    fn two_blobs_and_noise() {
+        let mut pts = Vec::new();
+        for k in 0..20 {
+            pts.push([f64::from(k) * 0.05, 0.0, 0.0]);
+        }
+        for k in 0..10 {
+            pts.push([10.0, f64::from(k) * 0.05, 0.0]);
+        }
+        pts.push([5.0, 5.0, 5.0]);
+        let labels = dbscan(&pts, 0.11, 3).unwrap();
+        assert!(labels[..20].iter().all(|&l| l == 0));
+        assert!(labels[20..30].iter().all(|&l| l == 1));
+        assert_eq!(labels[30], NOISE);
+        assert_eq!(n_clusters(&labels), 2);
+        assert_equivalent(&pts, 0.11, 3);
+    }
+
+    #[test]
+    fn min_points_one_makes_every_point_a_cluster() {
+        let pts = vec![[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.05, 0.0, 0.0]];
+        assert_eq!(dbscan(&pts, 0.1, 1).unwrap(), vec![0, 1, 0]);
+    }
+
+    #[test]
+    fn border_point_and_inclusive_eps() {
+        // Points at 0, 1, 2 with eps = 1 (exactly representable): distances of exactly eps count.
+        let pts = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+        assert_eq!(dbscan(&pts, 1.0, 3).unwrap(), vec![0, 0, 0]);
+        assert_eq!(dbscan(&pts, 0.999, 2).unwrap(), vec![-1, -1, -1]);
+    }
+
+    #[test]
+    fn many_equal_coordinates_like_scan_lines() {
+        // 4000 points on 8 scan lines with heavy duplication (same x, same z per line).
+        let mut pts = Vec::new();
+        for line in 0..8 {
+            for k in 0..500 {
+                pts.push([f64::from(k / 10) * 0.02, 0.0, f64::from(line) * 0.5]);
+            }
+        }
+        let labels = dbscan(&pts, 0.3, 5).unwrap();
+        assert_eq!(n_clusters(&labels), 8);
+        // 10 000 identical points.
+        let same = vec![[1.0, 2.0, 3.0]; 10_000];
+        assert!(dbscan(&same, 0.3, 5).unwrap().iter().all(|&l| l == 0));
+        assert_equivalent(&pts[..600], 0.3, 5);
+    }
+
+    #[test]
+    fn non_finite_points_are_noise_and_ignored() {
+        let pts = vec![
+            [0.0, 0.0, 0.0],
+            [f64::NAN, 0.0, 0.0],
+            [0.01, 0.0, 0.0],
+            [f64::INFINITY, f64::INFINITY, f64::INFINITY],
+            [0.02, 0.0, 0.0],
+        ];
+        assert_eq!(dbscan(&pts, 0.05, 3).unwrap(), vec![0, -1, 0, -1, 0]);
+        let all_nan = vec![[f64::NAN; 3]; 4];
+        assert_eq!(dbscan(&all_nan, 0.05, 1).unwrap(), vec![-1; 4]);
+        assert_equivalent(&pts, 0.05, 3);
+    }
+
+    #[test]
+    fn bad_arguments() {
+        let pts = vec![[0.0; 3]];
+        let name = |r: Result<Vec<i32>>| match r {
+            Err(crate::FusionError::InvalidArgument { name, .. }) => name,
+            _ => "ok",
+        };
+        assert_eq!(name(dbscan(&pts, 0.0, 1)), "eps");
+        assert_eq!(name(dbscan(&pts, -1.0, 1)), "eps");
+        assert_eq!(name(dbscan(&pts, f64::NAN, 1)), "eps");
+        assert_eq!(name(dbscan(&pts, f64::INFINITY, 1)), "eps");
+        assert_eq!(name(dbscan(&pts, 1.0, 0)), "min_points");
+        assert_eq!(dbscan(&Vec::<[f64; 3]>::new(), 1.0, 1).unwrap(), Vec::<i32>::new());
+    }
+
+    #[test]
+    fn relabelling_free_cluster_order() {
+        // Cluster of the lowest index core point comes first even if spatially later.
+        let pts = vec![[9.0, 0.0, 0.0], [0.0, 0.0, 0.0], [9.01, 0.0, 0.0], [0.01, 0.0, 0.0]];
+        assert_eq!(dbscan(&pts, 0.05, 2).unwrap(), vec![0, 1, 0, 1]);
+        let counts: HashMap<i32, usize> = dbscan(&pts, 0.05, 2).unwrap().iter().fold(HashMap::new(), |mut m, &l| {
+            *m.entry(l).or_default() += 1;
+            m
+        });
+        assert_eq!(counts.len(), 2);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Random clouds on a coarse grid (exact ties and duplicates) and continuous ones.
+        #[test]
+        fn matches_brute_force_on_grid(
+            pts in prop::collection::vec(prop::array::uniform3(0i32..12), 0..250),
+            eps_steps in 1i32..5, min_points in 1usize..8,
+        ) {
+            let pts: Vec<[f64; 3]> = pts.iter().map(|p| [f64::from(p[0]) * 0.1, f64::from(p[1]) * 0.1, f64::from(p[2]) * 0.1]).collect();
+            assert_equivalent(&pts, f64::from(eps_steps) * 0.1 + 1e-9, min_points);
+        }
+
+        #[test]
+        fn matches_brute_force_continuous(
+            pts in prop::collection::vec(prop::array::uniform3(-2.0f64..2.0), 0..300),
+            eps in 0.05f64..0.8, min_points in 1usize..10,
+        ) {
+            assert_equivalent(&pts, eps, min_points);
+        }
+    }
+}

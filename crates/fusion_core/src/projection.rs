@@ -1,0 +1,103 @@
+//! Projection of a LiDAR-frame cloud straight into pixels (paper eqs. 1-2, plus distortion).
+
+use nalgebra::{Isometry3, Matrix3, Vector3};
+
+use crate::camera::CameraModel;
+use crate::points::PointCloud;
+
+/// Per-point projection result.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Projection {
+    /// Pixel (u, v) of each point; NaN for points behind/near the camera or non-finite.
+    pub uv: Vec<[f64; 2]>,
+    /// True when the point is in front of the camera and lands inside the image.
+    pub valid: Vec<bool>,
+}
+
+/// `T_c_l` and the camera, unpacked once for the per-point loop.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Projector<'a> {
+    rotation: Matrix3<f64>,
+    translation: Vector3<f64>,
+    cam: &'a CameraModel,
+}
+
+impl<'a> Projector<'a> {
+    pub(crate) fn new(t_c_l: &Isometry3<f64>, cam: &'a CameraModel) -> Self {
+        Self { rotation: t_c_l.rotation.to_rotation_matrix().into_inner(), translation: t_c_l.translation.vector, cam }
+    }
+
+    /// Pixel of an L-frame point, or `None` when behind/near the camera or non-finite.
+    #[inline(always)]
+    pub(crate) fn pixel(&self, p: [f64; 3]) -> Option<[f64; 2]> {
+        let r = &self.rotation;
+        let t = &self.translation;
+        let x = r[(0, 0)] * p[0] + r[(0, 1)] * p[1] + r[(0, 2)] * p[2] + t[0];
+        let y = r[(1, 0)] * p[0] + r[(1, 1)] * p[1] + r[(1, 2)] * p[2] + t[1];
+        let z = r[(2, 0)] * p[0] + r[(2, 1)] * p[1] + r[(2, 2)] * p[2] + t[2];
+        self.cam.project_xyz(x, y, z)
+    }
+
+    #[inline(always)]
+    pub(crate) fn in_image(&self, uv: [f64; 2]) -> bool {
+        self.cam.contains(uv)
+    }
+}
+
+/// Projects every point of an L-frame cloud through `t_c_l` and `cam`.
+///
+/// `uv` is NaN where the point is behind/near the camera ([`crate::camera::NEAR_LIMIT`])
+/// or non-finite; `valid` is true where it is in front and inside the image.
+pub fn project_points<P: PointCloud + ?Sized>(points: &P, t_c_l: &Isometry3<f64>, cam: &CameraModel) -> Projection {
+    let projector = Projector::new(t_c_l, cam);
+    let n = points.len();
+    let mut out = Projection { uv: Vec::with_capacity(n), valid: Vec::with_capacity(n) };
+    for i in 0..n {
+        match projector.pixel(points.point(i)) {
+            Some(uv) => {
+                out.uv.push(uv);
+                out.valid.push(projector.in_image(uv));
+            }
+            None => {
+                out.uv.push([f64::NAN; 2]);
+                out.valid.push(false);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Point3, Translation3, UnitQuaternion};
+
+    #[test]
+    fn projects_through_pose_by_hand() {
+        // L frame = FLU-like (x forward); camera optical: z_c = x_l, x_c = -y_l, y_c = -z_l, camera 0.1 m ahead.
+        let r = Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
+        let q = UnitQuaternion::from_matrix(&r);
+        let t = Isometry3::from_parts(Translation3::new(0.0, 0.0, -0.1), q);
+        let cam = CameraModel::new(500.0, 500.0, 320.0, 240.0, 640, 480, [0.0; 5]).unwrap();
+        let pts = vec![[2.1, -0.4, 0.2], [-1.0, 0.0, 0.0], [2.1, 5.0, 0.0], [f64::NAN, 0.0, 0.0]];
+        let pr = project_points(&pts, &t, &cam);
+        // Point 0 in C: (0.4, -0.2, 2.0) -> u = 500*0.2+320 = 420, v = 500*(-0.1)+240 = 190.
+        assert!((pr.uv[0][0] - 420.0).abs() < 1e-9 && (pr.uv[0][1] - 190.0).abs() < 1e-9);
+        assert_eq!(pr.valid, vec![true, false, false, false]);
+        assert!(pr.uv[1][0].is_nan() && pr.uv[3][1].is_nan());
+        // Point 2 is in front but far left of the image: finite uv, not valid.
+        assert!(pr.uv[2][0].is_finite() && pr.uv[2][0] < 0.0);
+        // Same as transforming by hand with nalgebra and calling the camera.
+        let pc = t * Point3::new(2.1, -0.4, 0.2);
+        let uv = cam.project_camera_point(&pc.coords).unwrap();
+        assert!((uv[0] - pr.uv[0][0]).abs() < 1e-9);
+    }
+
+    #[test]
+    fn empty_cloud() {
+        let cam = CameraModel::new(500.0, 500.0, 320.0, 240.0, 640, 480, [0.0; 5]).unwrap();
+        let empty: Vec<[f64; 3]> = vec![];
+        let pr = project_points(&empty, &Isometry3::identity(), &cam);
+        assert!(pr.uv.is_empty() && pr.valid.is_empty());
+    }
+}
