@@ -1,0 +1,98 @@
+"""The YOLO dataset writer (sim.dataset) and the ``insulator-rs dataset`` command."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from insulator_rs.sim.dataset import (
+    SPLITS,
+    ViewSampling,
+    look_at,
+    sample_view,
+    split_indices,
+    write_data_yaml,
+    yolo_lines,
+)
+
+
+def test_yolo_lines_match_the_ultralytics_format():
+    """Reference: the YOLO txt format by hand (class, centre x/y, width, height, normalised)."""
+    lines = yolo_lines(np.array([[100.0, 50.0, 300.0, 150.0], [0.0, 0.0, 640.0, 480.0]]), 640, 480)
+    assert lines[0] == f"0 {200 / 640:.6f} {100 / 480:.6f} {200 / 640:.6f} {100 / 480:.6f}"
+    assert lines[1] == "0 0.500000 0.500000 1.000000 1.000000"
+    # Boxes reaching past the border are clipped to it.
+    (clipped,) = yolo_lines(np.array([[-20.0, 400.0, 40.0, 500.0]]), 640, 480)
+    assert clipped == f"0 {20 / 640:.6f} {440 / 480:.6f} {40 / 640:.6f} {80 / 480:.6f}"
+    with pytest.raises(ValueError, match="boxes"):
+        yolo_lines(np.array([[700.0, 0.0, 800.0, 10.0]]), 640, 480)
+    with pytest.raises(ValueError, match="width"):
+        yolo_lines(np.zeros((0, 4)), 0, 480)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(0, 400), a=st.floats(0, 1), b=st.floats(0, 1), seed=st.integers(0, 99))
+def test_split_counts_follow_the_fractions(n, a, b, seed):
+    """Property: every image gets one split; each split's count is within 1 of fraction * n
+    (or 2 when a non-empty split had to borrow an image)."""
+    a, b = sorted((a, b))
+    fractions = (a, b - a, 1.0 - b)
+    labels = split_indices(n, fractions, np.random.default_rng(seed))
+    assert len(labels) == n and set(labels) <= set(SPLITS)
+    for split, f in zip(SPLITS, fractions):
+        assert abs(labels.count(split) - f * n) <= 2.0
+
+
+def test_split_paper_ratio_and_bad_fractions():
+    labels = split_indices(1500, (0.8, 0.1, 0.1), np.random.default_rng(0))
+    assert [labels.count(s) for s in SPLITS] == [1200, 150, 150]
+    assert labels[:20] != sorted(labels[:20])  # shuffled
+    with pytest.raises(ValueError, match="split"):
+        split_indices(10, (0.5, 0.5, 0.5), np.random.default_rng(0))
+
+
+def test_look_at_centres_the_target():
+    """Reference: cv2.projectPoints of the target through the look-at pose lands on the
+    principal point (tol 1e-6 px), and a point above the target lands above it in the image."""
+    K = np.array([[800.0, 0, 640], [0, 800.0, 480], [0, 0, 1]])
+    eye = np.array([12.0, -7.0, 9.0])
+    target = np.array([0.5, 1.0, 20.0])
+    T_w_c = look_at(eye, target)
+    np.testing.assert_allclose(T_w_c[:3, :3].T @ T_w_c[:3, :3], np.eye(3), atol=1e-12)
+    assert np.linalg.det(T_w_c[:3, :3]) == pytest.approx(1.0)
+    T_c_w = np.linalg.inv(T_w_c)
+    rvec, _ = cv2.Rodrigues(T_c_w[:3, :3])
+    pts = np.array([target, target + [0, 0, 1.0]])
+    uv, _ = cv2.projectPoints(pts, rvec, T_c_w[:3, 3], K, np.zeros(5))
+    uv = uv.reshape(-1, 2)
+    np.testing.assert_allclose(uv[0], [640, 480], atol=1e-6)
+    assert uv[1, 1] < uv[0, 1]  # image y points down, W's z up
+
+
+def test_sampled_views_stay_in_their_ranges():
+    rng = np.random.default_rng(3)
+    sampling = ViewSampling(distance=(8.0, 20.0), height=(5.0, 25.0), aim_jitter_deg=10.0)
+    aim = np.array([[0.0, 0.0, 20.0], [4.0, 1.0, 17.0]])
+    for _ in range(200):
+        T = sample_view(rng, aim, sampling)
+        eye = T[:3, 3]
+        assert 8.0 - 1e-9 <= math.hypot(eye[0], eye[1]) <= 20.0 + 1e-9
+        assert 5.0 <= eye[2] <= 25.0
+        to_aim = aim - eye
+        cosines = (to_aim @ T[:3, 2]) / np.linalg.norm(to_aim, axis=1)
+        # One aim point lies within the jitter cone (two axes of 10 degrees each).
+        assert np.degrees(np.arccos(cosines.max())) <= 10.0 * math.sqrt(2) + 1e-6
+
+
+def test_data_yaml_is_what_ultralytics_reads(tmp_path):
+    path = write_data_yaml(tmp_path)
+    doc = yaml.safe_load(path.read_text())
+    assert doc["train"] == "images/train" and doc["val"] == "images/val"
+    assert doc["test"] == "images/test" and doc["names"] == {0: "insulator"} and doc["nc"] == 1
+    assert doc["path"] == str(tmp_path.resolve())
