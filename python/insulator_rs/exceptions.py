@@ -20,3 +20,10 @@ class ConfigError(InsulatorError, ValueError):
 
 class VehicleError(InsulatorError):
     """The vehicle refused a command or reported a fault (the message says which)."""
+
+
+class ModelError(InsulatorError, ValueError):
+    """A detection model file is missing, truncated/not ONNX, or not a YOLO detection export.
+
+    The message names the file and which of those it is.
+    """

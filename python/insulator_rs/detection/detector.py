@@ -1,0 +1,256 @@
+"""Insulator detector: an Ultralytics YOLO detection export run by onnxruntime.
+
+Loads any YOLO11/YOLOv8 detection ONNX export (output ``[1, 4 + nc, N]``,
+sigmoid class scores, no objectness), static or dynamic input, and reads the
+class names and input size from the metadata Ultralytics writes into the file.
+Pre-processing is Ultralytics' (letterbox, BGR->RGB, /255, NCHW float32),
+post-processing its NMS, so results match ``YOLO(model).predict`` (see
+tests/test_detection_parity.py). Output boxes are in pixels of the image given,
+x1, y1, x2, y2, float64, ready for ``ir.points_in_boxes``.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+
+from insulator_rs.detection.letterbox import LetterboxGeometry, letterbox, to_network_input
+from insulator_rs.detection.postprocess import decode_yolo
+from insulator_rs.exceptions import ModelError
+
+PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider")
+DEFAULT_IMGSZ = 640  # Ultralytics' default when a dynamic model carries no imgsz
+ONNX_MAGIC_MIN_BYTES = 64  # smaller files cannot hold a graph
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Detections in one image, in pixels of that image (x right, y down)."""
+
+    boxes: np.ndarray  # (M, 4) float64 x1, y1, x2, y2
+    scores: np.ndarray  # (M,) float64 in [0, 1]
+    class_ids: np.ndarray  # (M,) int64
+    names: dict[int, str]
+
+    def __len__(self) -> int:
+        return int(self.boxes.shape[0])
+
+    @property
+    def labels(self) -> list[str]:
+        """Class name of each detection."""
+        return [self.names.get(int(c), str(int(c))) for c in self.class_ids]
+
+
+def select_providers(available: Sequence[str] | None = None) -> list[str]:
+    """TensorRT, then CUDA, then CPU: those of them that onnxruntime has installed."""
+    have = set(ort.get_available_providers() if available is None else available)
+    chosen = [p for p in PREFERRED_PROVIDERS if p in have]
+    if not chosen:
+        raise RuntimeError(f"onnxruntime offers none of {PREFERRED_PROVIDERS}; it has {sorted(have)}")
+    return chosen
+
+
+def _parse_meta(value: str, key: str, path: Path) -> object:
+    try:
+        return ast.literal_eval(value)
+    except (ValueError, SyntaxError) as exc:
+        raise ModelError(f"model {path}: not a YOLO detection export (metadata {key!r} unreadable: {value!r})") from exc
+
+
+def as_bgr_uint8(image: np.ndarray, *, name: str = "image") -> np.ndarray:
+    """Check an image and convert gray (H, W) / (H, W, 1) and BGRA (H, W, 4) to BGR (H, W, 3).
+
+    Raises TypeError for a non-array or a dtype other than uint8, and
+    ValueError for an empty image or a channel count other than 1, 3 or 4.
+    """
+    if not isinstance(image, np.ndarray):
+        raise TypeError(f"{name} must be a numpy array (H, W, 3) uint8 BGR, got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise TypeError(f"{name} must have dtype uint8 (BGR 0-255), got {image.dtype}")
+    if image.ndim == 2:
+        image = image[:, :, None]
+    if image.ndim != 3:
+        raise ValueError(f"{name} must be (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got shape {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError(f"{name} is empty: shape {image.shape}")
+    channels = image.shape[2]
+    if channels == 3:
+        return image
+    if channels == 1:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    if channels == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    raise ValueError(f"{name} must have 1, 3 or 4 channels, got {channels} (shape {image.shape})")
+
+
+class Detector:
+    """YOLO detection model on onnxruntime.
+
+    Args:
+        model: path of the ONNX export.
+        conf: keep detections whose best class score is above this.
+        iou: NMS IoU threshold (same-class boxes overlapping more are dropped).
+        max_det: most detections per image.
+        imgsz: network input size (square int or (h, w)); default from the
+            model's metadata, else its static input shape, else 640.
+        providers: onnxruntime providers; default TensorRT > CUDA > CPU of those installed.
+        threads: intra-op threads for the CPU provider (None: onnxruntime's default).
+        warmup: run one blank image at construction so the first real frame is not slow.
+        agnostic: class-agnostic NMS.
+
+    Raises:
+        ModelError: the file is missing, truncated/not ONNX, or not a YOLO detection export.
+    """
+
+    def __init__(
+        self,
+        model: str | os.PathLike[str],
+        *,
+        conf: float = 0.25,
+        iou: float = 0.7,
+        max_det: int = 300,
+        imgsz: int | tuple[int, int] | None = None,
+        providers: Sequence[str] | None = None,
+        threads: int | None = None,
+        warmup: bool = True,
+        agnostic: bool = False,
+    ) -> None:
+        if not 0.0 <= conf <= 1.0:
+            raise ValueError(f"conf must be in [0, 1], got {conf}")
+        if not 0.0 <= iou <= 1.0:
+            raise ValueError(f"iou must be in [0, 1], got {iou}")
+        if max_det < 1:
+            raise ValueError(f"max_det must be >= 1, got {max_det}")
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.path = Path(model)
+        self.conf, self.iou, self.max_det, self.agnostic = conf, iou, max_det, agnostic
+        self.session = self._open_session(self.path, providers, threads)
+        self.providers = self.session.get_providers()
+        inp = self.session.get_inputs()
+        outs = self.session.get_outputs()
+        if len(inp) != 1 or len(inp[0].shape) != 4:
+            raise ModelError(f"model {self.path}: not a YOLO detection export (expects one NCHW input, "
+                             f"has {[(i.name, i.shape) for i in inp]})")
+        if len(outs) != 1 or len(outs[0].shape) != 3:
+            raise ModelError(f"model {self.path}: not a YOLO detection export (expects one [1, 4+nc, N] output, "
+                             f"has {[(o.name, o.shape) for o in outs]})")
+        if isinstance(inp[0].shape[1], int) and inp[0].shape[1] != 3:
+            raise ModelError(f"model {self.path}: not a YOLO detection export (input has {inp[0].shape[1]} channels)")
+        self.input_name = inp[0].name
+        meta = self.session.get_modelmeta().custom_metadata_map
+        task = meta.get("task")
+        if task is not None and task != "detect":
+            raise ModelError(f"model {self.path}: not a YOLO detection export (task {task!r})")
+        self.names = self._read_names(meta, outs[0].shape)
+        self.dynamic = not all(isinstance(d, int) for d in inp[0].shape[2:])
+        self.imgsz = self._input_size(imgsz, meta, inp[0].shape)
+        self.metadata = dict(meta)
+        if warmup:
+            self.warmup()
+
+    @classmethod
+    def from_name(cls, name: str, **kwargs: object) -> Detector:
+        """A model shipped with the package (``insulator_rs.models``), e.g. ``"insulator-real"``."""
+        from insulator_rs.models import model_path
+
+        return cls(model_path(name), **kwargs)  # type: ignore[arg-type]
+
+    @staticmethod
+    def _open_session(path: Path, providers: Sequence[str] | None, threads: int | None) -> ort.InferenceSession:
+        if not path.is_file():
+            raise ModelError(f"model {path}: file not found")
+        if path.stat().st_size < ONNX_MAGIC_MIN_BYTES:
+            raise ModelError(f"model {path}: truncated or not ONNX ({path.stat().st_size} bytes)")
+        opts = ort.SessionOptions()
+        if threads is not None:
+            opts.intra_op_num_threads = threads
+            opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3  # TensorRT/CUDA fall-back chatter is not an error
+        try:
+            return ort.InferenceSession(str(path), sess_options=opts,
+                                        providers=list(providers) if providers else select_providers())
+        except Exception as exc:  # onnxruntime raises its own untyped errors for bad protobufs
+            raise ModelError(f"model {path}: truncated or not ONNX ({type(exc).__name__}: {exc})") from exc
+
+    def _read_names(self, meta: dict[str, str], out_shape: Sequence[object]) -> dict[int, str]:
+        channels = out_shape[1]
+        names: dict[int, str] | None = None
+        if "names" in meta:
+            parsed = _parse_meta(meta["names"], "names", self.path)
+            if not isinstance(parsed, dict) or not parsed:
+                raise ModelError(f"model {self.path}: not a YOLO detection export (names {meta['names']!r})")
+            names = {int(k): str(v) for k, v in parsed.items()}
+        if isinstance(channels, int):
+            if channels < 5:
+                raise ModelError(f"model {self.path}: not a YOLO detection export (output has {channels} channels,"
+                                 " needs 4 box + at least 1 class)")
+            if names is None:
+                names = {i: f"class{i}" for i in range(channels - 4)}
+            elif len(names) != channels - 4:
+                raise ModelError(f"model {self.path}: not a YOLO detection export ({len(names)} names in metadata "
+                                 f"but {channels - 4} class channels; segmentation/pose heads are not supported)")
+        if names is None:
+            raise ModelError(f"model {self.path}: not a YOLO detection export (no class names and no static class count)")
+        return names
+
+    def _input_size(self, imgsz: int | tuple[int, int] | None, meta: dict[str, str],
+                    in_shape: Sequence[object]) -> tuple[int, int]:
+        if not self.dynamic:
+            static = (int(in_shape[2]), int(in_shape[3]))  # type: ignore[call-overload]
+            if imgsz is not None and _as_hw(imgsz) != static:
+                raise ValueError(f"imgsz {imgsz} differs from the model's fixed input {static}")
+            return static
+        if imgsz is not None:
+            return _as_hw(imgsz)
+        if "imgsz" in meta:
+            parsed = _parse_meta(meta["imgsz"], "imgsz", self.path)
+            return _as_hw(parsed)  # type: ignore[arg-type]
+        return (DEFAULT_IMGSZ, DEFAULT_IMGSZ)
+
+    def warmup(self) -> None:
+        """Run one gray frame through the network (allocations, provider kernels)."""
+        h, w = self.imgsz
+        self.session.run(None, {self.input_name: np.full((1, 3, h, w), 114 / 255, dtype=np.float32)})
+
+    def raw(self, image: np.ndarray) -> tuple[np.ndarray, LetterboxGeometry]:
+        """Network output ``[1, 4 + nc, N]`` for one image, and its letterbox geometry."""
+        bgr = as_bgr_uint8(image)
+        padded, geo = letterbox(bgr, self.imgsz)
+        out = self.session.run(None, {self.input_name: to_network_input(padded)})[0]
+        return out, geo
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """Detect objects in one BGR uint8 image (gray and BGRA are converted)."""
+        out, geo = self.raw(image)
+        raw = decode_yolo(out, conf=self.conf, iou=self.iou, max_det=self.max_det, agnostic=self.agnostic)
+        boxes = geo.to_original(raw.boxes).astype(np.float64)
+        return Detections(boxes, raw.scores.astype(np.float64), raw.class_ids, self.names)
+
+    __call__ = detect
+
+    def __repr__(self) -> str:
+        return (f"Detector({str(self.path)!r}, imgsz={self.imgsz}, names={self.names}, conf={self.conf}, "
+                f"iou={self.iou}, providers={self.providers})")
+
+
+def _as_hw(imgsz: int | Sequence[int]) -> tuple[int, int]:
+    if isinstance(imgsz, (int, np.integer)):
+        hw = (int(imgsz), int(imgsz))
+    else:
+        vals = [int(v) for v in imgsz]
+        if len(vals) == 1:
+            vals = vals * 2
+        if len(vals) != 2:
+            raise ValueError(f"imgsz must be an int or (h, w), got {imgsz}")
+        hw = (vals[0], vals[1])
+    if min(hw) < 32 or hw[0] % 32 or hw[1] % 32:
+        raise ValueError(f"imgsz must be positive multiples of 32 (YOLO stride), got {imgsz}")
+    return hw

@@ -1,0 +1,187 @@
+"""Offline YOLO11 training and ONNX export with Ultralytics (the ``train`` extra).
+
+Nothing here may touch the network: the flight computer and the build machines
+have none. Ultralytics would otherwise download a font (Arial.ttf, for label
+plots and the dataset check), AMP-check weights (yolo11n.pt), pip packages
+(AutoUpdate) and send usage events. :func:`prepare_offline` closes each of those
+doors *before* Ultralytics is imported: ``YOLO_OFFLINE`` makes its online check
+false, ``YOLO_AUTOINSTALL=False`` stops pip, ``YOLO_CONFIG_DIR`` points at a
+private folder holding matplotlib's DejaVuSans under the Arial names, settings
+``sync`` is turned off, AMP is off (CPU) and the model is built from the
+architecture file ``yolo11n.yaml`` that ships inside the Ultralytics package.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+OFFLINE_ENV = {
+    "YOLO_OFFLINE": "1",
+    "YOLO_AUTOINSTALL": "False",
+    "YOLO_VERBOSE": "True",
+}
+FONT_NAMES = ("Arial.ttf", "Arial.Unicode.ttf")
+
+
+def prepare_offline(config_dir: Path, *, threads: int | None = None) -> None:
+    """Make Ultralytics work with no network; call before importing ultralytics.
+
+    ``config_dir`` becomes Ultralytics' settings folder (``YOLO_CONFIG_DIR``) and
+    receives DejaVuSans from matplotlib as ``Arial.ttf``/``Arial.Unicode.ttf``
+    so that ``check_font`` finds a file instead of downloading one.
+    ``threads`` caps torch/OpenMP threads (shared machines).
+    """
+    import sys
+
+    if "ultralytics" in sys.modules and os.environ.get("YOLO_CONFIG_DIR") != str(config_dir):
+        # The settings folder and the online flag are read at import time.
+        raise RuntimeError("prepare_offline must run before ultralytics is imported")
+    user_dir = config_dir / "Ultralytics"  # Ultralytics appends this to YOLO_CONFIG_DIR
+    user_dir.mkdir(parents=True, exist_ok=True)
+    from matplotlib import font_manager
+
+    dejavu = Path(font_manager.findfont("DejaVu Sans", fallback_to_default=True))
+    for name in FONT_NAMES:
+        target = user_dir / name
+        if not target.exists():
+            shutil.copyfile(dejavu, target)
+    os.environ.update(OFFLINE_ENV)
+    os.environ["YOLO_CONFIG_DIR"] = str(config_dir)
+    if threads is not None:
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        os.environ["OMP_NUM_THREADS"] = str(threads)
+        import torch
+
+        torch.set_num_threads(threads)
+    from ultralytics import settings
+
+    # Usage events off, every logger integration off, and no folder outside config_dir.
+    wanted: dict[str, Any] = {"sync": False, "datasets_dir": str(config_dir / "datasets"),
+                              "weights_dir": str(config_dir / "weights"), "runs_dir": str(config_dir / "runs")}
+    wanted.update({k: False for k, v in settings.items() if isinstance(v, bool) and k.endswith("_msg") is False})
+    settings.update({k: v for k, v in wanted.items() if k in settings})
+
+
+@dataclass
+class TrainConfig:
+    """Knobs of one training run (Ultralytics argument names where they exist)."""
+
+    data_yaml: Path
+    out_dir: Path
+    name: str = "insulator-real"
+    model_cfg: str = "yolo11n.yaml"
+    epochs: int = 100
+    hours: float | None = None  # wall-clock budget: Ultralytics re-derives epochs from the first epoch's time
+    imgsz: int = 320
+    batch: int = 16
+    workers: int = 0
+    threads: int = 2
+    seed: int = 0
+    patience: int = 100
+    cache: bool = True
+    plots: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class TrainResult:
+    """Where the run left its files, and what Ultralytics' own validator reported."""
+
+    weights: Path
+    run_dir: Path
+    epochs_run: int
+    seconds: float
+    val_metrics: dict[str, float]
+
+
+def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None = None) -> TrainResult:
+    """Train ``cfg.model_cfg`` from scratch on ``cfg.data_yaml`` on the CPU.
+
+    Call :func:`prepare_offline` first. ``on_epoch(epoch, epochs)`` is called
+    after every epoch (progress display).
+    """
+    from ultralytics import YOLO
+
+    if not cfg.model_cfg.endswith((".yaml", ".yml")):
+        raise ValueError(f"model_cfg must be an architecture .yaml (no pretrained weights offline), got {cfg.model_cfg}")
+    model = YOLO(cfg.model_cfg, task="detect")
+    if on_epoch is not None:
+        model.add_callback("on_fit_epoch_end", lambda tr: on_epoch(tr.epoch + 1, tr.epochs))
+    args: dict[str, Any] = dict(
+        data=str(cfg.data_yaml),
+        epochs=cfg.epochs,
+        imgsz=cfg.imgsz,
+        batch=cfg.batch,
+        workers=cfg.workers,
+        device="cpu",
+        amp=False,
+        pretrained=False,
+        seed=cfg.seed,
+        deterministic=True,
+        patience=cfg.patience,
+        cache=cfg.cache,
+        plots=cfg.plots,
+        project=str(cfg.out_dir.resolve()),
+        name=cfg.name,
+        exist_ok=True,
+        verbose=True,
+    )
+    if cfg.hours is not None:
+        args["time"] = cfg.hours
+    args.update(cfg.extra)
+    t0 = time.monotonic()
+    model.train(**args)
+    seconds = time.monotonic() - t0
+    trainer = model.trainer
+    weights = Path(trainer.best if Path(trainer.best).is_file() else trainer.last)
+    metrics = {k: float(v) for k, v in (trainer.metrics or {}).items() if isinstance(v, (int, float))}
+    return TrainResult(weights=weights, run_dir=Path(trainer.save_dir), epochs_run=int(trainer.epoch) + 1,
+                       seconds=seconds, val_metrics=metrics)
+
+
+def export_onnx(weights: Path, imgsz: int, out_path: Path, *, dynamic: bool = False) -> Path:
+    """Export a trained ``.pt`` to ONNX at ``out_path`` (opset chosen by Ultralytics).
+
+    Ultralytics writes its metadata (``names``, ``imgsz``, ``stride``, ``task``)
+    into the ONNX ``metadata_props``; the runtime reads names and input size
+    from there. ``simplify`` stays off: it needs onnxslim, which would be
+    pip-installed on the fly.
+    """
+    from ultralytics import YOLO
+
+    exported = YOLO(str(weights), task="detect").export(
+        format="onnx", imgsz=imgsz, dynamic=dynamic, simplify=False, half=False, device="cpu"
+    )
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    shutil.move(str(exported), out_path)
+    return out_path
+
+
+def write_model_card(path: Path, card: dict[str, Any]) -> tuple[Path, Path]:
+    """Write ``card`` as ``<path>.json`` and a readable ``<path>.md`` beside the model."""
+    json_path, md_path = path.with_suffix(".json"), path.with_suffix(".md")
+    json_path.write_text(json.dumps(card, indent=1, default=str) + "\n")
+    lines = [f"# Model card: {card.get('name', path.stem)}", ""]
+    for key, value in card.items():
+        if isinstance(value, dict):
+            lines.append(f"## {key}")
+            lines += [f"- {k}: {v}" for k, v in value.items()]
+            lines.append("")
+        else:
+            lines.append(f"- **{key}**: {value}")
+    md_path.write_text("\n".join(lines) + "\n")
+    return json_path, md_path
+
+
+def result_dict(result: TrainResult) -> dict[str, Any]:
+    """A JSON-ready view of a :class:`TrainResult`."""
+    d = asdict(result)
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}

@@ -1,0 +1,165 @@
+"""``insulator-rs train``: train YOLO11n offline, export ONNX, evaluate, write the model card.
+
+    insulator-rs train --data ../shared/data/insulator_photos --out runs/detection/real \\
+        --name insulator-real --hours 1.4 --imgsz 320
+
+Needs the ``train`` extra (``pip install .[train]``: ultralytics, onnx). Steps:
+VOC -> YOLO labels split by source photo (or a ready YOLO ``data.yaml``),
+training from ``yolo11n.yaml`` with no network, ONNX export with Ultralytics'
+metadata, COCO mAP on the test split (pycocotools, through the onnxruntime
+detector that ships), a training-curve plot and the model card beside the model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from insulator_rs.detection.voc import DEFAULT_FRACTIONS, convert_voc_dataset
+
+
+def plot_training_curves(results_csv: Path, out_png: Path) -> Path | None:
+    """Plot Ultralytics' per-epoch losses and validation mAP (matplotlib, Agg)."""
+    if not results_csv.is_file():
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    with results_csv.open() as f:
+        header = [h.strip() for h in f.readline().split(",")]
+    data = np.loadtxt(results_csv, delimiter=",", skiprows=1, ndmin=2)
+    col = {h: data[:, i] for i, h in enumerate(header)}
+    fig, (ax_loss, ax_map) = plt.subplots(1, 2, figsize=(10, 4))
+    for key in ("train/box_loss", "train/cls_loss", "train/dfl_loss", "val/box_loss"):
+        if key in col:
+            ax_loss.plot(col["epoch"], col[key], label=key)
+    ax_loss.set(xlabel="epoch", ylabel="loss", title="losses")
+    ax_loss.legend()
+    for key in ("metrics/mAP50(B)", "metrics/mAP50-95(B)"):
+        if key in col:
+            ax_map.plot(col["epoch"], col[key], label=key.removeprefix("metrics/"))
+    ax_map.set(xlabel="epoch", ylabel="mAP (validation split)", title="validation mAP", ylim=(0, 1))
+    ax_map.legend()
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=100)
+    plt.close(fig)
+    return out_png
+
+
+def package_model(
+    *,
+    onnx_path: Path,
+    test_split: Path | None,
+    card: dict[str, Any],
+    threads: int | None = None,
+) -> dict[str, Any]:
+    """Evaluate ``onnx_path`` on ``test_split`` (COCO, pycocotools) and write its card beside it."""
+    from insulator_rs.detection.detector import Detector
+    from insulator_rs.detection.evaluate import EVAL_CONF, coco_evaluate, load_split
+    from insulator_rs.detection.train import write_model_card
+
+    card = dict(card)
+    card["file"] = onnx_path.name
+    card["sha256"] = hashlib.sha256(onnx_path.read_bytes()).hexdigest()
+    card["size_bytes"] = onnx_path.stat().st_size
+    if test_split is not None and any(test_split.iterdir()):
+        detector = Detector(onnx_path, conf=EVAL_CONF, threads=threads)
+        samples = load_split(test_split, detector.names)
+
+        def detect(image: Any) -> tuple[Any, Any, list[str]]:
+            det = detector(image)
+            return det.boxes, det.scores, det.labels
+
+        metrics = coco_evaluate(samples, detect)
+        card["test_metrics"] = {
+            "evaluator": "pycocotools COCOeval (bbox), onnxruntime detector, conf 0.001, iou 0.7",
+            "split": str(test_split),
+            **metrics.to_dict(),
+        }
+    write_model_card(onnx_path, card)
+    return card
+
+
+def run_train(args: argparse.Namespace) -> int:
+    try:
+        from insulator_rs.detection.train import TrainConfig, export_onnx, prepare_offline, result_dict, train_yolo
+    except ModuleNotFoundError as exc:
+        print(f"error: training needs the train extra (pip install 'insulator_rs[train]'): {exc}", file=sys.stderr)
+        return 2
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    prepare_offline(out / "ultralytics_cfg", threads=args.threads)
+    t_start = time.time()
+    if args.data.suffix in (".yaml", ".yml"):
+        data_yaml, dataset = args.data, {"yaml": str(args.data)}
+        test_split = args.data.parent / "images" / "test"
+    else:
+        print(f"converting VOC {args.data} -> {out / 'data'} (split by source photo)", flush=True)
+        summary = convert_voc_dataset(args.data, out / "data", fractions=tuple(args.fractions), seed=args.seed,
+                                      limit_per_split=args.limit_per_split)
+        data_yaml, dataset = summary.yaml_path, summary.to_dict()
+        test_split = out / "data" / "images" / "test"
+        print(f"  images per split {summary.images}, source photos {summary.source_photos}", flush=True)
+    cfg = TrainConfig(data_yaml=data_yaml, out_dir=out, name="run", model_cfg=args.model_cfg, epochs=args.epochs,
+                      hours=args.hours, imgsz=args.imgsz, batch=args.batch, workers=args.workers,
+                      threads=args.threads, seed=args.seed, patience=args.patience,
+                      extra={"close_mosaic": args.close_mosaic})
+
+    def on_epoch(epoch: int, epochs: int) -> None:
+        print(f"[train] epoch {epoch}/{epochs} done at {time.time() - t_start:.0f} s", flush=True)
+
+    result = train_yolo(cfg, on_epoch=on_epoch)
+    onnx_path = export_onnx(result.weights, args.imgsz, out / f"{args.name}.onnx")
+    curves = plot_training_curves(result.run_dir / "results.csv", out / f"{args.name}_training.png")
+    card = {
+        "name": args.name,
+        "architecture": f"{args.model_cfg} (Ultralytics), trained from scratch: no pretrained weights",
+        "data": dataset,
+        "split": "by source photo (Roboflow copies of one photo share a split)",
+        "epochs": result.epochs_run,
+        "time_budget_hours": args.hours,
+        "imgsz": args.imgsz,
+        "batch": args.batch,
+        "training_seconds": round(result.seconds, 1),
+        "hardware": f"CPU ({platform.processor() or platform.machine()}), {args.threads} torch threads",
+        "validation_metrics_ultralytics": result.val_metrics,
+        "training_curves": curves.name if curves else None,
+        "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "func"},
+        "train_result": result_dict(result),
+    }
+    card = package_model(onnx_path=onnx_path, test_split=test_split, card=card, threads=args.threads)
+    tm = card.get("test_metrics")
+    if tm:
+        print(f"test split: mAP50-95 {tm['map50_95']:.4f}, mAP50 {tm['map50']:.4f} on {tm['images']} images")
+    print(f"model: {onnx_path}\ncard: {onnx_path.with_suffix('.json')}")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``train`` to the ``insulator-rs`` parser."""
+    p = subparsers.add_parser("train", help="train YOLO11n offline and export ONNX (needs the train extra)")
+    p.add_argument("--data", type=Path, required=True, help="VOC folder (with train/valid/test or flat) or data.yaml")
+    p.add_argument("--out", type=Path, required=True, help="output folder (runs, ONNX, model card)")
+    p.add_argument("--name", default="insulator-real", help="model name (file stem)")
+    p.add_argument("--model-cfg", default="yolo11n.yaml", help="Ultralytics architecture file")
+    p.add_argument("--epochs", type=int, default=100)
+    p.add_argument("--hours", type=float, default=None, help="wall-clock budget; overrides --epochs")
+    p.add_argument("--imgsz", type=int, default=320)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--patience", type=int, default=100)
+    p.add_argument("--close-mosaic", type=int, default=5, help="last epochs without mosaic augmentation")
+    p.add_argument("--fractions", type=float, nargs=3, default=list(DEFAULT_FRACTIONS),
+                   metavar=("TRAIN", "VALID", "TEST"), help="source-photo fractions when re-splitting")
+    p.add_argument("--limit-per-split", type=int, default=None, help="keep only N images per split (smoke runs)")
+    p.set_defaults(func=run_train)
