@@ -1,0 +1,265 @@
+"""The mission file: what a grid owner knows, plus the vehicle's limits.
+
+A mission file is TOML (``.toml``) or YAML (``.yaml``/``.yml``) with the tables
+below; every error names the file and the field, and is raised before anything
+flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``)::
+
+    [tower]                       # the inspected tower (WGS-84, degrees / m)
+    lat = 50.0
+    lon = 14.0
+    alt = 300.0
+    max_height = 25.0             # m above the base
+    max_width = 10.0              # m, widest horizontal extent (crossarms)
+
+    [[neighbours]]                # one or two neighbouring towers on the line
+    lat = 50.0
+    lon = 13.9955
+    alt = 300.0
+
+    [takeoff]                     # optional; default: on the "+" side at the standoff
+    lat = 50.0001
+    lon = 14.0
+    alt = 300.0
+
+    [vehicle]                     # limits (m/s, m/s^2); the paper's real flight: 1 and 3
+    v_max_horizontal = 1.0
+    a_max_horizontal = 3.0
+    v_max_vertical = 1.0
+    a_max_vertical = 3.0
+
+    [inspection]
+    standoff = 8.0                # m, exploration path distance from the tower's outer extent
+    safety_margin = 2.0           # m, added round the tower's box and the conductor corridors
+    inspection_distance = 6.0     # m, viewpoint distance from an insulator's centre (optional)
+    waypoints_per_insulator = 2   # optional
+    registry_gate = 1.5           # m, optional: a localization this close to a known insulator updates it
+    pass_spacing = 8.0            # m, optional: vertical spacing of the exploration passes
+    crossing_clearance = 3.0      # m, optional: height above the safety box when crossing sides
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from insulator_rs.exceptions import ConfigError
+from insulator_rs.mission.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
+
+
+@dataclass(frozen=True)
+class VehicleLimits:
+    """Velocity (m/s) and acceleration (m/s^2) limits, horizontal (per axis) and vertical."""
+
+    v_max_horizontal: float
+    a_max_horizontal: float
+    v_max_vertical: float
+    a_max_vertical: float
+
+    def v_max(self) -> np.ndarray:
+        """Per-axis velocity limits (x, y, z) of W, m/s."""
+        return np.array([self.v_max_horizontal, self.v_max_horizontal, self.v_max_vertical])
+
+    def a_max(self) -> np.ndarray:
+        """Per-axis acceleration limits (x, y, z) of W, m/s^2."""
+        return np.array([self.a_max_horizontal, self.a_max_horizontal, self.a_max_vertical])
+
+
+@dataclass(frozen=True)
+class InspectionParams:
+    """Inspection parameters, metres unless stated."""
+
+    standoff: float
+    safety_margin: float
+    inspection_distance: float = 6.0
+    waypoints_per_insulator: int = 2
+    registry_gate: float = 1.5
+    pass_spacing: float = 8.0
+    crossing_clearance: float = 3.0
+
+
+@dataclass(frozen=True)
+class Mission:
+    """A validated mission. ``takeoff`` is None when the file gives none (the
+    planner then takes off on the "+" side at the standoff)."""
+
+    source: str
+    tower: GeoPoint
+    max_height: float
+    max_width: float
+    neighbours: tuple[GeoPoint, ...]
+    takeoff: GeoPoint | None
+    vehicle: VehicleLimits
+    inspection: InspectionParams
+
+    def neighbours_enu(self) -> np.ndarray:
+        """Neighbour tower bases in W (N, 3), m."""
+        return gps_to_enu(list(self.neighbours), self.tower)
+
+    def line(self) -> LineFrame:
+        """The tower's line frame in W."""
+        return line_frame(self.neighbours_enu())
+
+    def takeoff_enu(self) -> np.ndarray:
+        """Take-off point in W (3,), m: the file's, or on the "+" side at the standoff, on the ground."""
+        if self.takeoff is not None:
+            return gps_to_enu(self.takeoff, self.tower)
+        lf = self.line()
+        return lf.to_world(np.array([0.0, self.max_width / 2 + self.inspection.standoff, 0.0]))
+
+
+class _Reader:
+    """Pulls typed, range-checked fields out of a parsed table, naming file and field on error."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, field: str, reason: str) -> ConfigError:
+        return ConfigError(f"{self.source}: {field}: {reason}")
+
+    def table(self, data: Any, field: str, *, required: bool = True) -> dict[str, Any] | None:
+        if field not in data:
+            if required:
+                raise self.fail(field, "missing table")
+            return None
+        value = data[field]
+        if not isinstance(value, dict):
+            raise self.fail(field, f"expected a table, got {type(value).__name__}")
+        return value
+
+    def number(self, table: dict[str, Any], prefix: str, key: str, *, default: float | None = None,
+               positive: bool = False, nonnegative: bool = False,
+               lo: float | None = None, hi: float | None = None) -> float:
+        field = f"{prefix}.{key}"
+        if key not in table:
+            if default is None:
+                raise self.fail(field, "missing")
+            return default
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(field, f"expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise self.fail(field, f"must be finite, got {value}")
+        if positive and value <= 0:
+            raise self.fail(field, f"must be > 0, got {value}")
+        if nonnegative and value < 0:
+            raise self.fail(field, f"must be >= 0, got {value}")
+        if lo is not None and value < lo or hi is not None and value > hi:
+            raise self.fail(field, f"must lie in [{lo}, {hi}], got {value}")
+        return value
+
+    def integer(self, table: dict[str, Any], prefix: str, key: str, *, default: int, lo: int) -> int:
+        field = f"{prefix}.{key}"
+        value = table.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(field, f"expected an integer, got {value!r}")
+        if value < lo:
+            raise self.fail(field, f"must be >= {lo}, got {value}")
+        return value
+
+    def geo(self, table: dict[str, Any], prefix: str) -> GeoPoint:
+        return GeoPoint(
+            lat=self.number(table, prefix, "lat", lo=-90.0, hi=90.0),
+            lon=self.number(table, prefix, "lon", lo=-180.0, hi=180.0),
+            alt=self.number(table, prefix, "alt", default=0.0),
+        )
+
+    def unknown(self, table: dict[str, Any], prefix: str, allowed: set[str]) -> None:
+        extra = sorted(set(table) - allowed)
+        if extra:
+            raise self.fail(f"{prefix}.{extra[0]}", f"unknown field (allowed: {', '.join(sorted(allowed))})")
+
+
+def parse_mission(data: Any, source: str = "<mission>") -> Mission:
+    """Validate a parsed mission document (a dict) into a :class:`Mission`."""
+    r = _Reader(source)
+    if not isinstance(data, dict):
+        raise r.fail("<root>", f"expected a table, got {type(data).__name__}")
+    r.unknown(data, "<root>", {"tower", "neighbours", "takeoff", "vehicle", "inspection"})
+    tower_t = r.table(data, "tower")
+    assert tower_t is not None
+    r.unknown(tower_t, "tower", {"lat", "lon", "alt", "max_height", "max_width"})
+    tower = r.geo(tower_t, "tower")
+    max_height = r.number(tower_t, "tower", "max_height", positive=True)
+    max_width = r.number(tower_t, "tower", "max_width", positive=True)
+
+    if "neighbours" not in data:
+        raise r.fail("neighbours", "missing (give one or two neighbouring towers)")
+    nbs = data["neighbours"]
+    if not isinstance(nbs, list) or not 1 <= len(nbs) <= 2:
+        raise r.fail("neighbours", "expected a list of one or two tables")
+    neighbours = []
+    for i, nb in enumerate(nbs):
+        if not isinstance(nb, dict):
+            raise r.fail(f"neighbours[{i}]", "expected a table")
+        r.unknown(nb, f"neighbours[{i}]", {"lat", "lon", "alt"})
+        neighbours.append(r.geo(nb, f"neighbours[{i}]"))
+
+    takeoff_t = r.table(data, "takeoff", required=False)
+    takeoff = None
+    if takeoff_t is not None:
+        r.unknown(takeoff_t, "takeoff", {"lat", "lon", "alt"})
+        takeoff = r.geo(takeoff_t, "takeoff")
+
+    veh_t = r.table(data, "vehicle")
+    assert veh_t is not None
+    keys = ("v_max_horizontal", "a_max_horizontal", "v_max_vertical", "a_max_vertical")
+    r.unknown(veh_t, "vehicle", set(keys))
+    vehicle = VehicleLimits(*(r.number(veh_t, "vehicle", k, positive=True) for k in keys))
+
+    insp_t = r.table(data, "inspection")
+    assert insp_t is not None
+    d = InspectionParams(standoff=1.0, safety_margin=0.0)
+    r.unknown(insp_t, "inspection", set(InspectionParams.__dataclass_fields__))
+    inspection = InspectionParams(
+        standoff=r.number(insp_t, "inspection", "standoff", positive=True),
+        safety_margin=r.number(insp_t, "inspection", "safety_margin", nonnegative=True),
+        inspection_distance=r.number(insp_t, "inspection", "inspection_distance",
+                                     default=d.inspection_distance, positive=True),
+        waypoints_per_insulator=r.integer(insp_t, "inspection", "waypoints_per_insulator",
+                                          default=d.waypoints_per_insulator, lo=1),
+        registry_gate=r.number(insp_t, "inspection", "registry_gate", default=d.registry_gate,
+                               positive=True),
+        pass_spacing=r.number(insp_t, "inspection", "pass_spacing", default=d.pass_spacing,
+                              positive=True),
+        crossing_clearance=r.number(insp_t, "inspection", "crossing_clearance",
+                                    default=d.crossing_clearance, positive=True),
+    )
+    if inspection.standoff <= inspection.safety_margin:
+        raise r.fail("inspection.standoff",
+                     f"must exceed inspection.safety_margin ({inspection.safety_margin} m), "
+                     f"or the exploration path would lie inside the safety volume")
+    mission = Mission(source, tower, max_height, max_width, tuple(neighbours), takeoff,
+                      vehicle, inspection)
+    try:
+        mission.line()
+    except ValueError as exc:
+        raise r.fail("neighbours", str(exc)) from exc
+    return mission
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read and validate a TOML or YAML mission file."""
+    p = Path(path)
+    source = str(p)
+    if not p.is_file():
+        raise ConfigError(f"{source}: <file>: no such file")
+    text = p.read_text(encoding="utf-8")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".toml":
+            data: Any = tomllib.loads(text)
+        elif suffix in (".yaml", ".yml"):
+            data = yaml.safe_load(text)
+        else:
+            raise ConfigError(f"{source}: <file>: unknown mission file type {suffix!r} "
+                              f"(use .toml, .yaml or .yml)")
+    except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{source}: <file>: cannot parse: {exc}") from exc
+    return parse_mission(data, source)
