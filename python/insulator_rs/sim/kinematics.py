@@ -618,8 +618,10 @@ class KinematicVehicle:
         self.model.step(h, self._active_setpoint() if self.armed else None)
         if self.armed and self.mode == FlightMode.TAKEOFF and self._takeoff_target is not None \
                 and np.linalg.norm(self._takeoff_target - self.model.position) < TAKEOFF_REACHED_M:
-            self._takeoff_target = None
+            # PX4 loiters at the takeoff point, not where the climb was declared done.
+            target, self._takeoff_target = self._takeoff_target, None
             self._switch(FlightMode.HOLD)
+            self._hold_position = target
         landed = self.landed
         if not landed and self.armed:
             self._has_taken_off = True

@@ -1,0 +1,87 @@
+"""Frame conversions at the MAVLink boundary, and nowhere else.
+
+The project works in W = local ENU (x east, y north, z up) with body FLU; PX4
+speaks local NED (x north, y east, z down) with body FRD. Both conversions
+swap/negate axes: ENU<->NED is (x, y, z) -> (y, x, -z) and FLU<->FRD is
+(x, y, z) -> (x, -y, -z); each is its own inverse. Yaw: ENU yaw is measured
+from east counter-clockwise, NED yaw from north clockwise, so
+yaw_ned = pi/2 - yaw_enu.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# p_ned = ENU_TO_NED @ p_enu; det = +1 (the x/y swap and the z flip together
+# form a proper rotation), and it is symmetric, so it is its own inverse.
+ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
+
+
+def _vectors(values: object, name: str) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64)
+    if array.shape[-1:] != (3,):
+        raise ValueError(f"{name} must have shape (..., 3), got {array.shape}")
+    return array
+
+
+def enu_to_ned(vector: object) -> np.ndarray:
+    """Position/velocity (..., 3) from ENU to NED."""
+    return _vectors(vector, "vector") @ ENU_TO_NED.T
+
+
+def ned_to_enu(vector: object) -> np.ndarray:
+    """Position/velocity (..., 3) from NED to ENU (the same axis swap)."""
+    return _vectors(vector, "vector") @ ENU_TO_NED.T
+
+
+def flu_to_frd(vector: object) -> np.ndarray:
+    """Body vector (..., 3) from FLU to FRD."""
+    return _vectors(vector, "vector") @ FLU_TO_FRD.T
+
+
+def frd_to_flu(vector: object) -> np.ndarray:
+    """Body vector (..., 3) from FRD to FLU."""
+    return _vectors(vector, "vector") @ FLU_TO_FRD.T
+
+
+def wrap_pi(angle: float) -> float:
+    """Angle in rad wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def yaw_enu_to_ned(yaw_enu: float) -> float:
+    """Heading from east CCW (rad) -> heading from north CW (rad), in [-pi, pi)."""
+    return wrap_pi(math.pi / 2.0 - yaw_enu)
+
+
+def yaw_ned_to_enu(yaw_ned: float) -> float:
+    """Heading from north CW (rad) -> heading from east CCW (rad), in [-pi, pi)."""
+    return wrap_pi(math.pi / 2.0 - yaw_ned)
+
+
+def rotation_from_euler_ned_frd(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """R_ned_frd from PX4's ATTITUDE (ZYX Tait-Bryan: yaw, then pitch, then roll)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def attitude_ned_frd_to_enu_flu(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """R_enu_flu (3x3, maps body FLU vectors to W) from PX4 roll/pitch/yaw (rad)."""
+    return ENU_TO_NED.T @ rotation_from_euler_ned_frd(roll, pitch, yaw) @ FLU_TO_FRD
+
+
+def attitude_enu_flu_to_ned_frd(rotation_enu_flu: np.ndarray) -> tuple[float, float, float]:
+    """PX4 (roll, pitch, yaw) in rad from R_enu_flu (the inverse of the above)."""
+    r = ENU_TO_NED @ np.asarray(rotation_enu_flu, dtype=np.float64) @ FLU_TO_FRD
+    pitch = -math.asin(max(-1.0, min(1.0, r[2, 0])))
+    roll = math.atan2(r[2, 1], r[2, 2])
+    yaw = math.atan2(r[1, 0], r[0, 0])
+    return roll, pitch, yaw
