@@ -19,10 +19,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from insulator_rs._core import RaycastScene
 
 #: Instance id the ray caster reports for a ray that hits nothing.
 NO_HIT: int = -1
@@ -183,6 +187,57 @@ class Mesh:
             raise ValueError(f"instance_id: must be >= 0, got {instance_id}")
         ids = np.full(self.n_triangles, instance_id, np.int32)
         return Mesh(self.vertices, self.triangles, ids, {int(instance_id): info})
+
+    @cached_property
+    def raycaster(self) -> RaycastScene:
+        """The mesh in the compiled BVH (built once, on first use)."""
+        from insulator_rs._core import RaycastScene
+
+        return RaycastScene(self.vertices, self.triangles, self.instance_ids)
+
+    def _per_instance(self, values: dict[int, Any], default: Any, dtype: type) -> np.ndarray:
+        size = max(self.instances, default=-1) + 1
+        table = np.full((size, *np.shape(default)), default, dtype=dtype)
+        for key, value in values.items():
+            table[key] = value
+        return table
+
+    def albedo_table(self) -> np.ndarray:
+        """(max id + 1, 3) float64 linear RGB colour per instance id (grey for unused ids)."""
+        return self._per_instance(
+            {k: v.color for k, v in self.instances.items()}, (0.5, 0.5, 0.5), np.float64
+        )
+
+    def return_probability_table(self) -> np.ndarray:
+        """(max id + 1,) float64 LiDAR return probability per instance id (1 for unused ids)."""
+        return self._per_instance(
+            {k: v.return_probability for k, v in self.instances.items()}, 1.0, np.float64
+        )
+
+    def instance_ids_of_kind(self, kind: str) -> list[int]:
+        """Sorted ids of the instances of ``kind`` (one of :data:`INSTANCE_KINDS`)."""
+        if kind not in INSTANCE_KINDS:
+            raise ValueError(f"kind: {kind!r} is not one of {sorted(INSTANCE_KINDS)}")
+        return sorted(k for k, v in self.instances.items() if v.kind == kind)
+
+    def enclosing_instance(self, point: ArrayLike) -> int | None:
+        """The instance whose closed surface holds ``point`` (W, m), or None if it is outside.
+
+        Six axis rays leave the point; it is inside when at least four of them first
+        meet a back face (the meshes are wound outward). A point below an open ground
+        plane counts as inside the ground.
+        """
+        p = _finite_vec("point", point)
+        dirs = np.vstack([np.eye(3), -np.eye(3)])
+        hits = self.raycaster.cast(np.tile(p, (6, 1)), dirs, np.inf)
+        back = (hits.instance_id >= 0) & (np.einsum("ij,ij->i", hits.normal, dirs) > 0)
+        up_id = int(hits.instance_id[2])
+        if back[2] and self.instances[up_id].kind == "ground":
+            return up_id
+        if int(back.sum()) < 4:
+            return None
+        ids, counts = np.unique(hits.instance_id[back], return_counts=True)
+        return int(ids[np.argmax(counts)])
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (min, max) in W; raises on an empty mesh."""
