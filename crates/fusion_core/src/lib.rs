@@ -19,3 +19,10 @@ pub use error::{FusionError, Result};
 pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
 pub use projection::{project_points, Projection};
 pub use transform::{chain, rigid_from_matrix};
+pub mod localize;
+pub mod pca;
+pub mod ransac;
+
+pub use localize::{localize, LocalizeParams, Localization, Method};
+pub use pca::{pca, Pca};
+pub use ransac::{ransac_line, LineFit, RansacParams};
