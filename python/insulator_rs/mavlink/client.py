@@ -231,7 +231,7 @@ class MavlinkVehicle:
     def arm(self) -> None:
         """MAV_CMD_COMPONENT_ARM_DISARM(1); returns once the heartbeat shows armed."""
         self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, detail="arm")
-        self._wait_for(lambda: self.state().armed, self.command_timeout * 3 / self.time_scale + 1.0,
+        self._wait_for(lambda: self.state().armed, 2.0 / self.time_scale + 1.0,
                        "vehicle accepted arming but its heartbeat never showed armed")
 
     def disarm(self) -> None:
@@ -304,10 +304,12 @@ class MavlinkVehicle:
     def land(self) -> None:
         self._stop_streaming()
         self._command(M.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
+        self._wait_mode(FlightMode.LAND)
 
     def return_to_launch(self) -> None:
         self._stop_streaming()
         self._command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+        self._wait_mode(FlightMode.RTL)
 
     def close(self) -> None:
         """Stop the threads, close the link, stop the simulator if we started it."""
@@ -336,7 +338,11 @@ class MavlinkVehicle:
         with self._lock:
             self._expected_mode = mode.value
         self._command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub, detail=mode.value)
-        self._wait_for(lambda: self.state().mode == mode.value, self.command_timeout * 3 / self.time_scale + 1.0,
+        self._wait_mode(mode)
+
+    def _wait_mode(self, mode: FlightMode) -> None:
+        # The heartbeat (1 Hz of vehicle time) confirms the switch.
+        self._wait_for(lambda: self.state().mode == mode.value, 2.0 / self.time_scale + 1.0,
                        f"vehicle accepted mode {mode.value} but its heartbeat never showed it")
 
     def _command(self, command: int, *params: float, detail: str = "") -> None:

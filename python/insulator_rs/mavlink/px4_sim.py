@@ -230,6 +230,15 @@ class SimulatedPx4:
         with self._lock:
             self.faults.delay_s = seconds
 
+    def set_rate(self, message: str, rate_hz: float) -> None:
+        """Change a telemetry rate (Hz of vehicle time; 0 stops it), as a fault or a test needs."""
+        if message not in self.rates_hz or not (math.isfinite(rate_hz) and rate_hz >= 0.0):
+            raise ValueError(f"message must be one of {sorted(self.rates_hz)} and rate_hz >= 0, "
+                             f"got {message!r}, {rate_hz!r}")
+        with self._lock:
+            self.rates_hz[message] = float(rate_hz)
+            self._next_send[message] = 0.0
+
     def pilot_mode_change(self, mode: FlightMode | str = FlightMode.POSCTL) -> None:
         """The pilot flips the RC mode switch (no MAVLink involved)."""
         with self._lock:

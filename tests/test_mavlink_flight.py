@@ -1,0 +1,315 @@
+"""The offboard client against the simulated PX4: real MAVLink 2 over UDP on 127.0.0.1.
+
+No mocks: every exchange goes through sockets. The vehicle clock runs
+``TIME_SCALE`` times faster than the wall clock (PX4's timeouts scale with it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from insulator_rs.exceptions import VehicleError
+from insulator_rs.mavlink import connect_vehicle
+from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle, VehicleFailsafe
+from insulator_rs.mavlink.px4_sim import SimulatedPx4
+from insulator_rs.mavlink.signing import key_from_passphrase
+from insulator_rs.mavlink.wire import mavlink2 as M
+from insulator_rs.mavlink.wire import mavutil
+from insulator_rs.vehicle import Vehicle
+
+TIME_SCALE = 4.0
+DT = 0.05
+
+
+@pytest.fixture
+def vehicle() -> Iterator[MavlinkVehicle]:
+    client = connect_vehicle(None, time_scale=TIME_SCALE)
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def sim_of(client: MavlinkVehicle) -> SimulatedPx4:
+    assert isinstance(client.simulator, SimulatedPx4)
+    return client.simulator
+
+
+def wait_until(client: MavlinkVehicle, predicate, vehicle_seconds: float) -> None:
+    """Advance the vehicle clock until predicate(state) holds (fail after vehicle_seconds)."""
+    end = client.state().time + vehicle_seconds
+    while client.state().time < end:
+        if predicate(client.state()):
+            return
+        client.advance(DT)
+    raise AssertionError(f"condition not reached in {vehicle_seconds} s of vehicle time: {client.state()}")
+
+
+def take_off_into_offboard(client: MavlinkVehicle, altitude: float = 3.0) -> None:
+    client.arm()
+    client.takeoff(altitude)
+    wait_until(client, lambda s: s.mode == "HOLD" and abs(s.position[2] - altitude) < 0.1, 15.0)
+    client.send_setpoint(client.state().position)
+    client.advance(0.3)
+    client.start_offboard()
+
+
+def test_client_implements_the_vehicle_protocol(vehicle: MavlinkVehicle) -> None:
+    assert isinstance(vehicle, Vehicle)
+    state = vehicle.state()
+    assert (state.mode, state.armed, state.landed) == ("HOLD", False, True)
+
+
+def test_connect_arm_offboard_fly_a_trajectory_capture_and_land(vehicle: MavlinkVehicle) -> None:
+    """Reference: the simulator's true state (read under its lock). MAVLink carries
+    positions as float32, so the client's view must match to 1e-3 m."""
+    sim = sim_of(vehicle)
+    take_off_into_offboard(vehicle, 3.0)
+    start = vehicle.state()
+    setpoints_before = sim.stats.setpoints
+    # A 6 m straight segment east at 2 m/s with velocity feed-forward, yaw north.
+    t0 = start.time
+    goal = start.position + np.array([6.0, 0.0, 1.0])
+    while True:
+        s = min(1.0, (vehicle.state().time - t0) / 3.0)
+        position = start.position + s * (goal - start.position)
+        velocity = (goal - start.position) / 3.0 if s < 1.0 else np.zeros(3)
+        vehicle.send_setpoint(position, velocity, yaw=math.pi / 2)
+        state = vehicle.advance(DT)
+        if state.time - t0 > 6.0:
+            break
+    assert state.mode == "OFFBOARD" and state.healthy
+    np.testing.assert_allclose(state.position, goal, atol=0.03)
+    assert state.yaw == pytest.approx(math.pi / 2, abs=1e-3)
+    truth = sim.with_vehicle(lambda v: (v.model.position.copy(), v.clock.now))
+    assert np.linalg.norm(truth[0] - vehicle.state().position) < 0.05
+    # Setpoints arrived at >= 20 Hz of vehicle time while in offboard.
+    rate = (sim.stats.setpoints - setpoints_before) / (state.time - t0)
+    assert rate >= 19.0
+    vehicle.capture_image()
+    wait_until(vehicle, lambda s: len(vehicle.camera_feedback) == 1, 2.0)
+    sim_capture = sim.with_vehicle(lambda v: v.captures[-1])
+    np.testing.assert_allclose(vehicle.captures[0].position, sim_capture.position, atol=0.01)
+    assert vehicle.camera_feedback[0].image_index == 0
+    vehicle.land()
+    wait_until(vehicle, lambda s: not s.armed, 20.0)
+    final = vehicle.state()
+    assert final.landed and final.position[2] == pytest.approx(0.0, abs=1e-3)
+    assert sim.stats.last_ack[M.MAV_CMD_NAV_LAND] == M.MAV_RESULT_ACCEPTED
+
+
+def test_offboard_before_setpoints_is_refused_with_px4s_result(vehicle: MavlinkVehicle) -> None:
+    with pytest.raises(CommandRejected) as refusal:
+        vehicle.start_offboard()
+    assert refusal.value.command == "MAV_CMD_DO_SET_MODE"
+    assert refusal.value.result == "MAV_RESULT_TEMPORARILY_REJECTED"
+    assert "OFFBOARD" in str(refusal.value)
+    assert vehicle.state().mode == "HOLD"
+
+
+def test_arming_twice_is_accepted_as_px4_does(vehicle: MavlinkVehicle) -> None:
+    """PX4's Commander::arm returns TRANSITION_NOT_CHANGED for an armed vehicle and the
+    command handler answers ACCEPTED; the client must not treat that as an error."""
+    vehicle.arm()
+    vehicle.arm()
+    assert vehicle.state().armed
+    assert sim_of(vehicle).stats.commands["MAV_CMD_COMPONENT_ARM_DISARM"] == 2
+
+
+def test_commands_refused_while_disarmed_or_not_ready(vehicle: MavlinkVehicle) -> None:
+    with pytest.raises(VehicleError, match="takeoff refused: vehicle is disarmed"):
+        vehicle.takeoff(3.0)
+    sim = sim_of(vehicle)
+    sim.position_loss(True)
+    with pytest.raises(CommandRejected, match="arm.*MAV_RESULT_TEMPORARILY_REJECTED"):
+        vehicle.arm()
+    sim.position_loss(False)
+    take_off_into_offboard(vehicle)
+    with pytest.raises(CommandRejected, match="disarm.*TEMPORARILY_REJECTED"):
+        vehicle.disarm()
+    assert vehicle.state().armed
+
+
+def test_link_loss_mid_flight_vehicle_failsafe_and_client_report(vehicle: MavlinkVehicle) -> None:
+    sim = sim_of(vehicle)
+    take_off_into_offboard(vehicle)
+    for _ in range(10):
+        vehicle.send_setpoint(np.array([1.0, 0.0, 3.0]))
+        vehicle.advance(DT)
+    vehicle.capture_image()
+    sim.set_link_lost(True)
+    with pytest.raises(VehicleFailsafe) as failsafe:
+        for _ in range(400):
+            vehicle.send_setpoint(np.array([1.0, 0.0, 3.0]))
+            vehicle.advance(DT)
+    assert "autopilot heartbeat lost" in failsafe.value.reason
+    assert "autopilot flies its own failsafe" in failsafe.value.action
+    # The vehicle's own failsafe: setpoints stopped arriving -> HOLD after COM_OF_LOSS_T.
+    mode, fault = sim.with_vehicle(lambda v: (v.mode.value, v.fault))
+    assert mode == "HOLD" and fault == "offboard setpoints lost for more than 1 s"
+    assert len(vehicle.captures) == 1  # nothing recorded so far is lost
+    assert vehicle.state().fault == failsafe.value.reason
+
+
+def test_pilot_mode_change_stops_offboard_commanding_at_once(vehicle: MavlinkVehicle) -> None:
+    sim = sim_of(vehicle)
+    take_off_into_offboard(vehicle)
+    vehicle.send_setpoint(np.array([0.0, 0.0, 3.0]))
+    vehicle.advance(0.5)
+    sim.pilot_mode_change("POSCTL")
+    with pytest.raises(VehicleFailsafe, match="mode changed from OFFBOARD to POSCTL"):
+        for _ in range(100):
+            vehicle.advance(DT)
+    # Streaming stopped when the heartbeat arrived: at most a few setpoints were in
+    # flight; afterwards none.
+    count = sim.stats.setpoints
+    time.sleep(0.5)
+    assert sim.stats.setpoints - count <= 1
+    with pytest.raises(VehicleFailsafe, match="offboard commanding stopped"):
+        vehicle.send_setpoint(np.array([5.0, 0.0, 3.0]))
+    assert vehicle.state().mode == "POSCTL"
+
+
+def test_low_battery_returns_home_with_a_reason(vehicle: MavlinkVehicle) -> None:
+    sim = sim_of(vehicle)
+    take_off_into_offboard(vehicle)
+    sim.with_vehicle(lambda v: setattr(v, "battery_fraction", 0.15))
+    with pytest.raises(VehicleFailsafe) as failsafe:
+        for _ in range(200):
+            vehicle.send_setpoint(np.array([0.0, 0.0, 3.0]))
+            vehicle.advance(DT)
+    assert failsafe.value.reason == "battery low (15% < 20%)"
+    assert failsafe.value.action == "return"
+    assert vehicle.state().mode == "RTL"
+
+
+def test_stale_position_holds_with_a_reason(vehicle: MavlinkVehicle) -> None:
+    sim = sim_of(vehicle)
+    take_off_into_offboard(vehicle)
+    sim.set_rate("LOCAL_POSITION_NED", 0.0)
+    with pytest.raises(VehicleFailsafe) as failsafe:
+        for _ in range(400):
+            vehicle.send_setpoint(np.array([0.0, 0.0, 3.0]))
+            vehicle.advance(DT)
+    assert failsafe.value.reason == "local position stale for more than 1 s"
+    assert failsafe.value.action == "hold"
+    assert sim.with_vehicle(lambda v: v.mode.value) == "HOLD"
+
+
+def test_commands_survive_packet_loss_and_delay() -> None:
+    """20 % loss each way and 30 ms latency: retransmission gets every command through."""
+    client = connect_vehicle(None, time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
+    try:
+        sim = sim_of(client)
+        sim.set_packet_loss(0.2)
+        sim.set_delay(0.03)
+        take_off_into_offboard(client)
+        assert client.state().mode == "OFFBOARD"
+        assert sim.stats.dropped > 0
+    finally:
+        client.close()
+
+
+def test_gps_glitch_is_seen_by_the_client(vehicle: MavlinkVehicle) -> None:
+    sim = sim_of(vehicle)
+    sim.gps_glitch((4.0, -2.0, 0.0))
+    vehicle.advance(0.2)
+    np.testing.assert_allclose(vehicle.state().position, [4.0, -2.0, 0.0], atol=1e-3)
+
+
+def test_signing_rejects_unsigned_and_wrongly_signed_commands() -> None:
+    key = key_from_passphrase("insulator tower 42")
+    client = connect_vehicle(None, time_scale=TIME_SCALE, signing_key=key)
+    try:
+        sim = sim_of(client)
+        host, port = sim.address
+        for intruder_key in (None, key_from_passphrase("not the key")):
+            intruder = mavutil.mavlink_connection(f"udpout:{host}:{port}", source_system=255,
+                                                  source_component=190)
+            if intruder_key is not None:
+                intruder.setup_signing(intruder_key, sign_outgoing=True)
+            before = sim.stats.rejected_signature
+            for _ in range(3):
+                intruder.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+                time.sleep(0.05)
+            ack = intruder.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.5)
+            intruder.close()
+            assert ack is None
+            assert sim.stats.rejected_signature - before == 3
+            assert not client.state().armed
+        client.arm()  # the key holder is obeyed
+        assert client.state().armed
+    finally:
+        client.close()
+
+
+def test_type_mask_velocity_only_and_yaw_rate_setpoints() -> None:
+    """A raw pymavlink peer sends velocity-only (positions ignored) with a yaw rate:
+    the simulated PX4 flies that velocity and turns at that rate."""
+    with SimulatedPx4(time_scale=TIME_SCALE) as sim:
+        sim.with_vehicle(lambda v: (v.arm(), v.request_takeoff(3.0)))
+        deadline = time.monotonic() + 10
+        while sim.with_vehicle(lambda v: v.mode.value) != "HOLD" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        host, port = sim.address
+        peer = mavutil.mavlink_connection(f"udpout:{host}:{port}", source_system=255, source_component=190)
+        mask = (M.POSITION_TARGET_TYPEMASK_X_IGNORE | M.POSITION_TARGET_TYPEMASK_Y_IGNORE
+                | M.POSITION_TARGET_TYPEMASK_Z_IGNORE | M.POSITION_TARGET_TYPEMASK_AX_IGNORE
+                | M.POSITION_TARGET_TYPEMASK_AY_IGNORE | M.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+                | M.POSITION_TARGET_TYPEMASK_YAW_IGNORE)
+        try:
+            def stream(seconds: float) -> None:
+                end = time.monotonic() + seconds / TIME_SCALE
+                while time.monotonic() < end:
+                    # NED: 1 m/s north, 0.5 m/s up; yaw rate 0.2 rad/s clockwise seen from above
+                    peer.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask,
+                                                                0, 0, 0, 1.0, 0.0, -0.5, 0, 0, 0, 0, 0.2)
+                    time.sleep(0.05 / TIME_SCALE)
+            stream(1.0)
+            peer.mav.command_long_send(1, 1, M.MAV_CMD_DO_SET_MODE, 0, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                       6, 0, 0, 0, 0, 0)
+            stream(3.0)
+            velocity, mode, yaw_before = sim.with_vehicle(lambda v: (v.model.velocity.copy(), v.mode.value,
+                                                                    v.model.yaw))
+            stream(1.0)
+            yaw_after = sim.with_vehicle(lambda v: v.model.yaw)
+        finally:
+            peer.close()
+        assert mode == "OFFBOARD"
+        np.testing.assert_allclose(velocity, [0.0, 1.0, 0.5], atol=0.02)  # ENU
+        turn = math.remainder(yaw_after - yaw_before, 2 * math.pi)
+        assert turn < 0  # clockwise in NED = negative (clockwise) in ENU
+        assert abs(turn) == pytest.approx(0.2, rel=0.25)
+
+
+def test_no_heartbeat_times_out_with_a_clear_error() -> None:
+    with SimulatedPx4() as silent:
+        port = silent.address[1]
+    start = time.monotonic()
+    with pytest.raises(VehicleError, match="no autopilot heartbeat on udpout:127.0.0.1:.* within 0.5 s"):
+        MavlinkVehicle(f"udpout:127.0.0.1:{port}", heartbeat_timeout=0.5)
+    assert time.monotonic() - start < 3.0
+
+
+@pytest.mark.parametrize(
+    ("connection", "error", "match"),
+    [("bogus", ValueError, "connection must be udpin"), ("", TypeError, "connection must be a non-empty"),
+     (None, TypeError, "connection must be a non-empty")],
+)
+def test_bad_connection_strings(connection, error, match) -> None:
+    with pytest.raises(error, match=match):
+        MavlinkVehicle(connection)  # type: ignore[arg-type]
+
+
+def test_bad_setpoints_name_the_argument(vehicle: MavlinkVehicle) -> None:
+    with pytest.raises(ValueError, match="position must have shape"):
+        vehicle.send_setpoint(np.zeros(2))
+    with pytest.raises(ValueError, match="yaw must be finite"):
+        vehicle.send_setpoint(np.zeros(3), yaw=math.nan)
+    with pytest.raises(ValueError, match="dt must be > 0"):
+        vehicle.advance(-1.0)
