@@ -42,56 +42,105 @@ pub fn dbscan<P: PointCloud + ?Sized>(points: &P, eps: f64, min_points: usize) -
     Ok(labels)
 }
 
+/// Most neighbour indices kept between the two passes (u32 each: 64 MiB). Beyond it the
+/// neighbourhoods of core points are queried again while expanding, so memory stays O(N).
+const NEIGHBOUR_BUDGET: usize = 16 << 20;
+
 /// DBSCAN on points already known to be finite (validated arguments). Crate-internal so
 /// localize can cluster its finite copy without re-scanning it.
 pub(crate) fn dbscan_finite(coords: &[[f64; 3]], eps: f64, min_points: usize) -> Vec<i32> {
-    let m = coords.len();
-    let mut labels = vec![NOISE; m];
-    if m == 0 {
-        return labels;
-    }
-    let tree = Tree::new_from_slice(coords);
-    let eps2 = eps * eps;
+    dbscan_with_budget(coords, eps, min_points, NEIGHBOUR_BUDGET)
+}
 
-    // Pass 1: neighbourhood of every point; only core neighbourhoods are kept (only they
-    // are expanded), in one flat buffer indexed by `starts`.
-    let mut is_core = vec![false; m];
-    let mut starts = vec![0usize; m + 1];
-    let mut neighbours: Vec<u32> = Vec::with_capacity(m * min_points.min(64));
-    for (k, q) in coords.iter().enumerate() {
-        let found = tree.within_unsorted::<SquaredEuclidean>(q, eps2);
-        if found.len() >= min_points {
-            is_core[k] = true;
-            neighbours.extend(found.iter().map(|nn| nn.item));
+/// Groups exactly equal points: returns the distinct points, their multiplicities and,
+/// for each input point, the index of its distinct point. Many LiDARs report every missing
+/// return as (0, 0, 0), so without this a cloud could hold one neighbourhood of N points.
+fn deduplicate(coords: &[[f64; 3]]) -> (Vec<[f64; 3]>, Vec<usize>, Vec<u32>) {
+    // +0.0 turns -0.0 into 0.0 so equal coordinates share a bit pattern.
+    let key = |p: &[f64; 3]| [(p[0] + 0.0).to_bits(), (p[1] + 0.0).to_bits(), (p[2] + 0.0).to_bits()];
+    let mut order: Vec<u32> = (0..coords.len() as u32).collect();
+    order.sort_unstable_by_key(|&i| key(&coords[i as usize]));
+    let mut unique: Vec<[f64; 3]> = Vec::with_capacity(coords.len());
+    let mut weight: Vec<usize> = Vec::with_capacity(coords.len());
+    let mut rep = vec![0u32; coords.len()];
+    let mut last: Option<[u64; 3]> = None;
+    for &i in &order {
+        let k = key(&coords[i as usize]);
+        if last != Some(k) {
+            unique.push(coords[i as usize]);
+            weight.push(0);
+            last = Some(k);
         }
-        starts[k + 1] = neighbours.len();
+        let u = unique.len() - 1;
+        weight[u] += 1;
+        rep[i as usize] = u as u32;
+    }
+    (unique, weight, rep)
+}
+
+fn dbscan_with_budget(coords: &[[f64; 3]], eps: f64, min_points: usize, budget: usize) -> Vec<i32> {
+    let m = coords.len();
+    if m == 0 {
+        return Vec::new();
+    }
+    let (unique, weight, rep) = deduplicate(coords);
+    let u_count = unique.len();
+    let tree = Tree::new_from_slice(&unique);
+    let eps2 = eps * eps;
+    let query = |q: &[f64; 3]| tree.within_unsorted::<SquaredEuclidean>(q, eps2);
+
+    // Pass 1: weighted neighbour count of every distinct point; the neighbourhoods of core
+    // points (the only ones expanded) are kept in one flat buffer while it fits the budget.
+    let mut is_core = vec![false; u_count];
+    let mut starts = vec![0usize; u_count + 1];
+    let mut neighbours: Vec<u32> = Vec::with_capacity(u_count * min_points.min(32));
+    let mut stored = true;
+    for (k, q) in unique.iter().enumerate() {
+        let found = query(q);
+        let count: usize = found.iter().map(|nn| weight[nn.item as usize]).sum();
+        if count >= min_points {
+            is_core[k] = true;
+            if stored {
+                if neighbours.len() + found.len() > budget {
+                    stored = false;
+                    neighbours = Vec::new();
+                } else {
+                    neighbours.extend(found.iter().map(|nn| nn.item));
+                }
+            }
+        }
+        if stored {
+            starts[k + 1] = neighbours.len();
+        }
     }
 
-    // Pass 2: expand clusters from core points in index order (sklearn's dbscan_inner).
-    let mut stack: Vec<usize> = Vec::new();
+    // Pass 2: expand clusters from core points in input index order (sklearn's dbscan_inner).
+    let mut labels = vec![NOISE; u_count];
+    let mut stack: Vec<u32> = Vec::new();
     let mut next_label: i32 = 0;
-    for seed in 0..m {
-        if labels[seed] != NOISE || !is_core[seed] {
+    for &seed in &rep {
+        if labels[seed as usize] != NOISE || !is_core[seed as usize] {
             continue;
         }
         stack.push(seed);
         while let Some(i) = stack.pop() {
+            let i = i as usize;
             if labels[i] != NOISE {
                 continue;
             }
             labels[i] = next_label;
-            if is_core[i] {
-                for &j in &neighbours[starts[i]..starts[i + 1]] {
-                    let j = j as usize;
-                    if labels[j] == NOISE {
-                        stack.push(j);
-                    }
-                }
+            if !is_core[i] {
+                continue;
+            }
+            if stored {
+                stack.extend(neighbours[starts[i]..starts[i + 1]].iter().filter(|&&j| labels[j as usize] == NOISE));
+            } else {
+                stack.extend(query(&unique[i]).iter().map(|nn| nn.item).filter(|&j| labels[j as usize] == NOISE));
             }
         }
         next_label += 1;
     }
-    labels
+    rep.iter().map(|&u| labels[u as usize]).collect()
 }
 
 /// Number of clusters in a label vector (largest label + 1).
@@ -211,6 +260,31 @@ mod tests {
         let same = vec![[1.0, 2.0, 3.0]; 10_000];
         assert!(dbscan(&same, 0.3, 5).unwrap().iter().all(|&l| l == 0));
         assert_equivalent(&pts[..600], 0.3, 5);
+    }
+
+    #[test]
+    fn requery_path_matches_stored_path() {
+        let mut pts = Vec::new();
+        for k in 0..300 {
+            let t = f64::from(k);
+            pts.push([(t * 0.37).sin() * 2.0, (t * 0.11).cos() * 2.0, (t * 0.05) % 1.0]);
+        }
+        pts.extend(vec![[0.5, 0.5, 0.5]; 50]);
+        for (eps, mp) in [(0.3, 5), (0.6, 12), (0.1, 2)] {
+            let a = dbscan_with_budget(&pts, eps, mp, NEIGHBOUR_BUDGET);
+            let b = dbscan_with_budget(&pts, eps, mp, 10);
+            assert_eq!(a, b);
+            assert_equivalent(&pts, eps, mp);
+        }
+    }
+
+    #[test]
+    fn duplicates_count_towards_core_and_signed_zero_is_equal() {
+        // Three copies of one point make it core for min_points = 3; -0.0 equals 0.0.
+        let pts = vec![[0.0, 0.0, 0.0], [-0.0, 0.0, -0.0], [0.0, 0.0, 0.0], [0.25, 0.0, 0.0], [9.0, 9.0, 9.0]];
+        assert_eq!(dbscan(&pts, 0.3, 3).unwrap(), vec![0, 0, 0, 0, -1]);
+        assert_equivalent(&pts, 0.3, 3);
+        assert_equivalent(&pts, 0.3, 4);
     }
 
     #[test]
