@@ -49,6 +49,36 @@ def build_image(case: dict[str, object]) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def write_non_yolo_models(folder: Path) -> None:
+    """Two tiny valid ONNX files that are not YOLO detectors (for the construction errors)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, 64, 64])
+    # 1) identity: NCHW in, NCHW out.
+    y = helper.make_tensor_value_info("output0", TensorProto.FLOAT, [1, 3, 64, 64])
+    g = helper.make_graph([helper.make_node("Identity", ["images"], ["output0"])], "identity", [x], [y])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 13)])
+    m.ir_version = 8
+    onnx.checker.check_model(m)
+    onnx.save(m, folder / "not_yolo_identity.onnx")
+    # 2) a [1, 4, N] output: boxes but no class channel.
+    y2 = helper.make_tensor_value_info("output0", TensorProto.FLOAT, [1, 4, 4096])
+    inits = [helper.make_tensor("shape", TensorProto.INT64, [3], [1, 4, 4096]),
+             helper.make_tensor("starts", TensorProto.INT64, [1], [0]),
+             helper.make_tensor("ends", TensorProto.INT64, [1], [1]),
+             helper.make_tensor("axes", TensorProto.INT64, [1], [1])]
+    nodes = [helper.make_node("Slice", ["images", "starts", "ends", "axes"], ["s"]),
+             helper.make_node("Concat", ["s", "s", "s", "s"], ["c"], axis=1),
+             helper.make_node("Reshape", ["c", "shape"], ["output0"])]
+    g2 = helper.make_graph(nodes, "boxes_only", [x], [y2], initializer=inits)
+    m2 = helper.make_model(g2, opset_imports=[helper.make_opsetid("", 13)])
+    m2.ir_version = 8
+    m2.metadata_props.add(key="task", value="detect")
+    onnx.checker.check_model(m2)
+    onnx.save(m2, folder / "not_yolo_no_classes.onnx")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default="insulator-real", help="shipped model name or ONNX path")
@@ -89,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         "cases": cases,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_non_yolo_models(args.out.parent)
     args.out.write_text(json.dumps(payload, indent=1) + "\n")
     print(f"wrote {args.out}: {len(cases)} cases, {sum(len(c['boxes']) for c in cases)} boxes")
     return 0

@@ -149,6 +149,8 @@ class Detector:
         task = meta.get("task")
         if task is not None and task != "detect":
             raise ModelError(f"model {self.path}: not a YOLO detection export (task {task!r})")
+        if meta.get("end2end") == "True":
+            raise ModelError(f"model {self.path}: end-to-end (NMS-free) head not supported; export with end2end=False")
         self.names = self._read_names(meta, outs[0].shape)
         self.dynamic = not all(isinstance(d, int) for d in inp[0].shape[2:])
         self.imgsz = self._input_size(imgsz, meta, inp[0].shape)
