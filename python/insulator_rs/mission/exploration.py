@@ -1,0 +1,119 @@
+"""The exploration path round both sides of the tower, and the over-the-top crossing.
+
+In the line frame (along a, lateral l, up z; see :mod:`.geodesy`) the path
+keeps a lateral distance ``max_width / 2 + standoff`` from the line plane, runs
+horizontal passes along the tower's along-extent at heights spaced by
+``pass_spacing`` to cover its height (a serpentine, upward on the take-off side,
+downward on the other), crosses sides above the safety volumes, and comes back
+over the top to land where it took off. All waypoints are in W.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from insulator_rs.mission.geodesy import LineFrame
+from insulator_rs.mission.safety import SafetyVolumes
+
+# Lowest exploration pass above the base (m): keeps the vehicle clear of the ground.
+MIN_PASS_HEIGHT = 3.0
+
+
+@dataclass(frozen=True)
+class PathWaypoint:
+    """One exploration-path waypoint in W. ``kind``: "takeoff", "scan" (a pass corner),
+    "cross" (above the safety volumes) or "land". ``side``: +1/-1 for the side of the
+    tower it is on, 0 above the tower. ``yaw``: rad, heading that faces the tower."""
+
+    position: np.ndarray
+    kind: str
+    side: int
+    yaw: float
+
+
+def facing_yaw(line: LineFrame, side: int) -> float:
+    """Yaw (rad, from W's x axis, counter-clockwise) that looks from ``side`` at the line plane."""
+    look = -side * line.lateral
+    return math.atan2(look[1], look[0])
+
+
+def crossing_route(line: LineFrame, volumes: SafetyVolumes, a: np.ndarray, b: np.ndarray,
+                   clearance: float) -> list[np.ndarray]:
+    """Intermediate W waypoints for flying from ``a`` to ``b``: none if the straight segment is
+    clear, else straight up from ``a`` to ``clearance`` above the safety volumes, across, and
+    straight down to ``b`` (clear whenever ``a`` and ``b`` are)."""
+    if volumes.segments_clear(a[None], b[None])[0]:
+        return []
+    z = volumes.top + clearance
+    return [np.array([a[0], a[1], max(z, a[2])]), np.array([b[0], b[1], max(z, b[2])])]
+
+
+def pass_heights(max_height: float, pass_spacing: float) -> list[float]:
+    """Heights (m, ascending) of the horizontal passes: from the tower top down in steps of
+    ``pass_spacing``, the lowest no lower than MIN_PASS_HEIGHT."""
+    heights = []
+    z = max_height
+    while z >= MIN_PASS_HEIGHT - 1e-9:
+        heights.append(z)
+        z -= pass_spacing
+    if not heights:
+        heights = [max(max_height, MIN_PASS_HEIGHT)]
+    return sorted(heights)
+
+
+def exploration_path(line: LineFrame, volumes: SafetyVolumes, *, takeoff: np.ndarray,
+                     max_width: float, max_height: float, standoff: float, pass_spacing: float,
+                     crossing_clearance: float, along_extent: float | None = None) -> list[PathWaypoint]:
+    """The exploration path from ``takeoff`` (W) round both sides and back.
+
+    ``along_extent`` (m) is the half-length of each pass along the line (default:
+    half the maximum width plus the standoff's quarter, so the passes see the
+    tower's ends obliquely). Raises ValueError if the take-off point or any leg
+    of the path is inside a safety volume.
+    """
+    takeoff = np.asarray(takeoff, dtype=np.float64).reshape(3)
+    if not volumes.points_clear(takeoff[None])[0]:
+        raise ValueError("takeoff: the take-off point is inside a safety volume")
+    half_len = max_width / 2 + standoff / 4 if along_extent is None else along_extent
+    lateral = max_width / 2 + standoff
+    heights = pass_heights(max_height, pass_spacing)
+    first = line.side(takeoff)
+    a_take = float(takeoff @ line.along)
+    start_a = -half_len if a_take <= 0 else half_len  # start the passes at the nearer end
+    path = [PathWaypoint(takeoff, "takeoff", first, facing_yaw(line, first))]
+
+    def side_passes(side: int, zs: list[float], a0: float) -> float:
+        a = a0
+        for z in zs:
+            for a_end in (a, -a):
+                p = line.to_world(np.array([a_end, side * lateral, z]))
+                path.append(PathWaypoint(p, "scan", side, facing_yaw(line, side)))
+            a = -a
+        return a  # where the last pass ended
+
+    z_cross = volumes.top + crossing_clearance
+    a_last = side_passes(first, heights, start_a)  # the along position the passes ended at
+    # up above the safety volumes, across, and down the other side
+    path.append(PathWaypoint(line.to_world(np.array([a_last, first * lateral, z_cross])),
+                             "cross", 0, facing_yaw(line, first)))
+    path.append(PathWaypoint(line.to_world(np.array([a_last, -first * lateral, z_cross])),
+                             "cross", 0, facing_yaw(line, -first)))
+    a_last = side_passes(-first, heights[::-1], a_last)
+    # home: up, over the top, down to the take-off point
+    path.append(PathWaypoint(line.to_world(np.array([a_last, -first * lateral, z_cross])),
+                             "cross", 0, facing_yaw(line, -first)))
+    path.append(PathWaypoint(line.to_world(np.array([a_take, first * lateral, z_cross])),
+                             "cross", 0, facing_yaw(line, first)))
+    path.append(PathWaypoint(np.array([takeoff[0], takeoff[1], z_cross]), "cross", 0,
+                             facing_yaw(line, first)))
+    path.append(PathWaypoint(takeoff, "land", first, facing_yaw(line, first)))
+    path = [w for i, w in enumerate(path)
+            if i == 0 or np.linalg.norm(w.position - path[i - 1].position) > 1e-6]
+    pts = np.array([w.position for w in path])
+    if not volumes.polyline_clear(pts):
+        raise ValueError("standoff: the exploration path enters a safety volume "
+                         "(raise the standoff or lower the safety margin)")
+    return path

@@ -1,0 +1,255 @@
+"""The online inspection state machine (the paper's Fig. "state machine").
+
+The machine owns the *plan*: the remaining exploration-path waypoints with the
+inspection waypoints of buffer B spliced in. The state follows from what the
+plan's head is: EXPLORE (a scan waypoint), INSPECT (an inspection waypoint),
+RETURN (back to the point where exploration was left), CROSS (over the top to
+the other side), FINISH (nothing left to scan or inspect: flying home and
+landing); HOLD and ABORT are entered on faults. Every transition is logged and
+kept in :attr:`InspectionStateMachine.transitions`.
+
+Two buffering policies:
+
+* ``"immediate"`` (the paper): waypoints of a newly localized near-side
+  insulator are visited at once; the vehicle then returns to where it left the
+  path. Found during a detour, they join the detour before the return.
+* ``"insertion"``: each new waypoint is inserted where it adds the least cost
+  (``cost(a, b)``, s) along the remaining plan on its side, so inspections can
+  wait until the path passes by.
+
+Insulators on the far side are recorded and their waypoints deferred until the
+vehicle has crossed to that side.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from insulator_rs.mission.exploration import PathWaypoint
+from insulator_rs.mission.registry import Insulator, InsulatorRegistry
+from insulator_rs.mission.waypoints import InspectionWaypoint
+
+LOG = logging.getLogger("insulator_rs.mission")
+
+POLICIES = ("immediate", "insertion")
+
+
+class State(str, Enum):
+    IDLE = "idle"
+    EXPLORE = "explore"
+    INSPECT = "inspect"
+    RETURN = "return"
+    CROSS = "cross"
+    FINISH = "finish"
+    HOLD = "hold"
+    ABORT = "abort"
+
+
+@dataclass(frozen=True)
+class PlanItem:
+    """One target of the plan in W. ``kind``: "scan", "inspect", "return", "cross", "land".
+    ``side``: +1/-1, or 0 above the tower. ``waypoint``: the inspection waypoint for "inspect"."""
+
+    kind: str
+    position: np.ndarray
+    yaw: float
+    side: int
+    waypoint: InspectionWaypoint | None = None
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A logged state change at vehicle ``time`` (s)."""
+
+    time: float
+    source: State
+    target: State
+    reason: str
+
+
+@dataclass
+class InspectionStateMachine:
+    """The mission's decision logic, driven by events (no I/O, no clock of its own).
+
+    ``make_waypoints`` turns a new insulator into its inspection waypoints;
+    ``cost`` (s) is only used by the insertion policy.
+    """
+
+    path: list[PathWaypoint]
+    registry: InsulatorRegistry
+    make_waypoints: Callable[[Insulator], list[InspectionWaypoint]]
+    policy: str = "immediate"
+    cost: Callable[[np.ndarray, np.ndarray], float] | None = None
+    state: State = State.IDLE
+    plan: list[PlanItem] = field(default_factory=list)
+    deferred: dict[int, list[InspectionWaypoint]] = field(default_factory=dict)
+    transitions: list[Transition] = field(default_factory=list)
+    visited: list[PlanItem] = field(default_factory=list)
+    side: int = 0
+    _held_from: State | None = None
+    _remaining: dict[int, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy: expected one of {POLICIES}, got {self.policy!r}")
+        if self.policy == "insertion" and self.cost is None:
+            raise ValueError("cost: the insertion policy needs a cost function")
+        if len(self.path) < 2 or self.path[0].kind != "takeoff":
+            raise ValueError("path: expected an exploration path starting with its take-off point")
+        self.side = self.path[0].side
+
+    # -- state bookkeeping -------------------------------------------------------------
+    def _set(self, new: State, time: float, reason: str) -> None:
+        if new == self.state:
+            return
+        tr = Transition(time, self.state, new, reason)
+        self.transitions.append(tr)
+        LOG.info("t=%.2f s %s -> %s (%s)", time, self.state.value, new.value, reason)
+        self.state = new
+
+    def _derive(self, time: float, reason: str) -> None:
+        if self.state in (State.HOLD, State.ABORT):
+            return
+        if not any(it.kind in ("scan", "inspect", "return") for it in self.plan):
+            self._set(State.FINISH, time, reason)
+            return
+        head = self.plan[0].kind
+        new = {"scan": State.EXPLORE, "inspect": State.INSPECT, "return": State.RETURN,
+               "cross": State.CROSS, "land": State.FINISH}[head]
+        self._set(new, time, reason)
+
+    @property
+    def done(self) -> bool:
+        """True when the plan is empty (landed) or the mission was aborted."""
+        return self.state == State.ABORT or (self.state == State.FINISH and not self.plan)
+
+    def target(self) -> PlanItem | None:
+        """What to fly to now (None when done, holding or aborted)."""
+        if self.state in (State.HOLD, State.ABORT, State.IDLE) or not self.plan:
+            return None
+        return self.plan[0]
+
+    # -- events ------------------------------------------------------------------------
+    def start(self, time: float = 0.0) -> None:
+        """Take-off done: start the exploration path."""
+        if self.state != State.IDLE:
+            raise RuntimeError(f"start: the mission already started (state {self.state.value})")
+        self.plan = [PlanItem(w.kind, w.position, w.yaw, w.side) for w in self.path[1:]]
+        self._derive(time, "take-off complete")
+
+    def reached(self, time: float) -> PlanItem:
+        """The vehicle reached the plan's head; returns it (an "inspect" item means: take the photo)."""
+        if self.state in (State.HOLD, State.ABORT, State.IDLE) or not self.plan:
+            raise RuntimeError(f"reached: no active target in state {self.state.value}")
+        item = self.plan.pop(0)
+        self.visited.append(item)
+        reason = f"reached {item.kind} waypoint"
+        if item.kind == "inspect" and item.waypoint is not None:
+            iid = item.waypoint.insulator_id
+            self._remaining[iid] = self._remaining.get(iid, 1) - 1
+            if self._remaining[iid] == 0:
+                for ins in self.registry.insulators:
+                    if ins.id == iid:
+                        ins.inspected = True
+        if item.side != 0 and item.side != self.side:
+            self.side = item.side
+            reason = f"arrived on side {item.side:+d}"
+            released = self.deferred.pop(item.side, [])
+            if released:
+                self._buffer(released, item.position)
+                reason += f", {len(released)} deferred waypoints released"
+        self._derive(time, reason)
+        return item
+
+    def localized(self, center: np.ndarray, axis: np.ndarray, position: np.ndarray,
+                  time: float) -> str:
+        """A localization in W arrived while the vehicle is at ``position``. Returns "new",
+        "updated", "deferred" (new, on the far side) or "ignored" (after the mission ended)."""
+        if self.state in (State.ABORT, State.FINISH, State.IDLE):
+            return "ignored"
+        ins, is_new = self.registry.observe(center, axis)
+        if not is_new:
+            return "updated"
+        wps = self.make_waypoints(ins)
+        self._remaining[ins.id] = len(wps)
+        if not wps:
+            return "new"
+        if ins.side != self.side:
+            self.deferred.setdefault(ins.side, []).extend(wps)
+            LOG.info("t=%.2f s insulator %d on the far side (%+d): %d waypoints deferred",
+                     time, ins.id, ins.side, len(wps))
+            return "deferred"
+        before = self.state
+        self._buffer(wps, np.asarray(position, dtype=np.float64))
+        if self.state != State.HOLD:
+            self._derive(time, f"insulator {ins.id} localized, {len(wps)} waypoints buffered")
+        if before == self.state:
+            LOG.info("t=%.2f s insulator %d localized: %d waypoints buffered (%s)", time, ins.id,
+                     len(wps), self.state.value)
+        return "new"
+
+    def fault(self, reason: str, time: float) -> None:
+        """A recoverable fault (e.g. localization lost, link degraded): hold position."""
+        if self.state in (State.HOLD, State.ABORT):
+            return
+        self._held_from = self.state
+        self._set(State.HOLD, time, f"fault: {reason}")
+
+    def resume(self, time: float) -> None:
+        """The fault cleared: continue where the mission was."""
+        if self.state != State.HOLD:
+            raise RuntimeError(f"resume: not holding (state {self.state.value})")
+        assert self._held_from is not None
+        self._set(self._held_from, time, "fault cleared")
+        self._derive(time, "fault cleared")
+
+    def abort(self, reason: str, time: float) -> None:
+        """Unrecoverable fault: stop the mission (the vehicle's own failsafe takes over)."""
+        self._set(State.ABORT, time, f"abort: {reason}")
+        self.plan = []
+
+    # -- buffering ---------------------------------------------------------------------
+    def _items(self, wps: list[InspectionWaypoint]) -> list[PlanItem]:
+        return [PlanItem("inspect", w.position, w.yaw, w.side, w) for w in wps]
+
+    def _buffer(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
+        if self.policy == "immediate":
+            self._buffer_immediate(wps, position)
+        else:
+            self._buffer_insertion(wps, position)
+
+    def _buffer_immediate(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
+        items = self._items(wps)
+        in_detour = self.plan and self.plan[0].kind in ("inspect", "return")
+        if in_detour:
+            k = next((i for i, it in enumerate(self.plan) if it.kind == "return"), len(self.plan))
+            self.plan[k:k] = items
+        else:
+            back = PlanItem("return", position.copy(), self.plan[0].yaw if self.plan else 0.0,
+                            self.side)
+            self.plan[0:0] = items + [back]
+
+    def _buffer_insertion(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
+        assert self.cost is not None
+        for item in self._items(wps):
+            best_k, best_cost = None, np.inf
+            for k in range(len(self.plan) + 1):
+                prev_pos = position if k == 0 else self.plan[k - 1].position
+                prev_side = self.side if k == 0 else self.plan[k - 1].side
+                nxt = self.plan[k] if k < len(self.plan) else None
+                if prev_side != item.side or (nxt is not None and nxt.side not in (item.side, 0)):
+                    continue
+                added = self.cost(prev_pos, item.position)
+                if nxt is not None:
+                    added += self.cost(item.position, nxt.position) - self.cost(prev_pos, nxt.position)
+                if added < best_cost:
+                    best_k, best_cost = k, added
+            if best_k is None:  # nowhere on this side: visit now and come back
+                self._buffer_immediate([item.waypoint], position)  # type: ignore[list-item]
+            else:
+                self.plan.insert(best_k, item)

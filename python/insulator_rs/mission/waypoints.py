@@ -1,0 +1,94 @@
+"""Inspection viewpoints for one localized insulator.
+
+Viewpoints lie on a circle round the insulator's centre in the plane
+perpendicular to its axis, at the inspection distance (raised if needed so the
+camera sees the insulator whole), fanned symmetrically about the direction that
+points out of the tower on the insulator's side (the near side), and pushed
+further out if a viewpoint would fall in a safety volume. Each carries the yaw
+and gimbal pitch that aim the camera at the centre. All in W.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from insulator_rs.mission.geodesy import LineFrame
+from insulator_rs.mission.safety import SafetyVolumes
+
+# Fraction of the field of view the insulator may fill (the rest is margin for the localization error).
+FILL_FRACTION = 0.7
+# Step (m) when pushing a viewpoint out of a safety volume, and the clearance kept beyond it.
+PUSH_STEP = 0.25
+PUSH_CLEARANCE = 0.5
+
+
+@dataclass(frozen=True)
+class InspectionWaypoint:
+    """A viewpoint in W: ``position`` (3,) m, ``yaw`` rad (body x from W x, CCW), ``gimbal_pitch``
+    rad (negative looks down), ``target`` the insulator centre it aims at, ``insulator_id``
+    the registry id, ``side`` the tower side it is on."""
+
+    position: np.ndarray
+    yaw: float
+    gimbal_pitch: float
+    target: np.ndarray
+    insulator_id: int
+    side: int
+
+
+def aim(position: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    """(yaw, pitch) in rad that point the camera from ``position`` at ``target`` (W)."""
+    d = np.asarray(target, dtype=np.float64) - np.asarray(position, dtype=np.float64)
+    return math.atan2(d[1], d[0]), math.atan2(d[2], math.hypot(d[0], d[1]))
+
+
+def viewing_distance(length: float, fov: float, inspection_distance: float) -> float:
+    """Distance (m) at least ``inspection_distance`` at which an insulator ``length`` m long fills at
+    most FILL_FRACTION of a field of view ``fov`` rad (the narrower one of the camera)."""
+    need = (length / 2) / math.tan(FILL_FRACTION * fov / 2)
+    return max(inspection_distance, need)
+
+
+def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: int, line: LineFrame,
+                         volumes: SafetyVolumes, count: int, inspection_distance: float,
+                         insulator_length: float, fov: float, fan: float = math.radians(60.0),
+                         side: int | None = None) -> list[InspectionWaypoint]:
+    """``count`` viewpoints for the insulator at ``center`` with unit ``axis`` (W).
+
+    ``fan`` (rad) is the angle spanned by the viewpoints round the axis; ``side``
+    defaults to the side of the centre. Raises ValueError on a bad argument.
+    """
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    u = np.asarray(axis, dtype=np.float64).reshape(3)
+    if not (np.all(np.isfinite(c)) and np.all(np.isfinite(u))) or np.linalg.norm(u) < 1e-9:
+        raise ValueError("center/axis: must be finite and the axis non-zero")
+    if count < 1:
+        raise ValueError(f"count: must be >= 1, got {count}")
+    if not 0 < fov < math.pi:
+        raise ValueError(f"fov: must lie in (0, pi) rad, got {fov}")
+    u = u / np.linalg.norm(u)
+    s = line.side(c) if side is None else side
+    out = s * line.lateral
+    e1 = out - (out @ u) * u
+    if np.linalg.norm(e1) < 1e-6:  # axis across the line: look from along the outward side instead
+        e1 = np.array([0.0, 0.0, 1.0]) - u[2] * u
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    r = viewing_distance(insulator_length, fov, inspection_distance)
+    angles = [0.0] if count == 1 else list(np.linspace(-fan / 2, fan / 2, count))
+    result = []
+    for theta in angles:
+        direction = math.cos(theta) * e1 + math.sin(theta) * e2
+        p = c + r * direction
+        pushed = 0.0
+        while not volumes.points_clear(p[None], inflate=PUSH_CLEARANCE)[0]:
+            p = p + PUSH_STEP * out
+            pushed += PUSH_STEP
+            if pushed > 100.0:
+                raise ValueError("center: no viewpoint outside the safety volumes within 100 m")
+        yaw, pitch = aim(p, c)
+        result.append(InspectionWaypoint(p, yaw, pitch, c.copy(), insulator_id, s))
+    return result

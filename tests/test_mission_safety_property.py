@@ -1,0 +1,80 @@
+"""Property: every trajectory the mission plans, in randomised towers, stays out of the safety
+volumes (exploration path flown by min-snap and by PMM, inspection detours, TSP-style
+side-to-side routes)."""
+
+import math
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from insulator_rs.mission.exploration import crossing_route, exploration_path
+from insulator_rs.mission.geodesy import line_frame
+from insulator_rs.mission.minsnap import plan_min_snap_safe
+from insulator_rs.mission.pmm import plan_pmm
+from insulator_rs.mission.safety import safety_volumes
+from insulator_rs.mission.waypoints import inspection_waypoints
+
+DT = 0.02
+
+
+@st.composite
+def towers(draw):
+    heading = draw(st.floats(0, 2 * math.pi))
+    d0, d1 = draw(st.floats(80, 400)), draw(st.floats(80, 400))
+    bend = draw(st.floats(-0.3, 0.3))  # the line may turn at the tower
+    along = np.array([math.cos(heading), math.sin(heading), 0.0])
+    along2 = np.array([math.cos(heading + bend), math.sin(heading + bend), 0.0])
+    neighbours = np.array([-d0 * along, d1 * along2])
+    width = draw(st.floats(4, 14))
+    height = draw(st.floats(12, 45))
+    margin = draw(st.floats(0.5, 3))
+    standoff = draw(st.floats(margin + 1.0, 12))
+    spacing = draw(st.floats(4, 12))
+    side = draw(st.sampled_from([1, -1]))
+    return neighbours, width, height, margin, standoff, spacing, side, draw(st.integers(0, 10**6))
+
+
+def samples_clear(volumes, pos, vmax_norm):
+    return volumes.samples_clear(pos, max_step=vmax_norm * DT)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(towers())
+def test_planned_trajectories_stay_out_of_the_safety_volumes(tower):
+    neighbours, width, height, margin, standoff, spacing, side, seed = tower
+    line = line_frame(neighbours)
+    vol = safety_volumes(line, max_width=width, max_height=height, margin=margin)
+    rng = np.random.default_rng(seed)
+    takeoff = line.to_world(np.array([rng.uniform(-5, 5), side * (width / 2 + standoff), 0.0]))
+    path = exploration_path(line, vol, takeoff=takeoff, max_width=width, max_height=height,
+                            standoff=standoff, pass_spacing=spacing, crossing_clearance=3.0)
+    pts = np.array([w.position for w in path])
+    assert vol.polyline_clear(pts)
+    vm, am = np.array([3.0, 3.0, 2.0]), np.array([12.0, 12.0, 6.0])
+    vmax_norm = float(np.linalg.norm(vm))
+
+    snap = plan_min_snap_safe(pts, vm, am, vol, dt=DT)
+    _, pos, _ = snap.sample(DT)
+    assert samples_clear(vol, pos, vmax_norm)
+
+    pmm = plan_pmm(pts, vm, am)
+    _, pos, _, _ = pmm.sample(DT)
+    assert samples_clear(vol, pos, vmax_norm)
+
+    # inspection viewpoints of random insulators inside the tower, and routes between them
+    wps = []
+    for _ in range(4):
+        c = line.to_world(np.array([rng.uniform(-1, 1) * width / 2, rng.uniform(-1, 1) * width / 2,
+                                    rng.uniform(0.4, 1.0) * height]))
+        axis = rng.normal(size=3)
+        wps += inspection_waypoints(c, axis, insulator_id=1, line=line, volumes=vol, count=2,
+                                    inspection_distance=rng.uniform(3, 10), insulator_length=2.0,
+                                    fov=math.radians(60))
+    assert vol.points_clear(np.array([w.position for w in wps])).all()
+    for a, b in zip(wps[:-1], wps[1:]):
+        route = np.array([a.position, *crossing_route(line, vol, a.position, b.position, 3.0),
+                          b.position])
+        assert vol.polyline_clear(route)
+        _, pos, _, _ = plan_pmm(route, vm, am).sample(DT)
+        assert samples_clear(vol, pos, vmax_norm)
