@@ -140,6 +140,7 @@ class MavlinkVehicle:
         source_system: int = 1,
         source_component: int = ONBOARD_COMPONENT_ID,
         local_origin_w: object = (0.0, 0.0, 0.0),
+        camera_component: int = 1,
     ) -> None:
         heartbeat_timeout = as_finite(heartbeat_timeout, "heartbeat_timeout")
         self.command_timeout = as_finite(command_timeout, "command_timeout")
@@ -157,6 +158,10 @@ class MavlinkVehicle:
         self.failsafes = failsafes or FailsafeSettings()
         self.local_origin_w = as_vector3(local_origin_w, "local_origin_w")
         self.connection = connection
+        if not isinstance(camera_component, int) or not 0 <= camera_component <= 255:
+            raise ValueError(f"camera_component must be a MAVLink component id, got {camera_component!r}")
+        # 1: the autopilot's camera trigger (PX4); 100+: a MAVLink camera component.
+        self.camera_component = camera_component
         self.captures: list[CapturedImage] = []
         self.camera_feedback: list[Any] = []
         self.simulator: Any = None  # set by connect_vehicle when it started the sim
@@ -297,7 +302,8 @@ class MavlinkVehicle:
         """MAV_CMD_IMAGE_START_CAPTURE (one image); the pose at the trigger goes into ``captures``."""
         state = self.state()
         self._image_sequence += 1
-        self._command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, self._image_sequence, detail="1 image")
+        self._command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, self._image_sequence, detail="1 image",
+                      component=self.camera_component)
         self.captures.append(CapturedImage(index=len(self.captures), time=state.time,
                                            position=state.position, yaw=state.yaw))
 
@@ -345,7 +351,7 @@ class MavlinkVehicle:
         self._wait_for(lambda: self.state().mode == mode.value, 2.0 / self.time_scale + 1.0,
                        f"vehicle accepted mode {mode.value} but its heartbeat never showed it")
 
-    def _command(self, command: int, *params: float, detail: str = "") -> None:
+    def _command(self, command: int, *params: float, detail: str = "", component: int | None = None) -> None:
         """COMMAND_LONG with retransmission; raise unless the ACK says ACCEPTED."""
         padded = [float(p) for p in params] + [0.0] * (7 - len(params))
         name = command_name(command)
@@ -353,7 +359,8 @@ class MavlinkVehicle:
             with self._lock:
                 self._acks.pop(command, None)
             with self._send_lock:
-                self._conn.mav.command_long_send(self._target[0], self._target[1], command, confirmation,
+                target_component = self._target[1] if component is None else component
+                self._conn.mav.command_long_send(self._target[0], target_component, command, confirmation,
                                                  *padded)
             deadline = time.monotonic() + self.command_timeout
             with self._lock:
