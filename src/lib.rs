@@ -1,6 +1,33 @@
+//! `insulator_rs._core`: thin pyo3 bindings over fusion_core.
+//!
+//! One file per core module, each with `register(py, m)`; argument extraction in
+//! `pyutils`, error mapping and GIL release in `errors`. No algorithm lives here.
+
 use pyo3::prelude::*;
 
+mod camera;
+mod culling;
+mod dbscan;
+mod errors;
+mod localize;
+mod pca;
+mod projection;
+mod pyutils;
+mod raycast;
+mod ransac;
+mod transform;
+
 #[pymodule]
-fn _core(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
+    errors::register(py, m)?;
+    camera::register(py, m)?;
+    transform::register(py, m)?;
+    projection::register(py, m)?;
+    culling::register(py, m)?;
+    dbscan::register(py, m)?;
+    ransac::register(py, m)?;
+    pca::register(py, m)?;
+    localize::register(py, m)?;
+    raycast::register(m)?;
     Ok(())
 }

@@ -6,4 +6,40 @@ this package re-exports its public API and adds the Python orchestration.
 
 from __future__ import annotations
 
-__all__: list[str] = []
+from insulator_rs._core import (
+    NEAR_LIMIT,
+    NOISE,
+    CameraModel,
+    LineFit,
+    Localization,
+    LocalizationError,
+    Pca,
+    chain_transforms,
+    dbscan,
+    localize,
+    localize_defaults,
+    pca,
+    points_in_boxes,
+    project_points,
+    ransac_line,
+)
+from insulator_rs.calibration import load_camera_model
+
+__all__: list[str] = [
+    "NEAR_LIMIT",
+    "NOISE",
+    "CameraModel",
+    "LineFit",
+    "Localization",
+    "LocalizationError",
+    "Pca",
+    "chain_transforms",
+    "dbscan",
+    "load_camera_model",
+    "localize",
+    "localize_defaults",
+    "pca",
+    "points_in_boxes",
+    "project_points",
+    "ransac_line",
+]

@@ -1,0 +1,194 @@
+"""Type stubs of the compiled extension ``insulator_rs._core`` (Rust, pyo3).
+
+Checked against the built module by ``python -m mypy.stubtest insulator_rs._core``.
+Frames and units: see the docstrings; metres, pixels, radians.
+"""
+
+from typing import Any, Final, Literal, final
+
+import numpy as np
+from numpy.typing import NDArray
+
+from insulator_rs.exceptions import InsulatorError
+
+_Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
+# A point cloud: (N, 3) float32 or float64, any strides.
+_Points = NDArray[np.float32] | NDArray[np.float64]
+
+__all__ = [
+    "CameraModel",
+    "LineFit",
+    "Localization",
+    "LocalizationError",
+    "NEAR_LIMIT",
+    "NOISE",
+    "Pca",
+    "RaycastHits",
+    "RaycastScene",
+    "chain_transforms",
+    "dbscan",
+    "localize",
+    "localize_defaults",
+    "pca",
+    "points_in_boxes",
+    "project_points",
+    "ransac_line",
+]
+
+NEAR_LIMIT: Final[float]
+NOISE: Final[int]
+
+class LocalizationError(InsulatorError):
+    """The cloud holds no usable insulator."""
+
+@final
+class CameraModel:
+    """Pinhole camera with OpenCV (k1, k2, p1, p2, k3) distortion; pixels."""
+
+    def __new__(
+        cls,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
+        dist: tuple[float, float, float, float, float] | list[float] | None = None,
+    ) -> CameraModel: ...
+    @property
+    def fx(self) -> float: ...
+    @property
+    def fy(self) -> float: ...
+    @property
+    def cx(self) -> float: ...
+    @property
+    def cy(self) -> float: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def dist(self) -> tuple[float, float, float, float, float]: ...
+    def camera_matrix(self) -> NDArray[np.float64]: ...
+    def __eq__(self, value: object, /) -> bool: ...
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]: ...
+
+@final
+class LineFit:
+    """RANSAC line: inlier centroid, unit direction, inlier indices, iterations run."""
+
+    @property
+    def point(self) -> NDArray[np.float64]: ...
+    @property
+    def direction(self) -> NDArray[np.float64]: ...
+    @property
+    def inliers(self) -> NDArray[np.int64]: ...
+    @property
+    def iterations(self) -> int: ...
+
+@final
+class Pca:
+    """Mean, descending eigenvalues, eigenvectors as columns, points used."""
+
+    @property
+    def mean(self) -> NDArray[np.float64]: ...
+    @property
+    def eigenvalues(self) -> NDArray[np.float64]: ...
+    @property
+    def eigenvectors(self) -> NDArray[np.float64]: ...
+    @property
+    def n_points(self) -> int: ...
+
+@final
+class Localization:
+    """Insulator centre and unit axis in the body frame B."""
+
+    @property
+    def center(self) -> NDArray[np.float64]: ...
+    @property
+    def direction(self) -> NDArray[np.float64]: ...
+    @property
+    def n_points(self) -> int: ...
+    @property
+    def n_clusters(self) -> int: ...
+    @property
+    def n_nonfinite(self) -> int: ...
+    @property
+    def method(self) -> _Method: ...
+
+def chain_transforms(T_c_b: Any, T_b_l: Any) -> NDArray[np.float64]: ...
+def project_points(
+    points_l: _Points, T_c_l: Any, cam: CameraModel
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
+def points_in_boxes(
+    points_l: _Points, T_c_l: Any, cam: CameraModel, boxes: Any
+) -> list[NDArray[np.int64]]: ...
+def dbscan(points: _Points, eps: float, min_points: int) -> NDArray[np.int32]: ...
+def ransac_line(
+    points: _Points,
+    threshold: float,
+    *,
+    max_iterations: int = ...,
+    confidence: float = ...,
+    seed: int = ...,
+) -> LineFit: ...
+def pca(points: _Points) -> Pca: ...
+def localize(
+    points_b: _Points,
+    method: _Method = "dbscan+ransac",
+    *,
+    eps: float = ...,
+    min_points: int = ...,
+    tau: float = ...,
+    ransac_threshold: float = ...,
+    max_iterations: int = ...,
+    confidence: float = ...,
+    seed: int = ...,
+) -> Localization: ...
+def localize_defaults() -> dict[str, float | int]: ...
+
+# --- scene ray casting (src/raycast.rs, the simulator's LiDAR and camera) ---
+
+@final
+class RaycastHits:
+    """Per-ray hits: distance (inf on a miss), instance id and triangle (-1), normal."""
+
+    @property
+    def distance(self) -> NDArray[np.float64]: ...
+    @property
+    def instance_id(self) -> NDArray[np.int32]: ...
+    @property
+    def triangle(self) -> NDArray[np.int64]: ...
+    @property
+    def normal(self) -> NDArray[np.float64]: ...
+    def __len__(self) -> int: ...
+
+@final
+class RaycastScene:
+    """A static triangle scene in the world frame W (BVH) for ray casting and rendering."""
+
+    def __new__(cls, vertices: Any, triangles: Any, instance_ids: Any) -> RaycastScene: ...
+    @property
+    def n_triangles(self) -> int: ...
+    def cast(self, origins: Any, directions: Any, max_range: float) -> RaycastHits: ...
+    def render(
+        self,
+        T_w_c: Any,
+        rays_c: Any,
+        width: int,
+        height: int,
+        albedo: Any,
+        *,
+        sun_direction: tuple[float, float, float] | list[float] = ...,
+        sun_color: tuple[float, float, float] | list[float] = ...,
+        ambient: tuple[float, float, float] | list[float] = ...,
+        sky_zenith: tuple[float, float, float] | list[float] = ...,
+        sky_horizon: tuple[float, float, float] | list[float] = ...,
+        ground_color: tuple[float, float, float] | list[float] = ...,
+        ground_height: float = 0.0,
+        haze_density: float = 0.0,
+        noise_sigma: float = 0.0,
+        seed: int = ...,
+        shadows: bool = True,
+        max_range: float = 1000.0,
+    ) -> tuple[NDArray[np.uint8], NDArray[np.int32], NDArray[np.float32]]: ...

@@ -1,0 +1,276 @@
+"""Load a :class:`insulator_rs.CameraModel` from camera-calibration files.
+
+Two formats are read:
+
+* OpenCV ``cv::FileStorage`` YAML (``%YAML:1.0``, as written by OpenCV's
+  calibration sample): ``camera_matrix`` and ``distortion_coefficients`` as
+  ``!!opencv-matrix`` nodes, ``image_width`` / ``image_height`` integers.
+  Parsed with ``cv2.FileStorage`` itself, so whatever OpenCV writes, we read.
+* ROS ``sensor_msgs/CameraInfo`` YAML, either the message form (``width``,
+  ``height``, ``distortion_model``, ``D``, ``K``; ROS 2's lowercase ``d``/``k``
+  too) or the ``camera_calibration_parsers`` form (``image_width``,
+  ``image_height``, ``distortion_model``, ``camera_matrix: {data: [...]}``,
+  ``distortion_coefficients: {data: [...]}``).
+
+The camera model is OpenCV's pinhole with radial-tangential distortion
+(k1, k2, p1, p2, k3). A file whose lens model needs more than that (non-zero
+k4..k6 of the rational model, a thin-prism or tilt term, a skewed camera
+matrix) is refused rather than silently approximated. Every error is a
+:class:`insulator_rs.exceptions.ConfigError` whose message names the file and
+the field.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml  # type: ignore[import-untyped]
+
+from insulator_rs._core import CameraModel
+from insulator_rs.exceptions import ConfigError
+
+__all__ = ["load_camera_model", "load_opencv_yaml", "load_ros_camera_info"]
+
+# Distortion models of ROS camera_info whose first five coefficients are OpenCV's
+# (k1, k2, p1, p2, k3); "rational_polynomial" appends k4, k5, k6 (denominator terms).
+_ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
+_N_DIST = 5
+_Dist = tuple[float, float, float, float, float]  # (k1, k2, p1, p2, k3)
+
+
+def load_camera_model(path: str | Path) -> CameraModel:
+    """Load a camera model from an OpenCV FileStorage or a ROS camera_info YAML file.
+
+    The format is told by the first line: OpenCV's files start with ``%YAML:1.0``
+    (``%YAML 1.0`` from newer writers); anything else is read as ROS camera_info.
+    """
+    path = Path(path)
+    first_line = _read_text(path).lstrip().split("\n", 1)[0]
+    if first_line.startswith(("%YAML:1", "%YAML 1.0")):
+        return load_opencv_yaml(path)
+    return load_ros_camera_info(path)
+
+
+def load_opencv_yaml(
+    path: str | Path, *, width: int | None = None, height: int | None = None
+) -> CameraModel:
+    """Read an OpenCV ``FileStorage`` calibration file (YAML or XML).
+
+    ``width``/``height`` (pixels) override or stand in for ``image_width`` /
+    ``image_height`` when the file lacks them.
+    """
+    import cv2  # local: cv2 is heavy and only this loader needs it
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: calibration file not found")
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:  # OpenCV raises SystemError on parse failures
+        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file ({exc})") from exc
+    if not storage.isOpened():
+        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file")
+    try:
+        k = _opencv_matrix(storage, path, "camera_matrix")
+        dist = _opencv_matrix(storage, path, "distortion_coefficients")
+        size = {
+            "image_width": width if width is not None else _opencv_int(storage, path, "image_width"),
+            "image_height": height
+            if height is not None
+            else _opencv_int(storage, path, "image_height"),
+        }
+    finally:
+        storage.release()
+    return _camera_from_arrays(
+        path,
+        k,
+        "camera_matrix",
+        _opencv_distortion(path, dist),
+        size["image_width"],
+        size["image_height"],
+    )
+
+
+def load_ros_camera_info(path: str | Path) -> CameraModel:
+    """Read a ROS camera_info YAML file (message or camera_calibration_parsers form)."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(_read_text(path))
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"{path}: expected a YAML mapping at the top level")
+
+    if "camera_matrix" in doc:  # camera_calibration_parsers layout
+        k_field, d_field, w_field, h_field = (
+            "camera_matrix",
+            "distortion_coefficients",
+            "image_width",
+            "image_height",
+        )
+        k_raw = _ros_data(path, doc, k_field)
+        d_raw = _ros_data(path, doc, d_field)
+    else:  # message layout (ROS 1 upper-case, ROS 2 lower-case)
+        k_field = _first_present(doc, ("K", "k"), path)
+        d_field = _first_present(doc, ("D", "d"), path)
+        w_field, h_field = "width", "height"
+        k_raw, d_raw = doc[k_field], doc[d_field]
+
+    model = doc.get("distortion_model", "plumb_bob")
+    if model not in _ROS_DISTORTION_MODELS:
+        raise ConfigError(
+            f"{path}: field 'distortion_model' is {model!r}; supported: "
+            + ", ".join(_ROS_DISTORTION_MODELS)
+        )
+    k = _float_array(path, k_field, k_raw)
+    d = _float_array(path, d_field, d_raw).ravel()
+    if k.size != 9:
+        raise ConfigError(f"{path}: field '{k_field}' must hold 9 numbers, got {k.size}")
+    expected = {"plumb_bob": 5, "rational_polynomial": 8}[model]
+    if d.size not in (0, expected):  # an uncalibrated camera publishes an empty D
+        raise ConfigError(
+            f"{path}: field '{d_field}' must hold {expected} numbers for "
+            f"distortion_model {model!r}, got {d.size}"
+        )
+    dist = _five_coefficients(path, d_field, d)
+    return _camera_from_arrays(
+        path,
+        k.reshape(3, 3),
+        k_field,
+        dist,
+        _int_field(path, doc, w_field),
+        _int_field(path, doc, h_field),
+    )
+
+
+# --- helpers ------------------------------------------------------------------------
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: calibration file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read calibration file ({exc})") from exc
+
+
+def _opencv_matrix(storage: Any, path: Path, field: str) -> np.ndarray:
+    node = storage.getNode(field)
+    if node.isNone():
+        raise ConfigError(f"{path}: missing field '{field}'")
+    mat = node.mat() if node.isMap() else None
+    if mat is None:
+        raise ConfigError(f"{path}: field '{field}' is not an !!opencv-matrix node")
+    return np.asarray(mat, dtype=np.float64)
+
+
+def _opencv_int(storage: Any, path: Path, field: str) -> int:
+    node = storage.getNode(field)
+    if node.isNone():
+        raise ConfigError(f"{path}: missing field '{field}' (pass width=/height= to supply it)")
+    if not node.isInt():
+        raise ConfigError(f"{path}: field '{field}' must be an integer")
+    return int(node.real())
+
+
+def _opencv_distortion(path: Path, dist: np.ndarray) -> _Dist:
+    flat = dist.ravel()
+    # OpenCV writes 4, 5, 8, 12 or 14 coefficients; (k1,k2,p1,p2[,k3[,k4,k5,k6[,s1..s4[,tx,ty]]]]).
+    if flat.size not in (4, 5, 8, 12, 14):
+        raise ConfigError(
+            f"{path}: field 'distortion_coefficients' must hold 4, 5, 8, 12 or 14 numbers, "
+            f"got {flat.size}"
+        )
+    return _five_coefficients(path, "distortion_coefficients", flat)
+
+
+def _five_coefficients(path: Path, field: str, coeffs: np.ndarray) -> _Dist:
+    """(k1, k2, p1, p2, k3) from a longer or shorter OpenCV coefficient vector.
+
+    Missing trailing terms are zero (4 coefficients: no k3; none: no distortion).
+    Extra terms must be zero: projecting without a non-zero k4..k6 or prism term
+    would be silently wrong.
+    """
+    if not np.all(np.isfinite(coeffs)):
+        raise ConfigError(f"{path}: field '{field}' holds a non-finite number")
+    extra = coeffs[_N_DIST:]
+    if np.any(extra != 0.0):
+        raise ConfigError(
+            f"{path}: field '{field}' has non-zero terms beyond (k1, k2, p1, p2, k3) "
+            f"({extra.tolist()}); this lens model is not supported"
+        )
+    padded = np.zeros(_N_DIST)
+    padded[: min(coeffs.size, _N_DIST)] = coeffs[:_N_DIST]
+    k1, k2, p1, p2, k3 = (float(c) for c in padded)
+    return (k1, k2, p1, p2, k3)
+
+
+def _camera_from_arrays(
+    path: Path, k: np.ndarray, k_field: str, dist: _Dist, width: int, height: int
+) -> CameraModel:
+    if k.shape != (3, 3):
+        raise ConfigError(f"{path}: field '{k_field}' must be 3x3, got shape {k.shape}")
+    if not np.all(np.isfinite(k)):
+        raise ConfigError(f"{path}: field '{k_field}' holds a non-finite number")
+    if k[0, 1] != 0.0:
+        raise ConfigError(f"{path}: field '{k_field}' has a non-zero skew; not supported")
+    if k[1, 0] != 0.0 or not np.array_equal(k[2], [0.0, 0.0, 1.0]):
+        raise ConfigError(
+            f"{path}: field '{k_field}' is not a camera matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]"
+        )
+    try:
+        return CameraModel(
+            float(k[0, 0]),
+            float(k[1, 1]),
+            float(k[0, 2]),
+            float(k[1, 2]),
+            width,
+            height,
+            dist=dist,
+        )
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise ConfigError(f"{path}: invalid camera parameters ({exc})") from exc
+
+
+def _ros_data(path: Path, doc: Mapping[str, Any], field: str) -> Any:
+    node = doc.get(field)
+    if node is None:
+        raise ConfigError(f"{path}: missing field '{field}'")
+    if not isinstance(node, Mapping) or "data" not in node:
+        raise ConfigError(f"{path}: missing field '{field}.data'")
+    return node["data"]
+
+
+def _first_present(doc: Mapping[str, Any], names: Sequence[str], path: Path) -> str:
+    for name in names:
+        if name in doc:
+            return name
+    raise ConfigError(f"{path}: missing field '{names[0]}'")
+
+
+def _float_array(path: Path, field: str, raw: Any) -> np.ndarray:
+    if isinstance(raw, (str, bytes)) or not isinstance(raw, Sequence):
+        raise ConfigError(f"{path}: field '{field}' must be a list of numbers")
+    try:
+        values = [float(x) for x in raw if not isinstance(x, (bool, str, bytes))]
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: field '{field}' must be a list of numbers ({exc})") from exc
+    if len(values) != len(raw):
+        raise ConfigError(f"{path}: field '{field}' must be a list of numbers")
+    return np.asarray(values, dtype=np.float64)
+
+
+def _int_field(path: Path, doc: Mapping[str, Any], field: str) -> int:
+    if field not in doc:
+        raise ConfigError(f"{path}: missing field '{field}'")
+    value = doc[field]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{path}: field '{field}' must be an integer, got {value!r}")
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        raise ConfigError(f"{path}: field '{field}' must be an integer, got {value!r}")
+    return int(value)

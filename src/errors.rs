@@ -1,0 +1,60 @@
+//! The one place where fusion_core errors become Python exceptions, and the
+//! helper that runs a kernel with the GIL released.
+//!
+//! * `FusionError::InvalidArgument` -> `ValueError("<argument>: <reason>")`.
+//! * `FusionError::NoInsulator` -> `insulator_rs.LocalizationError`, a class
+//!   created here at import time as a subclass of
+//!   `insulator_rs.exceptions.InsulatorError` (the package's base class).
+
+use fusion_core::FusionError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::marker::Ungil;
+use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::PyType;
+
+static LOCALIZATION_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+const LOCALIZATION_ERROR_DOC: &std::ffi::CStr = c"The cloud holds no usable insulator.
+
+Raised by ``localize`` when no cluster is found, fewer than two usable points
+remain, or the line fit fails. The message says which.";
+
+/// Creates `LocalizationError` (once) and adds it to the module.
+pub fn register(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let class = LOCALIZATION_ERROR.get_or_try_init(py, || {
+        let base = py.import("insulator_rs.exceptions")?.getattr("InsulatorError")?;
+        let base = base.cast_into::<PyType>()?;
+        PyErr::new_type(
+            py,
+            c"insulator_rs.LocalizationError",
+            Some(LOCALIZATION_ERROR_DOC),
+            Some(&base),
+            None,
+        )
+    })?;
+    m.add("LocalizationError", class.clone_ref(py))
+}
+
+/// Converts a fusion_core error into the matching Python exception.
+pub fn to_pyerr(py: Python<'_>, err: FusionError) -> PyErr {
+    match err {
+        FusionError::InvalidArgument { .. } => PyValueError::new_err(err.to_string()),
+        FusionError::NoInsulator(_) => match LOCALIZATION_ERROR.get(py) {
+            Some(class) => PyErr::from_type(class.bind(py).clone(), err.to_string()),
+            // Unreachable after module init; still an exception, never a panic.
+            None => PyRuntimeError::new_err(err.to_string()),
+        },
+    }
+}
+
+/// Runs `kernel` with the GIL released and maps its error to a Python exception.
+///
+/// Everything the kernel reads must already have been extracted from Python.
+pub fn detach<T, F>(py: Python<'_>, kernel: F) -> PyResult<T>
+where
+    F: Ungil + FnOnce() -> fusion_core::Result<T>,
+    T: Send,
+{
+    py.detach(kernel).map_err(|err| to_pyerr(py, err))
+}
