@@ -27,24 +27,31 @@ def _vectors(values: object, name: str) -> np.ndarray:
     return array
 
 
+# Axis swaps by indexing, not matrix products: a NaN component (PX4's "ignored")
+# must stay in its own axis instead of spreading through 0 * NaN.
+_SWAP_XY = [1, 0, 2]
+_FLIP_Z = np.array([1.0, 1.0, -1.0])
+_FLIP_YZ = np.array([1.0, -1.0, -1.0])
+
+
 def enu_to_ned(vector: object) -> np.ndarray:
     """Position/velocity (..., 3) from ENU to NED."""
-    return _vectors(vector, "vector") @ ENU_TO_NED.T
+    return _vectors(vector, "vector")[..., _SWAP_XY] * _FLIP_Z
 
 
 def ned_to_enu(vector: object) -> np.ndarray:
     """Position/velocity (..., 3) from NED to ENU (the same axis swap)."""
-    return _vectors(vector, "vector") @ ENU_TO_NED.T
+    return _vectors(vector, "vector")[..., _SWAP_XY] * _FLIP_Z
 
 
 def flu_to_frd(vector: object) -> np.ndarray:
     """Body vector (..., 3) from FLU to FRD."""
-    return _vectors(vector, "vector") @ FLU_TO_FRD.T
+    return _vectors(vector, "vector") * _FLIP_YZ
 
 
 def frd_to_flu(vector: object) -> np.ndarray:
     """Body vector (..., 3) from FRD to FLU."""
-    return _vectors(vector, "vector") @ FLU_TO_FRD.T
+    return _vectors(vector, "vector") * _FLIP_YZ
 
 
 def wrap_pi(angle: float) -> float:
