@@ -7,6 +7,9 @@ use crate::error::{check_positive, invalid, Result};
 use crate::pca::pca_of;
 use crate::points::{collect_finite, PointCloud};
 
+/// Most least-squares refits of the winning hypothesis (each: PCA on inliers, recompute inliers).
+const REFIT_ROUNDS: usize = 5;
+
 /// Two samples closer than this (metres) do not define a line; the draw is skipped.
 const MIN_SAMPLE_SEPARATION: f64 = 1e-9;
 
@@ -81,7 +84,8 @@ fn required_iterations(w: f64, confidence: f64) -> f64 {
 /// Draws pairs of distinct points with a seeded Pcg64, keeps the hypothesis with the most
 /// inliers (distance <= threshold), stops once the adaptive bound or `max_iterations` is
 /// reached, refits by PCA on the best inliers and recomputes the inliers against the refit
-/// line. Needs >= 2 distinct finite points (else `InvalidArgument` naming `points`).
+/// line (refit repeated until the inlier set is stable, at most 5 times). Needs >= 2
+/// distinct finite points (else `InvalidArgument` naming `points`).
 pub fn ransac_line<P: PointCloud + ?Sized>(points: &P, params: &RansacParams) -> Result<LineFit> {
     params.validate_as("threshold", "max_iterations")?;
     let finite = collect_finite(points);
@@ -137,14 +141,23 @@ pub(crate) fn ransac_line_finite(coords: &[[f64; 3]], params: &RansacParams) -> 
     let inliers_of = |a: &[f64; 3], d: &[f64; 3]| -> Vec<usize> {
         (0..n).filter(|&k| line_distance(&coords[k], a, d) <= params.threshold).collect()
     };
-    // Least-squares refit: the principal axis through the centroid of the best inliers.
-    let hypothesis_inliers = inliers_of(&a, &d);
-    let refit = pca_of(hypothesis_inliers.iter().map(|&k| coords[k]))?;
-    let direction = refit.axis();
-    let mut inliers = inliers_of(&refit.mean, &direction);
-    if inliers.is_empty() {
-        // The refit line cannot lose every inlier in practice; keep the hypothesis set if it did.
-        inliers = hypothesis_inliers;
+    // Least-squares refit: the principal axis through the centroid of the inliers, repeated
+    // while the inlier set changes (at most REFIT_ROUNDS times) so the final line is the
+    // least-squares line of (nearly) its own inliers rather than of a 2-point hypothesis.
+    let mut inliers = inliers_of(&a, &d);
+    let mut direction = d;
+    for _ in 0..REFIT_ROUNDS {
+        let refit = pca_of(inliers.iter().map(|&k| coords[k]))?;
+        direction = refit.axis();
+        let next = inliers_of(&refit.mean, &direction);
+        if next.is_empty() || next == inliers {
+            // An empty set cannot happen with a sane threshold; keep the previous one if it does.
+            if !next.is_empty() {
+                inliers = next;
+            }
+            break;
+        }
+        inliers = next;
     }
     let m = inliers.len() as f64;
     let mut point = [0.0; 3];
