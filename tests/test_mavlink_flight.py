@@ -313,3 +313,13 @@ def test_bad_setpoints_name_the_argument(vehicle: MavlinkVehicle) -> None:
         vehicle.send_setpoint(np.zeros(3), yaw=math.nan)
     with pytest.raises(ValueError, match="dt must be > 0"):
         vehicle.advance(-1.0)
+
+
+def test_standalone_simulator_entry_point(capsys) -> None:
+    """``python -m insulator_rs.mavlink.px4_sim`` runs, listens, reports and stops."""
+    from insulator_rs.mavlink.px4_sim import main
+
+    assert main(["--port", "0", "--remote", "", "--duration", "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert "simulated PX4 listening on udp 127.0.0.1:" in out
+    assert "stopped: mode HOLD, armed False" in out

@@ -20,19 +20,18 @@ import time
 import numpy as np
 import pytest
 
-mavsdk = pytest.importorskip("mavsdk")
-from mavsdk import ComponentType, Configuration, Mavsdk  # noqa: E402
-from mavsdk.plugins.action import Action  # noqa: E402
-from mavsdk.plugins.action_server import ActionServer, AllowableFlightModes  # noqa: E402
-from mavsdk.plugins.camera_server import CameraFeedback, CameraServer, CaptureInfo  # noqa: E402
-from mavsdk.plugins.camera_server import Position as CameraPosition  # noqa: E402
-from mavsdk.plugins.camera_server import Quaternion as CameraQuaternion  # noqa: E402
-from mavsdk.plugins.offboard import Offboard, PositionNedYaw  # noqa: E402
-from mavsdk.plugins.telemetry import Telemetry  # noqa: E402
-from mavsdk.plugins import telemetry_server as ts  # noqa: E402
+from mavsdk import ComponentType, Configuration, Mavsdk
+from mavsdk.plugins.action import Action
+from mavsdk.plugins.action_server import ActionServer, AllowableFlightModes
+from mavsdk.plugins.camera_server import CameraFeedback, CameraServer, CaptureInfo
+from mavsdk.plugins.camera_server import Position as CameraPosition
+from mavsdk.plugins.camera_server import Quaternion as CameraQuaternion
+from mavsdk.plugins.offboard import Offboard, PositionNedYaw
+from mavsdk.plugins.telemetry import Telemetry
+from mavsdk.plugins import telemetry_server as ts
 
-from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle  # noqa: E402
-from insulator_rs.mavlink.px4_sim import SimulatedPx4  # noqa: E402
+from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle
+from insulator_rs.mavlink.px4_sim import SimulatedPx4
 
 TIME_SCALE = 2.0
 

@@ -43,7 +43,13 @@ from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from insulator_rs.mavlink.signing import configure_signing
 from insulator_rs.mavlink.wire import command_name, mavlink2, mavutil, result_name
-from insulator_rs.sim.kinematics import CapturedImage, FlightMode, as_finite, as_vector3
+from insulator_rs.sim.kinematics import (
+    CapturedImage,
+    FlightMode,
+    as_finite,
+    as_vector3,
+    require_positive,
+)
 from insulator_rs.vehicle import VehicleState
 
 M = mavlink2
@@ -57,7 +63,7 @@ TYPE_MASK_IGNORE_VEL = (M.POSITION_TARGET_TYPEMASK_VX_IGNORE | M.POSITION_TARGET
                         | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE)
 # Telemetry the client asks for (Hz).
 REQUESTED_RATES_HZ: dict[int, float] = {
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
     M.MAVLINK_MSG_ID_ATTITUDE: 20.0,
     M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
     M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
@@ -99,9 +105,7 @@ class FailsafeSettings:
 
     def __post_init__(self) -> None:
         for name in ("link_loss_timeout", "position_stale_timeout"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+            require_positive(getattr(self, name), name)
         if not 0.0 <= self.low_battery_fraction < 1.0:
             raise ValueError(f"low_battery_fraction must be in [0, 1), got {self.low_battery_fraction!r}")
         if self.low_battery_action not in ("return", "hold"):
@@ -142,19 +146,15 @@ class MavlinkVehicle:
         local_origin_w: object = (0.0, 0.0, 0.0),
         camera_component: int = 1,
     ) -> None:
-        heartbeat_timeout = as_finite(heartbeat_timeout, "heartbeat_timeout")
-        self.command_timeout = as_finite(command_timeout, "command_timeout")
-        if heartbeat_timeout <= 0 or self.command_timeout <= 0:
-            raise ValueError("heartbeat_timeout and command_timeout must be > 0 s")
+        heartbeat_timeout = require_positive(heartbeat_timeout, "heartbeat_timeout")
+        self.command_timeout = require_positive(command_timeout, "command_timeout")
         if not isinstance(command_retries, int) or command_retries < 1:
             raise ValueError(f"command_retries must be an int >= 1, got {command_retries!r}")
         self.command_retries = command_retries
         self.setpoint_rate_hz = as_finite(setpoint_rate_hz, "setpoint_rate_hz")
         if self.setpoint_rate_hz < 20.0:
             raise ValueError(f"setpoint_rate_hz must be >= 20 (PX4 offboard), got {setpoint_rate_hz!r}")
-        self.time_scale = as_finite(time_scale, "time_scale")
-        if self.time_scale <= 0.0:
-            raise ValueError(f"time_scale must be > 0, got {time_scale!r}")
+        self.time_scale = require_positive(time_scale, "time_scale")
         self.failsafes = failsafes or FailsafeSettings()
         self.local_origin_w = as_vector3(local_origin_w, "local_origin_w")
         self.connection = connection
@@ -256,9 +256,7 @@ class MavlinkVehicle:
 
     def takeoff(self, altitude: float) -> None:
         """MAV_CMD_NAV_TAKEOFF to ``altitude`` m above home; the climb runs while ``advance`` waits."""
-        altitude = as_finite(altitude, "altitude")
-        if altitude <= 0.0:
-            raise ValueError(f"altitude must be > 0 m, got {altitude!r}")
+        altitude = require_positive(altitude, "altitude")
         if not self.state().armed:
             raise VehicleError("takeoff refused: vehicle is disarmed")
         with self._lock:
@@ -284,11 +282,12 @@ class MavlinkVehicle:
 
     def advance(self, dt: float) -> VehicleState:
         """Wait until the vehicle clock has moved ``dt`` s; raise ``VehicleFailsafe`` if one fired."""
-        dt = as_finite(dt, "dt")
-        if dt <= 0.0:
-            raise ValueError(f"dt must be > 0 s, got {dt!r}")
+        dt = require_positive(dt, "dt")
         self._check_failsafes()
         start = self.state().time
+        # Vehicle time is known at the LOCAL_POSITION_NED rate: stop within half a
+        # sample of the target instead of overshooting by a whole one.
+        dt -= 0.5 / REQUESTED_RATES_HZ[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED]
         wall_limit = dt / self.time_scale + self.failsafes.link_loss_timeout + 1.0
         deadline = time.monotonic() + wall_limit
         with self._lock:

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from insulator_rs.sim.kinematics import wrap_angle as wrap_pi
+
 # p_ned = ENU_TO_NED @ p_enu; det = +1 (the x/y swap and the z flip together
 # form a proper rotation), and it is symmetric, so it is its own inverse.
 ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -52,11 +54,6 @@ def flu_to_frd(vector: object) -> np.ndarray:
 def frd_to_flu(vector: object) -> np.ndarray:
     """Body vector (..., 3) from FRD to FLU."""
     return _vectors(vector, "vector") * _FLIP_YZ
-
-
-def wrap_pi(angle: float) -> float:
-    """Angle in rad wrapped to [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def yaw_enu_to_ned(yaw_enu: float) -> float:

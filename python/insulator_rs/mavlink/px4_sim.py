@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import pymap3d
+import pymap3d  # type: ignore[import-untyped]
 
 from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
@@ -73,7 +73,7 @@ DEFAULT_RATES_HZ: dict[str, float] = {
     "HEARTBEAT": 1.0,
     "SYS_STATUS": 1.0,
     "EXTENDED_SYS_STATE": 2.0,
-    "LOCAL_POSITION_NED": 30.0,
+    "LOCAL_POSITION_NED": 50.0,
     "ATTITUDE": 20.0,
     "GLOBAL_POSITION_INT": 10.0,
     "HOME_POSITION": 0.5,

@@ -88,17 +88,9 @@ class MotionLimits:
     position_gain: float = 1.5
 
     def __post_init__(self) -> None:
-        for name in (
-            "max_horizontal_speed",
-            "max_vertical_speed",
-            "max_horizontal_acceleration",
-            "max_vertical_acceleration",
-            "max_yaw_rate",
-            "position_gain",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name in ("max_horizontal_speed", "max_vertical_speed", "max_horizontal_acceleration",
+                     "max_vertical_acceleration", "max_yaw_rate", "position_gain"):
+            require_positive(getattr(self, name), name)
 
 
 @dataclass(frozen=True)
@@ -114,9 +106,7 @@ class OdometryNoise:
 
     def __post_init__(self) -> None:
         for name in ("position", "velocity", "yaw"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"noise {name} must be a finite number >= 0, got {value!r}")
+            require_non_negative(getattr(self, name), f"noise {name}")
 
 
 @dataclass(frozen=True)
@@ -144,14 +134,9 @@ class AutopilotParameters:
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_timeout", "takeoff_speed", "land_speed", "takeoff_altitude"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude",
-                     "battery_drain_per_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+            require_positive(getattr(self, name), name)
+        for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude", "battery_drain_per_s"):
+            require_non_negative(getattr(self, name), name)
         if not 0.0 <= self.battery_critical < 1.0:
             raise ValueError(f"battery_critical must be in [0, 1), got {self.battery_critical!r}")
 
@@ -209,6 +194,22 @@ def as_finite(value: object, name: str) -> float:
     result = float(value)
     if not math.isfinite(result):
         raise ValueError(f"{name} must be finite, got {result!r}")
+    return result
+
+
+def require_positive(value: object, name: str) -> float:
+    """A finite number > 0, or ValueError/TypeError naming ``name``."""
+    result = as_finite(value, name)
+    if result <= 0.0:
+        raise ValueError(f"{name} must be > 0, got {result!r}")
+    return result
+
+
+def require_non_negative(value: object, name: str) -> float:
+    """A finite number >= 0, or ValueError/TypeError naming ``name``."""
+    result = as_finite(value, name)
+    if result < 0.0:
+        raise ValueError(f"{name} must be >= 0, got {result!r}")
     return result
 
 
@@ -448,9 +449,7 @@ class KinematicVehicle:
         Refused while disarmed (the mission must arm first).
         """
         self._check_open()
-        altitude = as_finite(altitude, "altitude")
-        if altitude <= 0.0:
-            raise ValueError(f"altitude must be > 0 m, got {altitude!r}")
+        altitude = require_positive(altitude, "altitude")
         if not self.armed:
             raise CommandRefused("takeoff", "vehicle is disarmed")
         self.request_takeoff(altitude)
@@ -459,9 +458,7 @@ class KinematicVehicle:
         """Enter AUTO_TAKEOFF to ``altitude`` m above home, as PX4's NAV_TAKEOFF does:
         accepted while disarmed too (the climb starts once armed)."""
         self._check_open()
-        altitude = as_finite(altitude, "altitude")
-        if altitude <= 0.0:
-            raise ValueError(f"altitude must be > 0 m, got {altitude!r}")
+        altitude = require_positive(altitude, "altitude")
         if not self.position_valid:
             raise CommandRefused("takeoff", "no valid position estimate")
         self._begin_takeoff(altitude)
@@ -485,9 +482,7 @@ class KinematicVehicle:
     def advance(self, dt: float) -> VehicleState:
         """Let ``dt`` seconds of simulated time pass, run the autopilot, return ``state()``."""
         self._check_open()
-        dt = as_finite(dt, "dt")
-        if dt <= 0.0:
-            raise ValueError(f"dt must be > 0 s, got {dt!r}")
+        dt = require_positive(dt, "dt")
         remaining = dt
         while remaining > 1e-12:
             h = min(MAX_INTEGRATION_STEP_S, remaining)
