@@ -84,25 +84,26 @@ def test_error_components():
         center = np.array([1.0, 2.0, 3.0])
         axis = np.array([0.0, 1.0, 0.0])
 
-    err, h, v, ang = study._errors(np.array([1.3, 2.4, 2.9]), np.array([0.0, -1.0, 0.0]), Truth)
+    err, h, v, ang, ax = study._errors(np.array([1.3, 2.4, 2.9]), np.array([0.0, -1.0, 0.0]), Truth)
     assert err == pytest.approx(math.sqrt(0.09 + 0.16 + 0.01))
-    assert h == pytest.approx(0.5) and v == pytest.approx(0.1)
+    assert h == pytest.approx(0.5) and v == pytest.approx(0.1) and ax == pytest.approx(0.4)
     assert ang == pytest.approx(0.0, abs=1e-6)  # the axis sign does not matter
-    _, _, _, ang = study._errors(Truth.center, np.array([0.0, 1.0, 1.0]) / math.sqrt(2), Truth)
+    _, _, _, ang, _ = study._errors(Truth.center, np.array([0.0, 1.0, 1.0]) / math.sqrt(2), Truth)
     assert ang == pytest.approx(45.0)
 
 
 def test_summary_statistics_match_numpy():
     rng = np.random.default_rng(0)
     errs = rng.uniform(0, 1, 10)
-    rows = [EventResult("A", 8.0, i, 1, "dbscan", True, e, e * 0.8, e * 0.6, 2.0, 40, 90, 0.5)
+    rows = [EventResult("A", 8.0, i, 1, "dbscan", True, e, e * 0.8, e * 0.6, 2.0, e * 0.5, 40, 90, 0.5)
             for i, e in enumerate(errs)]
     rows.append(EventResult("A", 8.0, 10, 1, "dbscan", False, math.nan, math.nan, math.nan,
-                            math.nan, 0, 90, 0.4))
+                            math.nan, math.nan, 0, 90, 0.4))
     (s,) = study.summarize(rows)
     assert s.n == 10 and s.failures == 1
     assert s.mean == pytest.approx(errs.mean()) and s.std == pytest.approx(errs.std(ddof=1))
     assert s.horizontal_mean == pytest.approx(0.8 * errs.mean())
+    assert s.axial_mean == pytest.approx(0.5 * errs.mean())
     assert s.median == pytest.approx(np.median(errs))
     assert s.mean_purity == pytest.approx((10 * 0.5 + 0.4) / 11)
     assert (s.paper_mean, s.paper_std) == (0.74, 0.57)

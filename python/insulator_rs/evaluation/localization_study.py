@@ -92,7 +92,8 @@ class StudyConfig:
 class EventResult:
     """One localization event with one method (errors in m and degrees; NaN when it failed).
 
-    n_points: points that determined the centre; n_input: accumulated culled points;
+    error_axial: centre error along the true axis (m, the part the clutter at an insulator's
+    ends pulls); n_points: points that determined the centre; n_input: accumulated culled points;
     purity: share of those that hit the target insulator (ground truth of the simulator).
     """
 
@@ -106,6 +107,7 @@ class EventResult:
     error_horizontal: float
     error_vertical: float
     angle_deg: float
+    error_axial: float
     n_points: int
     n_input: int
     purity: float
@@ -262,11 +264,13 @@ def _accumulate(rig: SensorRig, target_id: int, trajectory: Callable[[float], np
     return np.vstack(parts), np.concatenate([c[1] for c in culled]), T_w_b_last
 
 
-def _errors(center_w: np.ndarray, direction_w: np.ndarray, truth) -> tuple[float, float, float, float]:
+def _errors(center_w: np.ndarray, direction_w: np.ndarray,
+            truth) -> tuple[float, float, float, float, float]:
+    """Centre error (m): total, horizontal, vertical, along the true axis; axis angle (deg)."""
     d = center_w - truth.center
     cos = min(1.0, abs(float(np.dot(direction_w, truth.axis))))
     return (float(np.linalg.norm(d)), float(np.hypot(d[0], d[1])), float(abs(d[2])),
-            math.degrees(math.acos(cos)))
+            math.degrees(math.acos(cos)), float(abs(np.dot(d, truth.axis))))
 
 
 def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
@@ -299,15 +303,15 @@ def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
                 est = ir.localize(points_b, method=method, seed=event)
             except ir.LocalizationError:
                 results.append(EventResult(tower_key, standoff, event, target.instance_id, method,
-                                           False, math.nan, math.nan, math.nan, math.nan, 0,
-                                           len(points_b), purity))
+                                           False, math.nan, math.nan, math.nan, math.nan,
+                                           math.nan, 0, len(points_b), purity))
                 continue
             center_w = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
             direction_w = T_w_b[:3, :3] @ np.asarray(est.direction)
-            err, err_h, err_v, ang = _errors(center_w, direction_w, target)
+            err, err_h, err_v, ang, err_axial = _errors(center_w, direction_w, target)
             results.append(EventResult(tower_key, standoff, event, target.instance_id, method, True,
-                                       err, err_h, err_v, ang, int(est.n_points), len(points_b),
-                                       purity))
+                                       err, err_h, err_v, ang, err_axial, int(est.n_points),
+                                       len(points_b), purity))
         event += 1
         if progress is not None:
             progress(event, cfg.events)
@@ -332,6 +336,7 @@ class CellSummary:
     vertical_std: float
     angle_mean_deg: float
     angle_std_deg: float
+    axial_mean: float
     mean_points: float
     mean_purity: float
     paper_mean: float
@@ -366,7 +371,7 @@ def summarize(results: Sequence[EventResult]) -> list[CellSummary]:
             mean=e[0], std=e[1],
             median=float(np.median([r.error for r in ok])) if ok else math.nan,
             horizontal_mean=h[0], horizontal_std=h[1], vertical_mean=v[0], vertical_std=v[1],
-            angle_mean_deg=a[0], angle_std_deg=a[1],
+            angle_mean_deg=a[0], angle_std_deg=a[1], axial_mean=stat("error_axial")[0],
             mean_points=float(np.mean([r.n_input for r in rows])) if rows else math.nan,
             mean_purity=float(np.mean([r.purity for r in rows])) if rows else math.nan,
             paper_mean=paper[0], paper_std=paper[1]))
@@ -451,14 +456,21 @@ def plot_errors(results: Sequence[EventResult], path: Path) -> None:
 
 
 def _progress_printer(label: str) -> Callable[[int, int], None]:
+    """Progress on stderr: one updating line on a terminal, a line per 10 % otherwise (logs)."""
     start = time.monotonic()
+    tty = sys.stderr.isatty()
 
     def show(done: int, total: int) -> None:
+        step = max(1, total // 10)
+        if not tty and done % step and done != total:
+            return
         elapsed = time.monotonic() - start
         eta = elapsed / done * (total - done) if done else math.nan
-        end = "\n" if done == total else ""
-        print(f"\r  {label}: {done}/{total} events, {elapsed:.0f} s elapsed, ETA {eta:.0f} s",
-              end=end, file=sys.stderr, flush=True)
+        text = f"  {label}: {done}/{total} events, {elapsed:.0f} s elapsed, ETA {eta:.0f} s"
+        if tty:
+            print("\r" + text, end="\n" if done == total else "", file=sys.stderr, flush=True)
+        else:
+            print(text, file=sys.stderr, flush=True)
 
     return show
 
