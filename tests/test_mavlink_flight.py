@@ -215,6 +215,30 @@ def test_commands_survive_packet_loss_and_delay() -> None:
         client.close()
 
 
+def test_telemetry_snapshot_global_position_home_attitude(vehicle: MavlinkVehicle) -> None:
+    """Reference: pymap3d.enu2geodetic of the reported position from the sim's origin;
+    tolerance 2e-7 deg and 2 mm (GLOBAL_POSITION_INT carries 1e-7 deg and mm)."""
+    import pymap3d
+
+    take_off_into_offboard(vehicle, 4.0)
+    for _ in range(40):
+        vehicle.send_setpoint(np.array([3.0, -2.0, 4.0]), yaw=0.5)
+        vehicle.advance(DT)
+    snapshot = vehicle.telemetry()
+    origin = sim_of(vehicle).origin
+    lat, lon, alt = pymap3d.enu2geodetic(*snapshot.state.position, *origin)
+    assert snapshot.global_position is not None and snapshot.home_global is not None
+    assert snapshot.global_position[:2] == pytest.approx((lat, lon), abs=2e-7)
+    assert snapshot.global_position[2] == pytest.approx(alt, abs=2e-3)  # mm quantisation
+    assert snapshot.home_global[:2] == pytest.approx(origin[:2], abs=2e-7)
+    assert snapshot.home_global[2] == pytest.approx(origin[2], abs=2e-3)
+    np.testing.assert_allclose(snapshot.home, [0.0, 0.0, 0.0], atol=1e-6)
+    assert snapshot.landed_state == "MAV_LANDED_STATE_IN_AIR"
+    yaw = snapshot.state.yaw
+    np.testing.assert_allclose(snapshot.attitude @ [1.0, 0.0, 0.0], [math.cos(yaw), math.sin(yaw), 0.0],
+                               atol=1e-6)
+
+
 def test_gps_glitch_is_seen_by_the_client(vehicle: MavlinkVehicle) -> None:
     sim = sim_of(vehicle)
     sim.gps_glitch((4.0, -2.0, 0.0))
@@ -222,9 +246,11 @@ def test_gps_glitch_is_seen_by_the_client(vehicle: MavlinkVehicle) -> None:
     np.testing.assert_allclose(vehicle.state().position, [4.0, -2.0, 0.0], atol=1e-3)
 
 
-def test_signing_rejects_unsigned_and_wrongly_signed_commands() -> None:
+def test_signing_rejects_unsigned_and_wrongly_signed_commands(tmp_path) -> None:
     key = key_from_passphrase("insulator tower 42")
-    client = connect_vehicle(None, time_scale=TIME_SCALE, signing_key=key)
+    key_file = tmp_path / "mavlink.key"
+    key_file.write_text(key.hex())
+    client = connect_vehicle(None, time_scale=TIME_SCALE, signing_key=str(key_file))
     try:
         sim = sim_of(client)
         host, port = sim.address

@@ -30,6 +30,7 @@ position of PX4's local origin in W; zero when they coincide, as in the sim).
 from __future__ import annotations
 
 import math
+import os
 import re
 import threading
 import time
@@ -40,8 +41,14 @@ import numpy as np
 
 from insulator_rs.exceptions import VehicleError
 from insulator_rs.mavlink import px4_modes
-from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
-from insulator_rs.mavlink.signing import configure_signing
+from insulator_rs.mavlink.frames import (
+    attitude_ned_frd_to_enu_flu,
+    enu_to_ned,
+    ned_to_enu,
+    yaw_enu_to_ned,
+    yaw_ned_to_enu,
+)
+from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import command_name, mavlink2, mavutil, result_name
 from insulator_rs.sim.kinematics import (
     CapturedImage,
@@ -92,6 +99,23 @@ class VehicleFailsafe(VehicleError):
         super().__init__(f"failsafe: {reason}; action: {action}")
         self.reason = reason
         self.action = action
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """Everything the client knows about the vehicle, read under one lock.
+
+    ``attitude`` is R_w_b (3x3, body FLU -> W ENU); ``global_position`` and
+    ``home_global`` are (latitude deg, longitude deg, altitude m AMSL); ``home``
+    is the home position in W (m). None where the autopilot has not sent it.
+    """
+
+    state: VehicleState
+    attitude: np.ndarray | None
+    global_position: tuple[float, float, float] | None
+    home_global: tuple[float, float, float] | None
+    home: np.ndarray | None
+    landed_state: str
 
 
 @dataclass(frozen=True)
@@ -231,6 +255,22 @@ class MavlinkVehicle:
                 battery_fraction=self._battery,
                 healthy=self._fault is None,
                 fault=self._fault,
+            )
+
+    def telemetry(self) -> Telemetry:
+        """State plus attitude, global position and home, as one consistent snapshot."""
+        with self._lock:
+            state = self.state()
+            att, gpos, home = self._attitude, self._global, self._home
+            landed = M.enums["MAV_LANDED_STATE"][self._landed_state].name
+            return Telemetry(
+                state=state,
+                attitude=None if att is None else attitude_ned_frd_to_enu_flu(att.roll, att.pitch, att.yaw),
+                global_position=None if gpos is None else (gpos.lat * 1e-7, gpos.lon * 1e-7, gpos.alt * 1e-3),
+                home_global=None if home is None else (home.latitude * 1e-7, home.longitude * 1e-7,
+                                                       home.altitude * 1e-3),
+                home=None if home is None else ned_to_enu([home.x, home.y, home.z]) + self.local_origin_w,
+                landed_state=landed,
             )
 
     def arm(self) -> None:
@@ -544,7 +584,7 @@ def connect_vehicle(
     connection: str | None = None,
     *,
     time_scale: float = 1.0,
-    signing_key: bytes | None = None,
+    signing_key: bytes | str | os.PathLike[str] | None = None,
     sim_options: dict[str, Any] | None = None,
     **client_options: Any,
 ) -> MavlinkVehicle:
@@ -554,8 +594,13 @@ def connect_vehicle(
     free loopback port and connects to it (``udpout``); the returned client owns
     it (``client.simulator``) and stops it on ``close()``. Otherwise
     ``connection`` is a pymavlink connection string for a real PX4 or its SITL,
-    e.g. ``udpin:0.0.0.0:14540`` or ``/dev/ttyTHS1:921600``.
+    e.g. ``udpin:0.0.0.0:14540`` or ``/dev/ttyTHS1:921600``. ``signing_key`` is
+    the 32-byte key or the path of a key file (``signing.load_signing_key``);
+    with it every message is signed and unsigned ones are ignored, on both ends.
+    ``time_scale`` is the simulator's speed-up (keep 1.0 for a real vehicle).
     """
+    if signing_key is not None and not isinstance(signing_key, bytes):
+        signing_key = load_signing_key(signing_key)
     if connection is not None:
         return MavlinkVehicle(connection, time_scale=time_scale, signing_key=signing_key, **client_options)
     from insulator_rs.mavlink.px4_sim import SimulatedPx4

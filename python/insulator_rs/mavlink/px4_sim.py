@@ -66,6 +66,8 @@ M = mavlink2
 # Wall-clock period of the simulation loop (s): physics, inbound, telemetry.
 LOOP_PERIOD_S = 0.005
 MAX_DATAGRAM = 65535
+# Most vehicle time one loop iteration may simulate (s).
+MAX_STEP_VEHICLE_S = 0.05
 UNSIGNED_ALLOWED = frozenset({M.MAVLINK_MSG_ID_RADIO_STATUS})
 
 # Telemetry PX4 streams on an onboard link, in Hz of vehicle time.
@@ -271,7 +273,10 @@ class SimulatedPx4:
                 if readable:
                     self._receive(now)
                 self._deliver_due(now)
-                elapsed = (now - last) * self.time_scale
+                # Lockstep-like: if this thread fell behind (a loaded machine), the
+                # vehicle clock slows down rather than jumping, so no PX4 timeout
+                # (COM_OF_LOSS_T...) fires because of our own scheduling.
+                elapsed = min((now - last) * self.time_scale, MAX_STEP_VEHICLE_S)
                 if elapsed > 0.0:
                     self.vehicle.advance(elapsed)
                     last = now

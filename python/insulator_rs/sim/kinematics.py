@@ -127,7 +127,7 @@ class AutopilotParameters:
     preflight_disarm_delay: float = 10.0
     takeoff_speed: float = 1.5
     land_speed: float = 0.7
-    return_altitude: float = 30.0
+    return_altitude: float = 60.0
     takeoff_altitude: float = 2.5
     battery_critical: float = 0.07
     battery_drain_per_s: float = 1.0 / 1200.0
@@ -318,7 +318,10 @@ class KinematicVehicle:
     climbs during ``advance`` calls and switches to HOLD on arrival), keep
     streaming setpoints every tick while calling ``advance(dt)``, then ``land``.
     If setpoints stop for ``params.offboard_loss_timeout`` of simulated time in
-    OFFBOARD, the vehicle falls back to HOLD and ``state().fault`` says why.
+    OFFBOARD, the vehicle falls back to HOLD and ``state().fault`` says why (PX4
+    v1.14+: COM_OBL_RC_ACT's default "position mode" becomes Hold without RC).
+    As in PX4 v1.14+, offboard may be engaged on the ground, before arming, as
+    long as the setpoint stream is running.
     """
 
     def __init__(
