@@ -34,11 +34,13 @@ class RefLine:
 
 @dataclass(frozen=True)
 class RefLocalization:
-    """Centre (m, B frame), unit axis direction, number of points that set the centre."""
+    """Centre (m, B frame), unit axis direction, number of points that set the centre;
+    ``reclustered`` tells that Algorithm 2 took its |SC| > 1 branch."""
 
     center: np.ndarray
     direction: np.ndarray
     n_points: int
+    reclustered: bool = False
 
 
 def canonical_direction(v: np.ndarray) -> np.ndarray:
@@ -94,7 +96,8 @@ def reference_ransac_line(
     confidence: float = 0.99,
     seed: int = 0,
 ) -> tuple[RefLine, np.ndarray]:
-    """RANSAC 3-D line: two-point hypotheses, adaptive stop, PCA refit on the inliers.
+    """RANSAC 3-D line: two-point hypotheses, adaptive stop, PCA refit on the inliers
+    (repeated until the inlier set is stable, at most 5 rounds).
 
     Returns the refit line and the indices (into the finite rows) of the points
     within ``threshold`` of it.
@@ -123,7 +126,13 @@ def reference_ransac_line(
                 needed = int(np.ceil(np.log(1.0 - confidence) / np.log(miss)))
     if best is None or len(best) < 2:
         raise ValueError("RANSAC found no line")
-    line = pca_line(pts[best])
+    # Least-squares refit on the inliers, inliers recomputed, until stable (at most 5 rounds).
+    for _ in range(5):
+        line = pca_line(pts[best])
+        refit = np.flatnonzero(distance_to_line(pts, line) <= threshold)
+        if len(refit) < 2 or np.array_equal(refit, best):
+            break
+        best = refit
     return line, np.flatnonzero(distance_to_line(pts, line) <= threshold)
 
 
@@ -181,5 +190,5 @@ def localize_dbscan_pca(
         t = max(sc, key=len)  # line 9 (ties: the lowest label, as max keeps the first)
         refined = pca_line(t)  # line 10: c' = centroid(T), v' = PCA(T)
         center, n = median_projection(nearest, refined, tau)  # lines 11-12
-        return RefLocalization(center, refined.direction, n)
+        return RefLocalization(center, refined.direction, n, reclustered=True)
     return RefLocalization(first.point, first.direction, len(nearest))  # line 16

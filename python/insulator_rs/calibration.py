@@ -45,12 +45,13 @@ _Dist = tuple[float, float, float, float, float]  # (k1, k2, p1, p2, k3)
 def load_camera_model(path: str | Path) -> CameraModel:
     """Load a camera model from an OpenCV FileStorage or a ROS camera_info YAML file.
 
-    The format is told by the first line: OpenCV's files start with ``%YAML:1.0``
-    (``%YAML 1.0`` from newer writers); anything else is read as ROS camera_info.
+    OpenCV files are told by their ``%YAML:1.0`` header (older OpenCV), an
+    ``!!opencv-matrix`` node (OpenCV 4/5 write ``%YAML 1.2``) or an
+    ``<opencv_storage>`` XML root; anything else is read as ROS camera_info.
     """
     path = Path(path)
-    first_line = _read_text(path).lstrip().split("\n", 1)[0]
-    if first_line.startswith(("%YAML:1", "%YAML 1.0")):
+    text = _read_text(path)
+    if text.lstrip().startswith("%YAML:") or "!!opencv-matrix" in text or "<opencv_storage>" in text:
         return load_opencv_yaml(path)
     return load_ros_camera_info(path)
 
