@@ -221,7 +221,7 @@ def test_telemetry_snapshot_global_position_home_attitude(vehicle: MavlinkVehicl
     import pymap3d
 
     take_off_into_offboard(vehicle, 4.0)
-    for _ in range(40):
+    for _ in range(140):  # 7 s: settled, so the two messages' sample instants agree
         vehicle.send_setpoint(np.array([3.0, -2.0, 4.0]), yaw=0.5)
         vehicle.advance(DT)
     snapshot = vehicle.telemetry()
