@@ -94,17 +94,21 @@ def main(argv: list[str] | None = None) -> int:
 
     path = Path(args.model) if args.model.endswith(".onnx") else model_path(args.model)
     model = YOLO(str(path), task="detect")
+    from insulator_rs.detection.detector import Detector
+
+    imgsz = list(Detector(path, warmup=False).imgsz)  # Ultralytics would use 640 for a dynamic ONNX
     cases = []
     for case in fixture_cases():
         image = build_image(case)
         for conf in CONFS:
-            result = model.predict(image, conf=conf, iou=IOU, device="cpu", verbose=False)[0]
+            result = model.predict(image, conf=conf, iou=IOU, imgsz=imgsz, device="cpu", verbose=False)[0]
             boxes = result.boxes
             cases.append({
                 **case,
                 "shape": list(image.shape),
                 "conf": conf,
                 "iou": IOU,
+                "imgsz": imgsz,
                 "boxes": boxes.xyxy.cpu().numpy().astype(float).tolist(),
                 "scores": boxes.conf.cpu().numpy().astype(float).tolist(),
                 "class_ids": boxes.cls.cpu().numpy().astype(int).tolist(),

@@ -8,12 +8,17 @@ is installed, ``ultralytics.data.augment.LetterBox`` itself (pixel-exact) and
 
 from __future__ import annotations
 
+import importlib.util
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from insulator_rs.detection.letterbox import PAD_VALUE, letterbox, letterbox_geometry, to_network_input
+from insulator_rs.detection.train import prepare_offline
 
 
 @pytest.mark.parametrize(
@@ -89,8 +94,12 @@ def test_geometry_rejects_bad_sizes() -> None:
 @given(h=st.integers(8, 900), w=st.integers(8, 900), side=st.sampled_from([320, 640]))
 def test_matches_ultralytics_letterbox(h: int, w: int, side: int) -> None:
     """Pixel-exact against ultralytics.data.augment.LetterBox; boxes vs ops.scale_boxes (1e-4 px)."""
-    augment = pytest.importorskip("ultralytics.data.augment")
-    ops = pytest.importorskip("ultralytics.utils.ops")
+    if importlib.util.find_spec("ultralytics") is None:
+        pytest.skip("the train extra (ultralytics) is not installed")
+    prepare_offline(Path(tempfile.gettempdir()) / "insulator_rs_ultralytics_cfg")
+    from ultralytics.data import augment
+    from ultralytics.utils import ops
+
     rng = np.random.default_rng(h * 1000 + w)
     image = rng.integers(0, 255, size=(h, w, 3), dtype=np.uint8)
     ref = augment.LetterBox((side, side), auto=False, stride=32)(image=image)

@@ -40,8 +40,10 @@ def prepare_offline(config_dir: Path, *, threads: int | None = None) -> None:
     """
     import sys
 
-    if "ultralytics" in sys.modules and os.environ.get("YOLO_CONFIG_DIR") != str(config_dir):
-        # The settings folder and the online flag are read at import time.
+    if "ultralytics" in sys.modules:
+        # The settings folder and the online flag are read at import time: too late to change them.
+        if os.environ.get("YOLO_OFFLINE") == OFFLINE_ENV["YOLO_OFFLINE"]:
+            return  # an earlier call in this process already prepared it
         raise RuntimeError("prepare_offline must run before ultralytics is imported")
     user_dir = config_dir / "Ultralytics"  # Ultralytics appends this to YOLO_CONFIG_DIR
     user_dir.mkdir(parents=True, exist_ok=True)

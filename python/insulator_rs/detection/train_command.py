@@ -117,7 +117,7 @@ def run_train(args: argparse.Namespace) -> int:
         print(f"[train] epoch {epoch}/{epochs} done at {time.time() - t_start:.0f} s", flush=True)
 
     result = train_yolo(cfg, on_epoch=on_epoch)
-    onnx_path = export_onnx(result.weights, args.imgsz, out / f"{args.name}.onnx")
+    onnx_path = export_onnx(result.weights, args.imgsz, out / f"{args.name}.onnx", dynamic=not args.static)
     curves = plot_training_curves(result.run_dir / "results.csv", out / f"{args.name}_training.png")
     card = {
         "name": args.name,
@@ -127,6 +127,7 @@ def run_train(args: argparse.Namespace) -> int:
         "epochs": result.epochs_run,
         "time_budget_hours": args.hours,
         "imgsz": args.imgsz,
+        "onnx_input": "static" if args.static else "dynamic height/width (default input size = imgsz)",
         "batch": args.batch,
         "training_seconds": round(result.seconds, 1),
         "hardware": f"CPU ({platform.processor() or platform.machine()}), {args.threads} torch threads",
@@ -161,5 +162,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--close-mosaic", type=int, default=5, help="last epochs without mosaic augmentation")
     p.add_argument("--fractions", type=float, nargs=3, default=list(DEFAULT_FRACTIONS),
                    metavar=("TRAIN", "VALID", "TEST"), help="source-photo fractions when re-splitting")
+    p.add_argument("--static", action="store_true",
+                   help="export a fixed input size (default: dynamic height/width, metadata imgsz = --imgsz)")
     p.add_argument("--limit-per-split", type=int, default=None, help="keep only N images per split (smoke runs)")
     p.set_defaults(func=run_train)
