@@ -20,6 +20,7 @@ from insulator_rs.sim.kinematics import (
     OdometryNoise,
     Setpoint,
     SimClock,
+    VehicleFailsafe,
 )
 from insulator_rs.vehicle import Vehicle
 
@@ -195,7 +196,11 @@ def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t() -> None:
     where = vehicle.state().position
     state = vehicle.advance(0.95)
     assert state.mode == "OFFBOARD"
-    state = vehicle.advance(0.1)
+    with pytest.raises(VehicleFailsafe) as failsafe:
+        vehicle.advance(0.1)
+    assert failsafe.value.reason == "offboard setpoints lost for more than 1 s"
+    assert failsafe.value.action == "hold"
+    state = vehicle.state()
     assert state.mode == "HOLD"
     assert state.fault == "offboard setpoints lost for more than 1 s"
     assert not state.healthy
@@ -219,13 +224,12 @@ def test_battery_critical_triggers_return_to_launch_and_landing_at_home() -> Non
     vehicle = KinematicVehicle(params=params, start_position=(0.0, 0.0, 0.0))
     start_flying(vehicle, 5.0)
     target = np.array([10.0, -5.0, 5.0])
+    with pytest.raises(VehicleFailsafe, match=r"battery critical \(7%\); action: rtl"):
+        for _ in range(600):
+            vehicle.send_setpoint(target)
+            vehicle.advance(DT)
     state = vehicle.state()
-    for _ in range(600):
-        vehicle.send_setpoint(target)
-        state = vehicle.advance(DT)
-        if state.mode == "RTL":
-            break
-    assert state.mode == "RTL" and state.fault is not None and "battery critical" in state.fault
+    assert state.mode == "RTL" and state.fault == "battery critical (7%)"
     peak = 0.0
     for _ in range(2000):
         state = vehicle.advance(DT)
@@ -273,6 +277,9 @@ def test_position_loss_in_flight_lands_with_a_reason() -> None:
     vehicle.inject_position_loss(True)
     state = vehicle.state()
     assert state.mode == "LAND" and state.fault == "position estimate lost" and not state.healthy
+    with pytest.raises(VehicleFailsafe, match="position estimate lost; action: land"):
+        vehicle.advance(DT)
+    vehicle.advance(DT)  # raised once only
 
 
 def test_shared_clock_and_closed_vehicle() -> None:

@@ -53,6 +53,7 @@ from insulator_rs.mavlink.wire import command_name, mavlink2, mavutil, result_na
 from insulator_rs.sim.kinematics import (
     CapturedImage,
     FlightMode,
+    VehicleFailsafe,
     as_finite,
     as_vector3,
     require_positive,
@@ -90,15 +91,6 @@ class CommandRejected(VehicleError):
         super().__init__(f"{what} refused by the vehicle: {result}")
         self.command = command
         self.result = result
-
-
-class VehicleFailsafe(VehicleError):
-    """A client-side failsafe fired; ``reason`` says why, ``action`` what was done."""
-
-    def __init__(self, reason: str, action: str) -> None:
-        super().__init__(f"failsafe: {reason}; action: {action}")
-        self.reason = reason
-        self.action = action
 
 
 @dataclass(frozen=True)

@@ -60,6 +60,7 @@ from insulator_rs.sim.kinematics import (
     FlightMode,
     KinematicVehicle,
     Setpoint,
+    VehicleFailsafe,
 )
 
 M = mavlink2
@@ -278,8 +279,11 @@ class SimulatedPx4:
                 # (COM_OF_LOSS_T...) fires because of our own scheduling.
                 elapsed = min((now - last) * self.time_scale, MAX_STEP_VEHICLE_S)
                 if elapsed > 0.0:
-                    self.vehicle.advance(elapsed)
                     last = now
+                    try:
+                        self.vehicle.advance(elapsed)
+                    except VehicleFailsafe:
+                        pass  # PX4 flies its failsafe; the fault shows in HEARTBEAT/state
                 self._send_telemetry()
 
     def _receive(self, now: float) -> None:

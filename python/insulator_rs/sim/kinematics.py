@@ -71,6 +71,16 @@ class CommandRefused(VehicleError):
         self.temporary = temporary
 
 
+class VehicleFailsafe(VehicleError):
+    """A failsafe fired; ``reason`` says why, ``action`` what the vehicle (or the
+    client on its behalf) did. ``advance`` raises it once per failsafe."""
+
+    def __init__(self, reason: str, action: str) -> None:
+        super().__init__(f"failsafe: {reason}; action: {action}")
+        self.reason = reason
+        self.action = action
+
+
 @dataclass(frozen=True)
 class MotionLimits:
     """Kinematic limits of the multirotor (W frame, SI units).
@@ -364,6 +374,7 @@ class KinematicVehicle:
         self._armed_since = -math.inf
         self._has_taken_off = False
         self._closed = False
+        self._pending_failsafe: VehicleFailsafe | None = None
 
     # -- Vehicle protocol ------------------------------------------------------
 
@@ -483,7 +494,11 @@ class KinematicVehicle:
         self._last_setpoint_time = self.clock.now
 
     def advance(self, dt: float) -> VehicleState:
-        """Let ``dt`` seconds of simulated time pass, run the autopilot, return ``state()``."""
+        """Let ``dt`` seconds of simulated time pass, run the autopilot, return ``state()``.
+
+        Raises ``VehicleFailsafe`` (after the whole ``dt`` has been simulated) when a
+        failsafe fired: offboard setpoints lost, battery critical, position lost.
+        """
         self._check_open()
         dt = require_positive(dt, "dt")
         remaining = dt
@@ -491,7 +506,14 @@ class KinematicVehicle:
             h = min(MAX_INTEGRATION_STEP_S, remaining)
             remaining -= h
             self._autopilot_step(h)
+        self.raise_pending_failsafe()
         return self.state()
+
+    def raise_pending_failsafe(self) -> None:
+        """Raise the failsafe that fired since the last call, if any (once each)."""
+        pending, self._pending_failsafe = self._pending_failsafe, None
+        if pending is not None:
+            raise pending
 
     def capture_image(self) -> None:
         """Trigger the camera; the true pose at this instant is appended to ``captures``."""
@@ -527,8 +549,7 @@ class KinematicVehicle:
         would descend) and refuses arming and position modes while lost."""
         self.position_valid = not lost
         if lost and self.armed and self.mode != FlightMode.LAND:
-            self.fault = "position estimate lost"
-            self._switch(FlightMode.LAND)
+            self._failsafe(FlightMode.LAND, "position estimate lost")
 
     # -- internals ---------------------------------------------------------------
 
@@ -568,6 +589,7 @@ class KinematicVehicle:
     def _failsafe(self, mode: FlightMode, reason: str) -> None:
         self.fault = reason
         self._switch(mode)
+        self._pending_failsafe = VehicleFailsafe(reason, mode.value.lower())
 
     def _active_setpoint(self) -> Setpoint:
         """The setpoint the position controller tracks in the current mode."""
