@@ -35,6 +35,18 @@ def test_study_command_runs_on_a_small_sample(tmp_path, capsys):
     dr = [float(e["error"]) for e in ok if e["method"] == "dbscan+ransac"]
     assert len(dr) >= 5 and float(np.median(dr)) < 0.5
     assert (out / "errors.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "table.txt").read_text().strip() in printed
+
+
+def test_localize_overrides_reach_localize(tmp_path):
+    """--eps is passed to ir.localize: an eps far below the point spacing leaves no cluster,
+    so every DBSCAN-based event fails, while RANSAC (which ignores eps) still succeeds."""
+    out = tmp_path / "loc"
+    main(["eval", "localization", "--events", "2", "--towers", "B", "--standoffs", "8",
+          "--eps", "0.001", "--methods", "dbscan", "ransac", "--out", str(out), "--quiet"])
+    with (out / "summary.csv").open() as f:
+        rows = {r["method"]: r for r in csv.DictReader(f)}
+    assert rows["dbscan"]["failures"] == "2" and rows["ransac"]["n"] == "2"
 
 
 def test_cells_are_deterministic_under_a_seed():
