@@ -220,7 +220,7 @@ def test_disarm_in_the_air_is_refused_and_preflight_auto_disarm() -> None:
 
 
 def test_battery_critical_triggers_return_to_launch_and_landing_at_home() -> None:
-    params = AutopilotParameters(battery_drain_per_s=0.05, return_altitude=8.0)
+    params = AutopilotParameters(battery_drain_per_s=0.05, battery_floor=0.0, return_altitude=8.0)
     vehicle = KinematicVehicle(params=params, start_position=(0.0, 0.0, 0.0))
     start_flying(vehicle, 5.0)
     target = np.array([10.0, -5.0, 5.0])
@@ -239,6 +239,15 @@ def test_battery_critical_triggers_return_to_launch_and_landing_at_home() -> Non
     assert not state.armed and state.landed
     assert peak == pytest.approx(8.0, abs=0.35)
     np.testing.assert_allclose(state.position, [0.0, 0.0, 0.0], atol=0.35)
+
+
+def test_battery_drains_to_the_sitl_floor_only() -> None:
+    vehicle = KinematicVehicle(params=AutopilotParameters(battery_drain_per_s=0.1))
+    start_flying(vehicle)
+    for _ in range(200):
+        vehicle.send_setpoint(vehicle.state().position)
+        state = vehicle.advance(DT)
+    assert state.battery_fraction == pytest.approx(0.5) and state.mode == "OFFBOARD"
 
 
 def test_captures_record_the_true_pose() -> None:

@@ -129,7 +129,9 @@ class AutopilotParameters:
     above home; takeoff_altitude [MIS_TAKEOFF_ALT] m above home, when a takeoff
     names none; battery_critical [BAT_CRIT_THR] fraction (below it: RTL, and
     arming is refused); battery_drain_per_s: fraction of a full battery used
-    per armed second (1/1200: a 20 min flight).
+    per armed second (1/1200: a 20 min flight); battery_floor [SIM_BAT_MIN_PCT]:
+    the simulated charge never drains below it (PX4 SITL's 50 %, so that long
+    simulated missions meet no battery failsafe unless a test sets the charge).
     """
 
     offboard_loss_timeout: float = 1.0
@@ -141,12 +143,15 @@ class AutopilotParameters:
     takeoff_altitude: float = 2.5
     battery_critical: float = 0.07
     battery_drain_per_s: float = 1.0 / 1200.0
+    battery_floor: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_timeout", "takeoff_speed", "land_speed", "takeoff_altitude"):
             require_positive(getattr(self, name), name)
         for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude", "battery_drain_per_s"):
             require_non_negative(getattr(self, name), name)
+        if not 0.0 <= self.battery_floor <= 1.0:
+            raise ValueError(f"battery_floor must be in [0, 1], got {self.battery_floor!r}")
         if not 0.0 <= self.battery_critical < 1.0:
             raise ValueError(f"battery_critical must be in [0, 1), got {self.battery_critical!r}")
 
@@ -628,7 +633,8 @@ class KinematicVehicle:
         p = self.params
         now = self.clock.advance(h)
         if self.armed:
-            self.battery_fraction = max(0.0, self.battery_fraction - p.battery_drain_per_s * h)
+            if self.battery_fraction > p.battery_floor:
+                self.battery_fraction = max(p.battery_floor, self.battery_fraction - p.battery_drain_per_s * h)
             if (self.battery_fraction <= p.battery_critical and not self.landed
                     and self.mode not in (FlightMode.RTL, FlightMode.LAND)):
                 self._failsafe(FlightMode.RTL, f"battery critical ({self.battery_fraction:.0%})")
