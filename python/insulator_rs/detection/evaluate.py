@@ -112,6 +112,8 @@ def coco_evaluate(
     seconds = 0.0
     for img_id, s in enumerate(samples, start=1):
         image = cv2.imread(str(s.image), cv2.IMREAD_COLOR)
+        if image is None:
+            raise ValueError(f"samples: cannot decode {s.image}")
         h, w = image.shape[:2]
         gt["images"].append({"id": img_id, "width": w, "height": h, "file_name": s.image.name})
         for box, lbl in zip(s.boxes, s.labels):

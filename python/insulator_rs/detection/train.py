@@ -143,6 +143,8 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
     model.train(**args)
     seconds = time.monotonic() - t0
     trainer = model.trainer
+    if trainer is None:
+        raise RuntimeError("Ultralytics returned without a trainer")
     weights = Path(trainer.best if Path(trainer.best).is_file() else trainer.last)
     metrics = {k: float(v) for k, v in (trainer.metrics or {}).items() if isinstance(v, (int, float))}
     return TrainResult(weights=weights, run_dir=Path(trainer.save_dir), epochs_run=int(trainer.epoch) + 1,

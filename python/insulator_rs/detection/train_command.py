@@ -98,6 +98,7 @@ def run_train(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     prepare_offline(out / "ultralytics_cfg", threads=args.threads)
     t_start = time.time()
+    dataset: dict[str, object]
     if args.data.suffix in (".yaml", ".yml"):
         data_yaml, dataset = args.data, {"yaml": str(args.data)}
         test_split = args.data.parent / "images" / "test"
