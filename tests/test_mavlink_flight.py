@@ -239,6 +239,30 @@ def test_telemetry_snapshot_global_position_home_attitude(vehicle: MavlinkVehicl
                                atol=1e-6)
 
 
+def test_world_origin_from_geodetic_tower_position() -> None:
+    """The sim's PX4 started 30 m east and 40 m north of the tower (its local origin is
+    there); after set_world_origin(tower), positions are in the tower's ENU frame.
+    Reference: pymap3d.enu2geodetic places the PX4 origin; tolerance 1 cm."""
+    import pymap3d
+
+    tower = (47.3977, 8.5456, 500.0)
+    px4_origin = pymap3d.enu2geodetic(30.0, 40.0, 0.0, *tower)
+    client = connect_vehicle(None, time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
+    try:
+        np.testing.assert_allclose(client.state().position, [0.0, 0.0, 0.0], atol=1e-6)
+        offset = client.set_world_origin(*tower)
+        np.testing.assert_allclose(offset, [30.0, 40.0, 0.0], atol=0.01)
+        np.testing.assert_allclose(client.state().position, [30.0, 40.0, 0.0], atol=0.01)
+        take_off_into_offboard(client)
+        for _ in range(60):
+            client.send_setpoint(np.array([32.0, 40.0, 3.0]))  # W: 2 m east of where we took off
+            client.advance(DT)
+        truth = sim_of(client).with_vehicle(lambda v: v.model.position.copy())
+        np.testing.assert_allclose(truth, [2.0, 0.0, 3.0], atol=0.05)  # PX4 local frame
+    finally:
+        client.close()
+
+
 def test_gps_glitch_is_seen_by_the_client(vehicle: MavlinkVehicle) -> None:
     sim = sim_of(vehicle)
     sim.gps_glitch((4.0, -2.0, 0.0))

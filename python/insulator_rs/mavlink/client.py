@@ -265,6 +265,30 @@ class MavlinkVehicle:
                 landed_state=landed,
             )
 
+    def set_world_origin(self, latitude: float, longitude: float, altitude: float) -> np.ndarray:
+        """Place W's origin at a geodetic point (deg, deg, m AMSL), e.g. the tower base.
+
+        PX4's local frame starts where its estimator started, not at the tower, so
+        the shift comes from HOME_POSITION, which carries home both in geodetic and
+        in local coordinates: local_origin_w = ENU(home wrt origin, pymap3d) -
+        ENU(home local). Returns the new ``local_origin_w`` (m, W).
+        """
+        import pymap3d  # type: ignore[import-untyped]
+
+        lat = as_finite(latitude, "latitude")
+        lon = as_finite(longitude, "longitude")
+        alt = as_finite(altitude, "altitude")
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            raise ValueError(f"latitude/longitude out of range: {lat!r}, {lon!r}")
+        with self._lock:
+            home = self._home
+            if home is None:
+                raise VehicleError("no HOME_POSITION from the autopilot yet")
+            home_w = np.array(pymap3d.geodetic2enu(home.latitude * 1e-7, home.longitude * 1e-7,
+                                                   home.altitude * 1e-3, lat, lon, alt), dtype=np.float64)
+            self.local_origin_w = home_w - ned_to_enu([home.x, home.y, home.z])
+            return self.local_origin_w.copy()
+
     def arm(self) -> None:
         """MAV_CMD_COMPONENT_ARM_DISARM(1); returns once the heartbeat shows armed."""
         self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, detail="arm")
