@@ -255,6 +255,13 @@ class SimulatedPx4:
         with self._lock:
             self.vehicle.inject_position_loss(lost)
 
+    def true_pose(self) -> tuple[np.ndarray, float, float]:
+        """(position in W m, yaw rad, vehicle time s) of the simulated airframe, without
+        odometry noise or GPS glitch: where simulated sensors must render from."""
+        with self._lock:
+            model = self.vehicle.model
+            return model.position.copy(), float(model.yaw), float(self.vehicle.clock.now)
+
     def with_vehicle(self, func: Callable[[KinematicVehicle], Any]) -> Any:
         """Run ``func(vehicle)`` under the sim lock (consistent reads of the true state)."""
         with self._lock:
