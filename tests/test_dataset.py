@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -96,3 +97,105 @@ def test_data_yaml_is_what_ultralytics_reads(tmp_path):
     assert doc["train"] == "images/train" and doc["val"] == "images/val"
     assert doc["test"] == "images/test" and doc["names"] == {0: "insulator"} and doc["nc"] == 1
     assert doc["path"] == str(tmp_path.resolve())
+
+
+# --- the dataset command end to end ----------------------------------------------------
+
+def _make(tmp_path, name="ds", seed=1):
+    from insulator_rs.cli import main
+
+    out = tmp_path / name
+    code = main(["dataset", "--images", "6", "--width", "160", "--height", "120",
+                 "--min-visible-pixels", "4", "--seed", str(seed), "--out", str(out), "--quiet"])
+    assert code == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    return _make(tmp_path_factory.mktemp("dataset"))
+
+
+def test_dataset_command_writes_the_yolo_layout(dataset):
+    import csv
+
+    doc = yaml.safe_load((dataset / "data.yaml").read_text())
+    counts = {s: len(list((dataset / "images" / s).glob("*.png"))) for s in SPLITS}
+    assert counts == {"train": 4, "val": 1, "test": 1}
+    with (dataset / "views.csv").open() as f:
+        views = list(csv.DictReader(f))
+    assert len(views) == 6 and {v["scene"] for v in views} == {"tower_a", "tower_b"}
+    n_boxes = 0
+    for split in SPLITS:
+        assert (dataset / doc[split]).is_dir()
+        for img in (dataset / "images" / split).glob("*.png"):
+            assert cv2.imread(str(img)).shape == (120, 160, 3)
+            label = dataset / "labels" / split / f"{img.stem}.txt"
+            for line in label.read_text().splitlines():
+                fields = line.split()
+                assert len(fields) == 5 and fields[0] == "0"
+                values = np.array([float(v) for v in fields[1:]])
+                assert np.all((values >= 0) & (values <= 1)) and values[2] > 0 and values[3] > 0
+                n_boxes += 1
+    assert n_boxes == sum(int(v["boxes"]) for v in views) > 0
+
+
+def test_dataset_labels_sit_on_the_insulators(dataset):
+    """Reference: cv2.projectPoints of points along each ground-truth insulator axis, through
+    the pose in views.csv and the scaled default lens; every label box holds the projection of
+    some insulator's axis (tol: the shed radius in pixels + 1 px)."""
+    import csv
+
+    from insulator_rs.sim.dataset import scaled_camera_model
+    from insulator_rs.sim.towers import load_tower
+
+    model = scaled_camera_model(160, 120)
+    K = np.array([[model.fx, 0, model.cx], [0, model.fy, model.cy], [0, 0, 1]])
+    towers = {n: load_tower(n) for n in ("tower_a", "tower_b")}
+    with (dataset / "views.csv").open() as f:
+        views = list(csv.DictReader(f))
+    checked = 0
+    for v in views:
+        T_w_c = np.array([float(v[f"T_w_c_{r}{c}"]) for r in range(4) for c in range(4)]).reshape(4, 4)
+        T_c_w = np.linalg.inv(T_w_c)
+        rvec, _ = cv2.Rodrigues(T_c_w[:3, :3])
+        tower = towers[v["scene"]]
+        axes = []
+        for ins in tower.insulators:
+            a, b = ins.end_points
+            pts = a + np.linspace(0, 1, 41)[:, None] * (b - a)
+            uv, _ = cv2.projectPoints(pts, rvec, T_c_w[:3, 3], K, np.asarray(model.dist))
+            depth = np.linalg.norm(ins.center - T_w_c[:3, 3])
+            axes.append((uv.reshape(-1, 2), model.fx * ins.radius / depth + 1.0))
+        for line in (dataset / "labels" / v["split"] / f"{v['image']}.txt").read_text().splitlines():
+            _, cx, cy, w, h = (float(x) for x in line.split())
+            x1, x2 = (cx - w / 2) * 160, (cx + w / 2) * 160
+            y1, y2 = (cy - h / 2) * 120, (cy + h / 2) * 120
+            assert any(np.any((uv[:, 0] >= x1 - tol) & (uv[:, 0] <= x2 + tol)
+                              & (uv[:, 1] >= y1 - tol) & (uv[:, 1] <= y2 + tol)) for uv, tol in axes)
+            checked += 1
+    assert checked > 0
+
+
+def test_dataset_is_deterministic_under_a_seed(dataset, tmp_path):
+    again = _make(tmp_path, "again", seed=1)
+    assert (again / "views.csv").read_text() == (dataset / "views.csv").read_text()
+    for split in SPLITS:
+        for img in (dataset / "images" / split).glob("*.png"):
+            other = again / "images" / split / img.name
+            assert np.array_equal(cv2.imread(str(img)), cv2.imread(str(other)))
+            label = Path("labels") / split / f"{img.stem}.txt"
+            assert (dataset / label).read_text() == (again / label).read_text()
+
+
+def test_dataset_refuses_to_overwrite_and_bad_arguments(dataset):
+    from insulator_rs.cli import main
+
+    with pytest.raises(ValueError, match="out: .*already holds a dataset"):
+        main(["dataset", "--images", "1", "--out", str(dataset), "--quiet"])
+    with pytest.raises(ValueError, match="--width/--height"):
+        main(["dataset", "--images", "1", "--width", "100", "--out", str(dataset / "x")])
+    with pytest.raises(SystemExit):
+        main(["dataset", "--images", "0", "--out", str(dataset / "y")])
+    with pytest.raises(SystemExit):
+        main(["dataset", "--split", "0.8", "0.1", "1.5", "--out", str(dataset / "z")])

@@ -8,6 +8,7 @@ writes::
     out/images/{train,val,test}/NNNNNN.png
     out/labels/{train,val,test}/NNNNNN.txt   one "0 cx cy w h" line per insulator (normalised)
     out/data.yaml                            path, splits, names {0: insulator}
+    out/views.csv                            per image: split, scene, box count, camera pose T_w_c
 
 Ground-truth boxes come from the visible pixels of each insulator in the
 rendered instance-id image, so occluded parts do not count; boxes with fewer
@@ -18,11 +19,13 @@ seeded generator.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from insulator_rs.sim.camera_render import Lighting
 
 SPLITS: tuple[str, ...] = ("train", "val", "test")
 CLASS_NAMES: dict[int, str] = {0: "insulator"}
@@ -42,27 +45,17 @@ class ViewSampling:
     aim_jitter_deg: float = 12.0
 
 
-@dataclass(frozen=True)
-class LightingSample:
-    """One draw of the lighting and weather: sun elevation/azimuth (deg), haze (1/m), noise (8-bit
-    counts), overcast (0 sunny .. 1 overcast: dimmer sun, brighter grey sky)."""
-
-    sun_elevation_deg: float
-    sun_azimuth_deg: float
-    haze_density: float
-    noise_sigma: float
-    overcast: float
-
-
-def sample_lighting(rng: np.random.Generator) -> LightingSample:
-    """Time of day (sun from 8 to 70 degrees up, any azimuth), clear to hazy, sunny to overcast."""
-    return LightingSample(
-        sun_elevation_deg=float(rng.uniform(8.0, 70.0)),
-        sun_azimuth_deg=float(rng.uniform(0.0, 360.0)),
-        haze_density=float(rng.choice([0.0, rng.uniform(0.0, 0.004), rng.uniform(0.004, 0.02)])),
-        noise_sigma=float(rng.uniform(0.5, 4.0)),
-        overcast=float(rng.choice([0.0, rng.uniform(0.0, 1.0)])),
-    )
+def sample_lighting(rng: np.random.Generator) -> Lighting:
+    """Time of day (7:00 to 18:00, sun azimuth varied), clear to hazy or foggy air, sunny to
+    overcast sky, sensor noise: the variations the paper's simulation dataset used."""
+    weather = rng.choice(["sunny", "cloudy", "rainy"])
+    overcast = {"sunny": 0.0, "cloudy": rng.uniform(0.4, 0.8), "rainy": rng.uniform(0.8, 1.0)}[weather]
+    haze = {"sunny": rng.uniform(0.0, 0.004), "cloudy": rng.uniform(0.002, 0.01),
+            "rainy": rng.uniform(0.01, 0.03)}[weather]
+    return Lighting.at_time_of_day(
+        float(rng.uniform(7.0, 18.0)), haze_density=float(haze),
+        noise_sigma=float(rng.uniform(0.5, 4.0)), overcast=float(overcast),
+        sun_azimuth_offset=float(rng.uniform(-0.5, 0.5)))
 
 
 def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -161,4 +154,104 @@ class DatasetSummary:
     data_yaml: Path
 
 
-RenderFn = Callable[[np.ndarray, LightingSample, int], tuple[np.ndarray, np.ndarray]]
+def scaled_camera_model(width: int, height: int):
+    """The default simulated camera's lens at another image size (same field of view across)."""
+    from insulator_rs._core import CameraModel
+    from insulator_rs.sim.camera_render import (
+        DEFAULT_DIST,
+        DEFAULT_FOCAL,
+        DEFAULT_WIDTH,
+        default_camera_model,
+    )
+
+    if (width, height) == (None, None):
+        return default_camera_model()
+    if width < 1 or height < 1:
+        raise ValueError(f"image_size: width and height must be >= 1, got {width}x{height}")
+    f = DEFAULT_FOCAL * width / DEFAULT_WIDTH
+    return CameraModel(f, f, (width - 1) / 2, (height - 1) / 2, width, height, dist=DEFAULT_DIST)
+
+
+def _aim_points(tower) -> np.ndarray:
+    """What the dataset camera looks at: every insulator's centre and points up the tower axis."""
+    heights = np.linspace(0.3, 1.0, 6) * tower.max_height
+    axis_points = np.column_stack([np.zeros_like(heights), np.zeros_like(heights), heights])
+    return np.vstack([np.array([i.center for i in tower.insulators]), axis_points])
+
+
+def write_dataset(*, scenes: Sequence[str | Path], out: Path, n_images: int,
+                  split: Sequence[float] = (0.8, 0.1, 0.1),
+                  image_size: tuple[int, int] | None = None, min_visible_pixels: int = 30,
+                  sampling: ViewSampling = ViewSampling(), seed: int = 0,
+                  progress: bool = False) -> DatasetSummary:
+    """Render ``n_images`` images (scenes taken in turn) into ``out`` in the YOLO layout.
+
+    Also writes ``out/views.csv``: per image its split, scene, lighting hour and the
+    camera pose T_w_c (16 values, row-major), so every label can be checked and reproduced.
+    Raises ValueError when ``out`` already holds a dataset (nothing is overwritten).
+    """
+    import csv
+    import sys
+    import time
+
+    import cv2
+
+    from insulator_rs.sim.camera_render import Camera
+    from insulator_rs.sim.towers import load_tower
+
+    if n_images < 1:
+        raise ValueError(f"n_images: must be >= 1, got {n_images}")
+    if not scenes:
+        raise ValueError("scenes: give at least one scene")
+    if min_visible_pixels < 1:
+        raise ValueError(f"min_visible_pixels: must be >= 1, got {min_visible_pixels}")
+    out = Path(out)
+    if (out / "data.yaml").exists() or (out / "images").exists() or (out / "labels").exists():
+        raise ValueError(f"out: {out} already holds a dataset (images/, labels/ or data.yaml); "
+                         "choose an empty folder")
+    rng = np.random.default_rng(seed)
+    labels_split = split_indices(n_images, split, rng)
+    towers = [load_tower(s) for s in scenes]
+    width, height = image_size if image_size is not None else (None, None)
+    camera = Camera(scaled_camera_model(width, height))  # type: ignore[arg-type]
+    size = (int(camera.model.width), int(camera.model.height))
+    for sp in SPLITS:
+        (out / "images" / sp).mkdir(parents=True, exist_ok=True)
+        (out / "labels" / sp).mkdir(parents=True, exist_ok=True)
+    counts = {sp: 0 for sp in SPLITS}
+    n_boxes = n_empty = 0
+    start = time.monotonic()
+    with (out / "views.csv").open("w", newline="") as f:
+        views = csv.writer(f)
+        views.writerow(["image", "split", "scene", "boxes"] + [f"T_w_c_{r}{c}" for r in range(4)
+                                                                for c in range(4)])
+        for i, sp in enumerate(labels_split):
+            tower = towers[i % len(towers)]
+            aim = _aim_points(tower)
+            for _attempt in range(20):
+                T_w_c = sample_view(rng, aim, sampling)
+                T_w_b = T_w_c @ np.linalg.inv(camera.T_b_c)
+                try:
+                    frame = camera.render(tower.mesh, T_w_b, lighting=sample_lighting(rng), seed=i,
+                                          min_box_pixels=min_visible_pixels)
+                    break
+                except ValueError as exc:  # camera inside geometry: draw another view
+                    if "inside geometry" not in str(exc):
+                        raise
+            else:
+                raise RuntimeError(f"image {i}: no view outside the geometry in 20 draws")
+            name = f"{i:06d}"
+            cv2.imwrite(str(out / "images" / sp / f"{name}.png"), frame.rgb[:, :, ::-1])
+            boxes = np.array([frame.boxes[k] for k in sorted(frame.boxes)]).reshape(-1, 4)
+            lines = yolo_lines(boxes, *size)
+            (out / "labels" / sp / f"{name}.txt").write_text("".join(line + "\n" for line in lines))
+            views.writerow([name, sp, tower.spec.name, len(lines)] + frame.T_w_c.reshape(-1).tolist())
+            counts[sp] += 1
+            n_boxes += len(lines)
+            n_empty += int(len(lines) == 0)
+            if progress and ((i + 1) % max(1, n_images // 20) == 0 or i + 1 == n_images):
+                elapsed = time.monotonic() - start
+                print(f"  {i + 1}/{n_images} images, {elapsed:.0f} s elapsed, "
+                      f"ETA {elapsed / (i + 1) * (n_images - i - 1):.0f} s", file=sys.stderr, flush=True)
+    return DatasetSummary(images=counts, boxes=n_boxes, empty_images=n_empty,
+                          data_yaml=write_data_yaml(out))
