@@ -7,7 +7,12 @@ No mocks: every exchange goes through sockets. The vehicle clock runs
 from __future__ import annotations
 
 import math
+import os
+import select
+import socket
+import threading
 import time
+import tty
 from collections.abc import Iterator
 
 import numpy as np
@@ -373,3 +378,55 @@ def test_standalone_simulator_entry_point(capsys) -> None:
     out = capsys.readouterr().out
     assert "simulated PX4 listening on udp 127.0.0.1:" in out
     assert "stopped: mode HOLD, armed False" in out
+
+
+def test_udpin_as_px4_sitl_streams_to_the_offboard_port() -> None:
+    """PX4 SITL streams to a fixed offboard port; the client listens there (udpin)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        listen_port = probe.getsockname()[1]
+    with SimulatedPx4(time_scale=TIME_SCALE, remote=("127.0.0.1", listen_port)) as sim:
+        client = MavlinkVehicle(f"udpin:127.0.0.1:{listen_port}", heartbeat_timeout=5.0, time_scale=TIME_SCALE)
+        try:
+            client.arm()
+            assert sim.with_vehicle(lambda v: v.armed)
+        finally:
+            client.close()
+
+
+def test_serial_link_through_a_pseudo_terminal() -> None:
+    """A serial device (``DEVICE:BAUD``, pyserial under pymavlink) bridged byte for byte
+    to the simulated PX4's UDP port, as a flight controller's UART would carry it."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    device = os.ttyname(slave)
+    stop = threading.Event()
+    with SimulatedPx4(time_scale=TIME_SCALE) as sim:
+        bridge = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        bridge.bind(("127.0.0.1", 0))
+        bridge.setblocking(False)
+
+        def pump() -> None:
+            while not stop.is_set():
+                readable, _, _ = select.select([master, bridge], [], [], 0.02)
+                if master in readable:
+                    bridge.sendto(os.read(master, 4096), sim.address)
+                if bridge in readable:
+                    os.write(master, bridge.recv(65535))
+
+        thread = threading.Thread(target=pump, daemon=True)
+        thread.start()
+        client = None
+        try:
+            client = MavlinkVehicle(f"{device}:921600", heartbeat_timeout=5.0, time_scale=TIME_SCALE)
+            client.arm()
+            assert sim.with_vehicle(lambda v: v.armed)
+            assert client.state().armed
+        finally:
+            if client is not None:
+                client.close()
+            stop.set()
+            thread.join(timeout=2.0)
+            bridge.close()
+            os.close(master)
+            os.close(slave)
