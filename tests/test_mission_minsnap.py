@@ -117,3 +117,14 @@ def test_bad_input():
         plan_min_snap(np.zeros((1, 3)), VM, AM)
     with pytest.raises(ValueError, match="repeated"):
         plan_min_snap(np.zeros((2, 3)), VM, AM)
+
+
+def test_moving_start_keeps_its_velocity_and_the_limits():
+    wp = waypoints(11, n=4)
+    v0 = np.array([2.5, -1.0, 1.2])
+    tr = plan_min_snap(wp, VM, AM, v_start=v0)
+    np.testing.assert_allclose(tr.evaluate(np.array([0.0]), 1)[0], v0, atol=1e-8)
+    np.testing.assert_allclose(tr.evaluate(np.array([tr.total_time]), 1)[0], 0.0, atol=1e-8)
+    assert np.all(tr.max_abs(1) <= VM * (1 + 1e-9)) and np.all(tr.max_abs(2) <= AM * (1 + 1e-9))
+    with pytest.raises(ValueError, match="v_start"):
+        plan_min_snap(wp, VM, AM, v_start=np.array([5.0, 0, 0]))

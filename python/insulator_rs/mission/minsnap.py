@@ -26,6 +26,7 @@ DEGREE = 7
 N_COEFF = DEGREE + 1
 N_DERIV = 4  # position, velocity, acceleration, jerk fixed or free at each waypoint
 SNAP = 4
+MAX_SCALING_ROUNDS = 30
 
 
 def _deriv_row(order: int, t: float) -> np.ndarray:
@@ -54,10 +55,13 @@ def _boundary_matrix(T: float) -> np.ndarray:
                      + [_deriv_row(r, T) for r in range(N_DERIV)])
 
 
-def solve_min_snap(waypoints: np.ndarray, durations: np.ndarray) -> np.ndarray:
+def solve_min_snap(waypoints: np.ndarray, durations: np.ndarray,
+                   v_start: np.ndarray | None = None) -> np.ndarray:
     """Coefficients (S, 3, 8) of the min-snap trajectory through ``waypoints`` (S+1, 3) with
-    segment ``durations`` (S,) s, at rest at both ends (Richter's closed form)."""
+    segment ``durations`` (S,) s (Richter's closed form). It starts with velocity ``v_start``
+    (m/s, default rest) and zero acceleration and jerk, and ends at rest."""
     p = np.asarray(waypoints, dtype=np.float64)
+    vs = np.zeros(3) if v_start is None else np.asarray(v_start, dtype=np.float64).reshape(3)
     T = np.asarray(durations, dtype=np.float64)
     n_seg = len(T)
     m = n_seg + 1
@@ -81,6 +85,7 @@ def solve_min_snap(waypoints: np.ndarray, durations: np.ndarray) -> np.ndarray:
     for axis in range(3):
         d = np.zeros(N_DERIV * m)
         d[[N_DERIV * j for j in range(m)]] = p[:, axis]
+        d[1] = vs[axis]
         if free:
             R_pp = R[np.ix_(free, free)]
             R_fp = R[np.ix_(fixed, free)]
@@ -152,10 +157,15 @@ class MinSnapTrajectory:
 
 
 def plan_min_snap(waypoints: np.ndarray, v_max: np.ndarray | float,
-                  a_max: np.ndarray | float) -> MinSnapTrajectory:
-    """Min-snap trajectory through ``waypoints`` (M >= 2, 3), at rest at both ends, scaled in
-    time so that the per-axis limits ``v_max`` (m/s) and ``a_max`` (m/s^2) hold, one of them
-    exactly."""
+                  a_max: np.ndarray | float, *, v_start: np.ndarray | None = None) -> MinSnapTrajectory:
+    """Min-snap trajectory through ``waypoints`` (M >= 2, 3), from velocity ``v_start`` (default
+    rest, within ``v_max``) to rest, scaled in time so that the per-axis limits ``v_max`` (m/s)
+    and ``a_max`` (m/s^2) hold, one of them exactly.
+
+    Scaling time by alpha divides velocities by alpha and accelerations by alpha^2; with a
+    moving start the start velocity must not scale, so the problem is re-solved with the
+    scaled times and scaled again until the factor settles (at most
+    :data:`MAX_SCALING_ROUNDS` rounds; a last round only ever slows down)."""
     p = np.asarray(waypoints, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2:
         raise ValueError(f"waypoints: expected shape (M >= 2, 3), got {p.shape}")
@@ -166,17 +176,31 @@ def plan_min_snap(waypoints: np.ndarray, v_max: np.ndarray | float,
         raise ValueError("waypoints: consecutive waypoints must differ (got a repeated waypoint)")
     vm = np.broadcast_to(np.asarray(v_max, dtype=np.float64), (3,))
     am = np.broadcast_to(np.asarray(a_max, dtype=np.float64), (3,))
+    vs = None
+    if v_start is not None:
+        vs = np.asarray(v_start, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(vs)) or np.any(np.abs(vs) > vm + 1e-9):
+            raise ValueError(f"v_start: must be finite and within v_max per axis, got {vs}")
     durations = rest_to_rest_times(p[:-1], p[1:], vm, am)
-    traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations))
-    # Scaling time by alpha divides velocities by alpha and accelerations by alpha^2.
-    alpha = max(float(np.max(traj.max_abs(1) / vm)), float(np.sqrt(np.max(traj.max_abs(2) / am))))
-    durations = durations * alpha
-    return MinSnapTrajectory(p, durations, solve_min_snap(p, durations))
+    for _ in range(MAX_SCALING_ROUNDS):
+        traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations, vs))
+        alpha = max(float(np.max(traj.max_abs(1) / vm)), float(np.sqrt(np.max(traj.max_abs(2) / am))))
+        durations = durations * alpha
+        if vs is None or abs(alpha - 1.0) < 1e-6:  # from rest one scaling is exact
+            break
+    traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations, vs))
+    for _ in range(MAX_SCALING_ROUNDS):  # only slow down from here on, until the limits hold
+        alpha = max(float(np.max(traj.max_abs(1) / vm)), float(np.sqrt(np.max(traj.max_abs(2) / am))))
+        if alpha <= 1.0 + 1e-9:
+            return traj
+        durations = durations * alpha * 1.01
+        traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations, vs))
+    raise ValueError("v_start: no time scaling keeps the limits with this start velocity")
 
 
 def plan_min_snap_safe(waypoints: np.ndarray, v_max: np.ndarray | float, a_max: np.ndarray | float,
-                       volumes: SafetyVolumes, *, dt: float = 0.05,
-                       max_refinements: int = 8) -> MinSnapTrajectory:
+                       volumes: SafetyVolumes, *, dt: float = 0.05, max_refinements: int = 8,
+                       v_start: np.ndarray | None = None) -> MinSnapTrajectory:
     """:func:`plan_min_snap`, re-planned with a waypoint inserted at the middle of every segment
     whose curve touches a safety volume, until the sampled curve (checked conservatively,
     see :meth:`SafetyVolumes.samples_clear`) is clear. The straight polyline through the
@@ -187,7 +211,7 @@ def plan_min_snap_safe(waypoints: np.ndarray, v_max: np.ndarray | float, a_max: 
     vm = np.broadcast_to(np.asarray(v_max, dtype=np.float64), (3,))
     max_step = float(np.linalg.norm(vm)) * dt
     for _ in range(max_refinements + 1):
-        traj = plan_min_snap(p, vm, a_max)
+        traj = plan_min_snap(p, vm, a_max, v_start=v_start)
         times, pos, _ = traj.sample(dt)
         bad_samples = ~volumes.points_clear(pos, inflate=max_step / 2)
         if not np.any(bad_samples):

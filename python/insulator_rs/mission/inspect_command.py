@@ -1,0 +1,518 @@
+"""``insulator-rs inspect``: a whole single-flight inspection in the built-in simulator.
+
+The simulated world is a scene of :mod:`insulator_rs.sim` (tower A by default),
+the vehicle the in-process kinematic multirotor flown through the
+:class:`~insulator_rs.vehicle.Vehicle` protocol. The run follows the paper's
+online algorithm: take off, fly the exploration path (minimum-snap
+trajectories, safety-checked), and on every detection event render the
+detection camera, turn its ground-truth boxes into detections with the
+detector stand-in, cast a LiDAR frame, cull and accumulate the points and
+localize with ``ir.localize``; new insulators get inspection waypoints, which
+the state machine visits (a photo from the simulated camera, gimbal aimed, at
+each), then the flight goes on, crosses over the top, finishes and lands.
+
+The report folder (see :mod:`.report`) is written as the flight goes; an
+interruption (Ctrl-C) still leaves the summary, the photos taken and the plot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time as wallclock
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import insulator_rs as ir
+from insulator_rs.exceptions import ConfigError
+from insulator_rs.mission.config import Mission, load_mission
+from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
+from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.mission.minsnap import MinSnapTrajectory, plan_min_snap_safe
+from insulator_rs.mission.perception import OnboardPerception
+from insulator_rs.mission.registry import Insulator, InsulatorRegistry
+from insulator_rs.mission.report import ReportWriter
+from insulator_rs.mission.state_machine import POLICIES, InspectionStateMachine, PlanItem, State
+from insulator_rs.mission.two_flight import route
+from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.sim.camera_render import Camera, Lighting, default_camera_model, default_T_b_c
+from insulator_rs.sim.detector_standin import DetectorStandin
+from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits
+from insulator_rs.sim.lidar import Mid360
+from insulator_rs.sim.towers import Tower, load_tower
+from insulator_rs.vehicle import Vehicle, VehicleState
+
+MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
+CONTROL_PERIOD = 0.05  # s: 20 Hz setpoint stream, as PX4 offboard wants
+SAFETY_CHECK_DT = 0.05  # s: sampling of planned trajectories for the safety check
+PHOTO_YAW_TOLERANCE = math.radians(3.0)
+PHOTO_SPEED_TOLERANCE = 0.2  # m/s
+PHOTO_SETTLE_TIMEOUT = 8.0  # s
+HOLD_TIMEOUT = 10.0  # s in HOLD before the mission aborts
+STATUS_PERIOD = 15.0  # s of flight between progress lines
+SUMMARY_PERIOD = 5.0  # s of flight between summary rewrites
+LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
+# The vehicle's own limits get this much headroom over the planning limits so the
+# position loop can track the trajectory.
+LIMIT_HEADROOM = 1.5
+
+
+def _T_w_b(position: np.ndarray, yaw: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = math.cos(yaw), math.sin(yaw)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = position
+    return T
+
+
+def _gimballed_T_b_c(pitch: float) -> np.ndarray:
+    """The camera on a gimbal pitched by ``pitch`` rad (negative looks down) about the body y axis."""
+    c, s = math.cos(-pitch), math.sin(-pitch)
+    R = np.eye(4)
+    R[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+    return R @ default_T_b_c()
+
+
+def _scaled_camera(model: ir.CameraModel, scale: float) -> ir.CameraModel:
+    w, h = max(16, int(round(model.width * scale))), max(12, int(round(model.height * scale)))
+    sx, sy = w / model.width, h / model.height
+    return ir.CameraModel(model.fx * sx, model.fy * sy, (w - 1) / 2, (h - 1) / 2, w, h,
+                          dist=tuple(model.dist))
+
+
+def _angle_wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class InspectionRun:
+    """One simulated single-flight inspection (state, sensors, report)."""
+
+    def __init__(self, mission: Mission, tower: Tower, out: Path, *, method: str, policy: str,
+                 seed: int, detect_period: float, detect_scale: float, photo_scale: float,
+                 max_flight_time: float, quiet: bool = False) -> None:
+        self.mission = mission
+        self.tower = tower
+        self.geom = MissionGeometry.from_mission(mission)
+        self.quiet = quiet
+        self.method = method
+        self.policy = policy
+        self.detect_period = detect_period
+        self.max_flight_time = max_flight_time
+        lim = mission.vehicle
+        self.v_max, self.a_max = lim.v_max(), lim.a_max()
+        self.vehicle: Vehicle = KinematicVehicle(
+            start_position=self.geom.takeoff, start_yaw=self.geom.path[0].yaw, seed=seed,
+            limits=MotionLimits(max_horizontal_speed=lim.v_max_horizontal * LIMIT_HEADROOM,
+                                max_vertical_speed=lim.v_max_vertical * LIMIT_HEADROOM,
+                                max_horizontal_acceleration=lim.a_max_horizontal * LIMIT_HEADROOM,
+                                max_vertical_acceleration=lim.a_max_vertical * LIMIT_HEADROOM))
+        base = default_camera_model()
+        self.det_camera = Camera(_scaled_camera(base, detect_scale))
+        self.photo_model = _scaled_camera(base, photo_scale)
+        self.lidar = Mid360()
+        self.detector = DetectorStandin(seed=seed)
+        self.perception = OnboardPerception(self.det_camera.model, self.det_camera.T_b_c,
+                                            self.lidar.T_b_l, method=method)
+        self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate)
+        self.fov = 2 * math.atan((self.photo_model.height / 2) / self.photo_model.fy)
+        self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints, policy=policy,
+                                         cost=self._cost)
+        self.report = ReportWriter(out)
+        self.out = out
+        self.seed = seed
+        self.photos: list[dict[str, Any]] = []
+        self.waypoints: list[InspectionWaypoint] = []
+        self.status = "running"
+        self.t_start = 0.0
+        self.events = 0
+        self.localizations = 0
+        self._printed_transitions = 0
+        self._next_detect = 0.0
+        self._next_status = STATUS_PERIOD
+        self._next_summary = SUMMARY_PERIOD
+        self._wall0 = wallclock.perf_counter()
+
+    # -- helpers -------------------------------------------------------------------------
+    def _waypoints(self, ins: Insulator) -> list[InspectionWaypoint]:
+        p = self.mission.inspection
+        length = max(t.length for t in self.tower.insulators) if self.tower.insulators else 2.0
+        wps = inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=self.geom.line,
+                                   volumes=self.geom.volumes, count=p.waypoints_per_insulator,
+                                   inspection_distance=p.inspection_distance,
+                                   insulator_length=length, fov=self.fov)
+        self.waypoints.extend(wps)
+        return wps
+
+    def _cost(self, a: np.ndarray, b: np.ndarray) -> float:
+        from insulator_rs.mission.pmm import rest_to_rest_times
+
+        return float(rest_to_rest_times(a, b, self.v_max, self.a_max))
+
+    def say(self, text: str) -> None:
+        if not self.quiet:
+            print(text, flush=True)
+
+    def now(self) -> float:
+        return self.vehicle.state().time - self.t_start
+
+    def _print_transitions(self) -> None:
+        for tr in self.sm.transitions[self._printed_transitions:]:
+            self.say(f"[{tr.time - self.t_start if tr.time >= self.t_start else tr.time:7.1f} s] "
+                     f"{tr.source.value} -> {tr.target.value}: {tr.reason}")
+        self._printed_transitions = len(self.sm.transitions)
+
+    # -- sensing -------------------------------------------------------------------------
+    def detection_event(self, st: VehicleState) -> None:
+        """Render the detection camera, detect, cast a LiDAR frame, localize, tell the state machine."""
+        self.events += 1
+        T_w_b = _T_w_b(st.position, st.yaw)
+        frame = self.det_camera.render(self.tower.mesh, T_w_b, lighting=Lighting(shadows=False),
+                                       seed=self.seed + self.events, time=st.time)
+        if not frame.boxes:
+            return
+        ids = list(frame.boxes)
+        det = self.detector.detect(np.array([frame.boxes[i] for i in ids]),
+                                   (self.det_camera.model.width, self.det_camera.model.height), ids)
+        if len(det) == 0:
+            return
+        scan = self.lidar.scan(self.tower.mesh, (T_w_b, T_w_b), st.time, seed=self.seed + self.events)
+        for loc in self.perception.event(det.boxes, scan.points_l, T_w_b):
+            self.localizations += 1
+            outcome = self.sm.localized(loc.center, loc.axis, st.position, st.time)
+            if outcome in ("new", "deferred"):
+                ins, _ = self.registry.nearest(loc.center)
+                err = self._gt_match(ins)[1] if ins is not None else float("nan")
+                self.say(f"[{self.now():7.1f} s] insulator {ins.id if ins else '?'} localized at "
+                         f"{np.round(loc.center, 2).tolist()} ({loc.n_points} points, error "
+                         f"{err:.2f} m vs ground truth) -> {outcome}")
+                self.write_summary()
+
+    def _gt_match(self, ins: Insulator) -> tuple[int | None, float, float]:
+        """(GT instance id, centre error m, axis error deg) of the nearest true insulator."""
+        if not self.tower.insulators:
+            return None, float("nan"), float("nan")
+        d = [float(np.linalg.norm(t.center - ins.center)) for t in self.tower.insulators]
+        k = int(np.argmin(d))
+        gt = self.tower.insulators[k]
+        ang = math.degrees(math.acos(min(1.0, abs(float(gt.axis @ ins.axis)))))
+        return gt.instance_id, d[k], ang
+
+    # -- flying --------------------------------------------------------------------------
+    def tick(self, position: np.ndarray, velocity: np.ndarray | None, yaw: float) -> VehicleState:
+        """Stream one setpoint, let one control period pass, log, sense, watch health."""
+        self.vehicle.send_setpoint(position, velocity, yaw)
+        st = self.vehicle.advance(CONTROL_PERIOD)
+        t = st.time - self.t_start
+        self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
+        if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT) and st.time >= self._next_detect:
+            self._next_detect = st.time + self.detect_period
+            self.detection_event(st)
+        if t >= self._next_status:
+            self._next_status += STATUS_PERIOD
+            self.say(f"[{t:7.1f} s] {self.sm.state.value}: at {np.round(st.position, 1).tolist()}, "
+                     f"{len(self.registry)} insulators, {len(self.photos)} photos, "
+                     f"{self.events} detection events, wall {wallclock.perf_counter() - self._wall0:.0f} s")
+        if t >= self._next_summary:
+            self._next_summary += SUMMARY_PERIOD
+            self.report.flush()
+            self.write_summary()
+        if t > self.max_flight_time and self.sm.state != State.ABORT:
+            self.sm.abort(f"flight time limit of {self.max_flight_time:.0f} s", st.time)
+        self._print_transitions()
+        return st
+
+    def polyline(self, start: np.ndarray, items: list[PlanItem]) -> np.ndarray:
+        pts = [start]
+        clearance = self.mission.inspection.crossing_clearance
+        for it in items:
+            r = route(self.geom.line, self.geom.volumes, pts[-1], it.position, clearance)
+            pts.extend(r[1:])
+        keep = [pts[0]]
+        for p in pts[1:]:
+            if np.linalg.norm(p - keep[-1]) > 1e-3:
+                keep.append(p)
+        return np.array(keep)
+
+    def fly_segment(self, items: list[PlanItem]) -> bool:
+        """Fly a min-snap trajectory through ``items`` (the plan's head); report each item reached
+        to the state machine. Returns False if the plan changed on the way (re-plan)."""
+        st = self.vehicle.state()
+        pts = self.polyline(st.position, items)
+        if len(pts) < 2:
+            return True
+        v0 = np.clip(st.velocity, -self.v_max, self.v_max)
+        traj: MinSnapTrajectory = plan_min_snap_safe(pts, self.v_max, self.a_max, self.geom.volumes,
+                                                     dt=SAFETY_CHECK_DT, v_start=v0)
+        # the time at which the trajectory passes each item (items are among its waypoints)
+        knots = np.concatenate([[0.0], np.cumsum(traj.durations)])
+        item_times = []
+        j = 0
+        for it in items:
+            while j < len(traj.waypoints) and np.linalg.norm(traj.waypoints[j] - it.position) > 1e-6:
+                j += 1
+            item_times.append(knots[min(j, len(knots) - 1)])
+        k = 0
+        t = 0.0
+        plan_ids = [id(it) for it in self.sm.plan]
+        while t < traj.total_time - 1e-9:
+            t = min(t + CONTROL_PERIOD, traj.total_time)
+            pos = traj.evaluate(np.array([t]), 0)[0]
+            vel = traj.evaluate(np.array([t]), 1)[0]
+            self.tick(pos, vel, items[min(k, len(items) - 1)].yaw)
+            if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
+                return False
+            while k < len(items) - 1 and t >= item_times[k] - 1e-9:
+                self.sm.reached(self.vehicle.state().time)
+                k += 1
+                plan_ids = plan_ids[1:]  # what the plan is unless reaching it changed it
+                if [id(it) for it in self.sm.plan] != plan_ids:
+                    return False
+            if [id(it) for it in self.sm.plan] != plan_ids:
+                return False
+        last = items[-1]
+        if last.kind == "inspect" and last.waypoint is not None:
+            self.take_photo(last.waypoint)
+        if self.sm.plan and self.sm.plan[0] is last:
+            self.sm.reached(self.vehicle.state().time)
+        return True
+
+    def _healthy(self) -> bool:
+        st = self.vehicle.state()
+        if st.healthy and st.mode == "OFFBOARD":
+            return True
+        self.sm.fault(st.fault or f"vehicle left offboard (mode {st.mode})", st.time)
+        return False
+
+    def hold(self) -> None:
+        """HOLD: keep position; resume when the vehicle is healthy in offboard again, else abort."""
+        st = self.vehicle.state()
+        here, yaw, t0 = st.position.copy(), st.yaw, st.time
+        while self.sm.state == State.HOLD:
+            st = self.tick(here, None, yaw)
+            if st.healthy and st.mode != "OFFBOARD":
+                try:
+                    self.vehicle.start_offboard()
+                except Exception as exc:  # the autopilot refused: keep holding
+                    self.say(f"[{self.now():7.1f} s] offboard refused: {exc}")
+            if st.healthy and st.mode == "OFFBOARD":
+                self.sm.resume(st.time)
+            elif st.time - t0 > HOLD_TIMEOUT:
+                self.sm.abort(f"fault did not clear within {HOLD_TIMEOUT:.0f} s", st.time)
+
+    def take_photo(self, wp: InspectionWaypoint) -> None:
+        """Settle on the waypoint with the camera aimed, trigger, render and save the photo."""
+        t0 = self.vehicle.state().time
+        while True:
+            st = self.tick(wp.position, None, wp.yaw)
+            settled = (abs(_angle_wrap(st.yaw - wp.yaw)) < PHOTO_YAW_TOLERANCE
+                       and np.linalg.norm(st.velocity) < PHOTO_SPEED_TOLERANCE)
+            if settled or st.time - t0 > PHOTO_SETTLE_TIMEOUT:
+                break
+        self.vehicle.capture_image()
+        cam = Camera(self.photo_model, _gimballed_T_b_c(wp.gimbal_pitch))
+        frame = cam.render(self.tower.mesh, _T_w_b(st.position, st.yaw), seed=self.seed + len(self.photos),
+                           time=st.time)
+        n = sum(1 for p in self.photos if p["insulator_id"] == wp.insulator_id)
+        name = f"insulator_{wp.insulator_id:02d}_{n + 1}.png"
+        self.report.save_image(name, frame.rgb)
+        gt = int(np.argmin([np.linalg.norm(t.center - wp.target) for t in self.tower.insulators]))
+        gt_id = self.tower.insulators[gt].instance_id
+        box = frame.boxes.get(gt_id)
+        w, h = self.photo_model.width, self.photo_model.height
+        whole = box is not None and box[0] > 0 and box[1] > 0 and box[2] < w and box[3] < h
+        self.photos.append({"file": f"images/{name}", "insulator_id": wp.insulator_id,
+                            "time_s": st.time - self.t_start, "position": st.position, "yaw": st.yaw,
+                            "gimbal_pitch": wp.gimbal_pitch, "gt_instance_id": gt_id,
+                            "insulator_visible": box is not None, "insulator_whole_in_frame": whole})
+        self.say(f"[{self.now():7.1f} s] photo {name}: insulator {'whole' if whole else 'partly' if box else 'not'}"
+                 f" in frame")
+        self.write_summary()
+
+    def takeoff(self) -> None:
+        st = self.vehicle.state()
+        target = st.position + np.array([0.0, 0.0, MIN_PASS_HEIGHT])
+        self.vehicle.send_setpoint(target, None, st.yaw)
+        self.vehicle.arm()
+        self.t_start = st.time
+        self.vehicle.takeoff(MIN_PASS_HEIGHT)
+        for _ in range(int(60 / CONTROL_PERIOD)):
+            st = self.tick(target, None, st.yaw)
+            if st.mode != "TAKEOFF" and abs(st.position[2] - target[2]) < 0.4:
+                break
+        self.vehicle.start_offboard()
+        self.sm.start(self.vehicle.state().time)
+        self._print_transitions()
+
+    def land(self) -> None:
+        st = self.vehicle.state()
+        self.vehicle.land()
+        for _ in range(int(120 / CONTROL_PERIOD)):
+            self.vehicle.send_setpoint(st.position, None, st.yaw)
+            st = self.vehicle.advance(CONTROL_PERIOD)
+            self.report.log_pose(st.time - self.t_start, st.position, st.yaw, self.sm.state.value)
+            if st.landed:
+                break
+
+    def fly(self) -> None:
+        self.say(f"inspecting {self.tower.spec.name} ({len(self.tower.insulators)} insulators in the scene) "
+                 f"with mission {self.mission.source}; report -> {self.out}")
+        self.takeoff()
+        while not self.sm.done:
+            if self.sm.state == State.HOLD:
+                self.hold()
+                continue
+            head = self.sm.target()
+            if head is None:
+                break
+            if head.kind == "land":
+                above = PlanItem("land", head.position + np.array([0.0, 0.0, LAND_HEIGHT]), head.yaw, head.side)
+                if self.fly_segment([above]):
+                    self.land()
+                    self.sm.reached(self.vehicle.state().time)
+                continue
+            items: list[PlanItem] = []
+            for it in self.sm.plan:
+                if it.kind == "land":
+                    break
+                items.append(it)
+                if it.kind == "inspect":
+                    break
+            self.fly_segment(items)
+        if self.sm.state == State.ABORT:
+            self.status = "aborted"
+            self.land()
+        else:
+            self.status = "finished"
+        self._print_transitions()
+
+    # -- report --------------------------------------------------------------------------
+    def summary(self) -> dict[str, Any]:
+        st = self.vehicle.state()
+        insulators = []
+        for ins in self.registry.insulators:
+            gt_id, err, ang = self._gt_match(ins)
+            insulators.append({
+                "id": ins.id, "center": ins.center, "axis": ins.axis, "observations": ins.observations,
+                "side": ins.side, "inspected": ins.inspected,
+                "photos": [p["file"] for p in self.photos if p["insulator_id"] == ins.id],
+                "gt_instance_id": gt_id, "error_m": err, "axis_error_deg": ang})
+        found_gt = {r["gt_instance_id"] for r in insulators if r["error_m"] < 1.5}
+        errors = [r["error_m"] for r in insulators if r["gt_instance_id"] is not None]
+        traj = np.array([p[1:] for p in self.report.trajectory]) if self.report.trajectory else np.zeros((0, 3))
+        return {
+            "status": self.status,
+            "scene": self.tower.spec.name,
+            "mission": self.mission.source,
+            "method": self.method,
+            "policy": self.policy,
+            "state": self.sm.state.value,
+            "flight_time_s": st.time - self.t_start,
+            "distance_m": float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
+            "detection_events": self.events,
+            "localizations": self.localizations,
+            "insulators_found": len(insulators),
+            "insulators_in_scene": len(self.tower.insulators),
+            "insulators_matched": len(found_gt),
+            "insulators_inspected": sum(1 for r in insulators if r["inspected"]),
+            "mean_error_m": float(np.mean(errors)) if errors else None,
+            "insulators": insulators,
+            "photos": self.photos,
+            "inspection_waypoints": [{"insulator_id": w.insulator_id, "position": w.position, "yaw": w.yaw,
+                                      "gimbal_pitch": w.gimbal_pitch} for w in self.waypoints],
+            "ground_truth": [{"instance_id": t.instance_id, "center": t.center, "axis": t.axis, "side": t.side}
+                             for t in self.tower.insulators],
+            "transitions": [{"time_s": tr.time - self.t_start, "from": tr.source.value, "to": tr.target.value,
+                             "reason": tr.reason} for tr in self.sm.transitions],
+        }
+
+    def write_summary(self) -> None:
+        self.report.write_summary(self.summary())
+
+    def finish_report(self) -> dict[str, Any]:
+        self.report.flush()
+        summary = self.summary()
+        self.report.write_summary(summary)
+        wps = np.array([w.position for w in self.waypoints]) if self.waypoints else np.zeros((0, 3))
+        found = np.array([i.center for i in self.registry.insulators]) if len(self.registry) else np.zeros((0, 3))
+        truth = np.array([t.center for t in self.tower.insulators]) if self.tower.insulators else np.zeros((0, 3))
+        self.report.plot(self.geom.volumes, wps, found, truth,
+                         f"{self.tower.spec.name}: {summary['status']}, flight {summary['flight_time_s']:.0f} s, "
+                         f"{summary['insulators_inspected']}/{summary['insulators_in_scene']} insulators inspected")
+        self.report.close()
+        return summary
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("inspect", help="fly a whole single-flight inspection in the built-in simulator",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scene", default="tower_a",
+                   help="built-in scene name (tower_a, tower_b) or a scene TOML file (default tower_a)")
+    p.add_argument("--mission", type=Path, default=None,
+                   help="mission file (TOML/YAML); default: the example mission of a built-in scene")
+    p.add_argument("--out", type=Path, default=Path("inspection_report"), help="report folder (created)")
+    p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
+    p.add_argument("--policy", default="immediate", choices=POLICIES,
+                   help="buffering: visit at once (paper) or insert where cheapest")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--detect-period", type=float, default=1.0, help="s between detection events (default 1)")
+    p.add_argument("--detect-scale", type=float, default=0.25,
+                   help="detection camera resolution as a fraction of the 1280x960 camera (default 0.25)")
+    p.add_argument("--photo-scale", type=float, default=1.0,
+                   help="inspection photo resolution as a fraction of 1280x960 (default 1)")
+    p.add_argument("--v-max", type=float, default=None, help="override the mission's velocity limits (m/s)")
+    p.add_argument("--a-max", type=float, default=None, help="override the mission's acceleration limits (m/s^2)")
+    p.add_argument("--max-flight-time", type=float, default=1800.0, help="abort after this many s of flight")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    for name in ("detect_period", "detect_scale", "photo_scale", "max_flight_time"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"--{name.replace('_', '-')}: must be > 0, got {value}")
+    if args.detect_scale > 1 or args.photo_scale > 1:
+        raise ValueError("--detect-scale/--photo-scale: must be <= 1")
+    for flag, value in (("--v-max", args.v_max), ("--a-max", args.a_max)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{flag}: must be > 0, got {value}")
+    tower = load_tower(args.scene)
+    mission_path = args.mission
+    if mission_path is None:
+        mission_path = MISSIONS_DIR / f"{tower.spec.name}.toml"
+        if not mission_path.is_file():
+            raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
+    mission = load_mission(mission_path)
+    if args.v_max is not None or args.a_max is not None:
+        v = mission.vehicle
+        mission = replace(mission, vehicle=replace(
+            v, v_max_horizontal=args.v_max or v.v_max_horizontal, v_max_vertical=args.v_max or v.v_max_vertical,
+            a_max_horizontal=args.a_max or v.a_max_horizontal, a_max_vertical=args.a_max or v.a_max_vertical))
+    runner = InspectionRun(mission, tower, args.out, method=args.method, policy=args.policy, seed=args.seed,
+                           detect_period=args.detect_period, detect_scale=args.detect_scale,
+                           photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
+                           quiet=args.quiet)
+    code = 0
+    try:
+        runner.fly()
+    except KeyboardInterrupt:
+        runner.status = "interrupted"
+        code = 130
+    except Exception:
+        runner.status = "failed"
+        runner.finish_report()
+        raise
+    summary = runner.finish_report()
+    if summary["status"] == "aborted":
+        code = 1
+    print(f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
+          f"{summary['insulators_found']} insulators found ({summary['insulators_matched']} of "
+          f"{summary['insulators_in_scene']} matched), {summary['insulators_inspected']} inspected, "
+          f"{len(summary['photos'])} photos, mean error "
+          f"{summary['mean_error_m'] if summary['mean_error_m'] is None else round(summary['mean_error_m'], 3)} m; "
+          f"report in {args.out}", file=sys.stdout)
+    return code

@@ -1,0 +1,92 @@
+"""``insulator-rs inspect`` end to end on a small scene: one cross-arm, two insulators."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from insulator_rs.cli import main
+from insulator_rs.mission import inspect_command
+
+REPO = Path(__file__).resolve().parents[1]
+SCENES = REPO / "python" / "insulator_rs" / "scenes"
+MISSIONS = REPO / "python" / "insulator_rs" / "missions"
+
+
+def small_scene(tmp_path):
+    """Tower B's design cut down to a 12 m body with one cross-arm (two insulators)."""
+    s = (SCENES / "tower_b.toml").read_text()
+    s = s.replace('name = "tower_b"', 'name = "small_tower"')
+    s = s.replace("height = 26.0\nbase_width = 5.6", "height = 12.0\nbase_width = 3.0")
+    s = s.replace("panels = 9", "panels = 4").replace("peak_height = 2.5", "peak_height = 1.5")
+    i, k = s.index("[[cross_arms]]"), s.index("[insulators]")
+    s = s[:i] + "[[cross_arms]]\nheight = 10.0\nreach = 3.0\ndepth = 1.2\nwidth = 1.0\n\n" + s[k:]
+    scene = tmp_path / "small_tower.toml"
+    scene.write_text(s)
+    m = (MISSIONS / "tower_b.toml").read_text()
+    for a, b in (("max_height = 28.5", "max_height = 13.5"), ("max_width = 9.0", "max_width = 6.0"),
+                 ("pass_spacing = 8.0", "pass_spacing = 10.0"), ("standoff = 8.0", "standoff = 6.0"),
+                 ("v_max_horizontal = 1.0", "v_max_horizontal = 3.0"),
+                 ("a_max_horizontal = 3.0", "a_max_horizontal = 6.0"),
+                 ("v_max_vertical = 1.0", "v_max_vertical = 2.0"),
+                 ("a_max_vertical = 3.0", "a_max_vertical = 4.0")):
+        assert a in m
+        m = m.replace(a, b)
+    mission = tmp_path / "small_mission.toml"
+    mission.write_text(m)
+    return scene, mission
+
+
+ARGS = ["--detect-period", "2.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+
+
+@pytest.mark.slow
+def test_inspect_end_to_end_on_a_small_scene(tmp_path, capsys):
+    scene, mission = small_scene(tmp_path)
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
+    assert rc == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "finished" and s["state"] == "finish"
+    assert s["insulators_in_scene"] == 2 and s["insulators_matched"] == 2
+    assert s["insulators_inspected"] >= 2
+    matched = [r for r in s["insulators"] if r["error_m"] < 1.5]
+    assert all(r["error_m"] < 0.6 for r in matched)  # the paper's accuracy class
+    assert len(s["photos"]) == 2 * s["insulators_inspected"]  # two waypoints per insulator
+    for p in s["photos"]:
+        assert (out / p["file"]).stat().st_size > 1000
+        assert p["insulator_visible"]
+    assert sum(p["insulator_whole_in_frame"] for p in s["photos"]) >= 2
+    states = [t["to"] for t in s["transitions"]]
+    for st in ("explore", "inspect", "return", "cross", "finish"):
+        assert st in states
+    assert s["flight_time_s"] > 30 and (out / "trajectory.png").stat().st_size > 10_000
+    rows = (out / "trajectory.csv").read_text().splitlines()
+    assert len(rows) > s["flight_time_s"] / 0.05 * 0.9
+    assert "finished" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_interruption_keeps_what_was_found(tmp_path, monkeypatch):
+    scene, mission = small_scene(tmp_path)
+    out = tmp_path / "report"
+    original = inspect_command.InspectionRun.take_photo
+
+    def photo_then_ctrl_c(self, wp):
+        original(self, wp)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(inspect_command.InspectionRun, "take_photo", photo_then_ctrl_c)
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
+    assert rc == 130
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "interrupted" and len(s["photos"]) == 1
+    assert (out / s["photos"][0]["file"]).is_file() and s["insulators_found"] >= 1
+    assert (out / "trajectory.png").is_file()
+
+
+def test_bad_arguments_are_named(tmp_path):
+    with pytest.raises(ValueError, match="--detect-period"):
+        main(["inspect", "--detect-period", "0", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="--v-max"):
+        main(["inspect", "--v-max", "-1", "--out", str(tmp_path)])
