@@ -39,6 +39,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class StudyConfig:
     miss_rate: float = 0.0
     false_positives: float = 0.0
     # Overrides of ir.localize's tuning (None: the library default).
-    localize_params: dict[str, float] = field(default_factory=dict)
+    localize_params: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -304,7 +305,8 @@ def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
         purity = float(np.mean(hit_ids == target.instance_id))
         for method in cfg.methods:
             try:
-                est = ir.localize(points_b, method=method, seed=event, **cfg.localize_params)
+                est = ir.localize(points_b, method=method,  # type: ignore[arg-type]
+                                  seed=event, **cfg.localize_params)
             except ir.LocalizationError:
                 results.append(EventResult(tower_key, standoff, event, target.instance_id, method,
                                            False, math.nan, math.nan, math.nan, math.nan,

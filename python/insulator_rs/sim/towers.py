@@ -320,11 +320,11 @@ def build_tower(spec: SceneSpec) -> Tower:
     mesh = Mesh.concatenate([ground, structure])
     # Ground truth as free properties too, so a consumer holding only the mesh has it.
     instances = dict(mesh.instances)
-    for t in truths:
-        instances[t.instance_id] = InstanceInfo(
-            name=f"insulator {t.instance_id}", kind="insulator", color=INSULATOR_COLOR,
-            properties={"center": t.center.tolist(), "axis": t.axis.tolist(), "length": t.length,
-                        "side": t.side, "arm": t.arm})
+    for truth in truths:
+        instances[truth.instance_id] = InstanceInfo(
+            name=f"insulator {truth.instance_id}", kind="insulator", color=INSULATOR_COLOR,
+            properties={"center": truth.center.tolist(), "axis": truth.axis.tolist(),
+                        "length": truth.length, "side": truth.side, "arm": truth.arm})
     mesh = Mesh(mesh.vertices, mesh.triangles, mesh.instance_ids, instances)
     return Tower(spec=spec, mesh=mesh, insulators=tuple(truths))
 
