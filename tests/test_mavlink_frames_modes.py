@@ -146,3 +146,60 @@ def test_type_mask_ignored_axes_become_uncontrolled() -> None:
     assert sp.position is not None
     np.testing.assert_allclose(sp.position[:2], [2.0, 1.0])
     assert math.isnan(sp.position[2])
+
+
+@given(custom_mode=st.integers(0, 2**32 - 1))
+def test_any_custom_mode_decodes_to_a_name(custom_mode: int) -> None:
+    name = px4_modes.decode_custom_mode(custom_mode)
+    assert isinstance(name, str) and name
+    if not name.startswith("PX4_"):
+        main, sub = px4_modes.main_sub_modes(name)
+        assert main == (custom_mode >> 16) & 0xFF
+
+
+@settings(max_examples=100, deadline=None)
+@given(mask=st.integers(0, 0xFFFF), values=st.lists(
+    st.floats(allow_nan=True, allow_infinity=False, width=32), min_size=11, max_size=11))
+def test_any_type_mask_reads_without_error_and_nan_marks_ignored_axes(mask: int, values) -> None:
+    sp = setpoint_from_target_local_ned(_target(mask, pos=values[0:3], vel=values[3:6], yaw=values[9],
+                                                yaw_rate=values[10]))
+    ned_pos_ignored = [bool(mask & bit) for bit in (1, 2, 4)]
+    if all(ned_pos_ignored):
+        assert sp.position is None
+    else:
+        assert sp.position is not None
+        enu_ignored = [ned_pos_ignored[1], ned_pos_ignored[0], ned_pos_ignored[2]]
+        for axis, ignored in enumerate(enu_ignored):
+            if ignored:
+                assert math.isnan(sp.position[axis])
+    assert not (sp.yaw is not None and sp.yaw_rate is not None)
+    if sp.yaw is not None:
+        assert -math.pi <= sp.yaw < math.pi
+
+
+def test_simulated_px4_survives_garbage_datagrams() -> None:
+    """Property: random datagrams (some with a MAVLink 2 start byte) never break the
+    simulated PX4; afterwards a valid command is still answered."""
+    import socket
+    import time
+
+    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.mavlink.wire import mavutil
+
+    with SimulatedPx4() as sim, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+
+        @settings(max_examples=60, deadline=None)
+        @given(payload=st.binary(min_size=0, max_size=300), mavlink_start=st.booleans())
+        def send_garbage(payload: bytes, mavlink_start: bool) -> None:
+            sender.sendto((b"\xfd" if mavlink_start else b"") + payload, sim.address)
+
+        send_garbage()
+        time.sleep(0.2)
+        peer = mavutil.mavlink_connection(f"udpout:{sim.address[0]}:{sim.address[1]}", source_system=255)
+        try:
+            peer.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            ack = peer.recv_match(type="COMMAND_ACK", blocking=True, timeout=2.0)
+        finally:
+            peer.close()
+        assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+        assert sim.with_vehicle(lambda v: v.armed)

@@ -197,7 +197,6 @@ class MavlinkVehicle:
         self._landed_state = M.MAV_LANDED_STATE_UNDEFINED
         self._battery = 1.0
         self._setpoint: tuple[np.ndarray, np.ndarray | None, float | None] | None = None
-        self._setpoints_sent = 0
         self._offboard_engaged = False
         self._commanding_stopped: str | None = None
         self._expected_mode: str | None = None
@@ -214,7 +213,7 @@ class MavlinkVehicle:
         self._receiver.start()
         self._sender.start()
         try:
-            self._wait_for(lambda: self._heartbeat is not None, heartbeat_timeout * 1.0,
+            self._wait_for(lambda: self._heartbeat is not None, heartbeat_timeout,
                            f"no autopilot heartbeat on {connection} within {heartbeat_timeout:g} s")
             for message_id, rate in REQUESTED_RATES_HZ.items():
                 self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, 1e6 / rate,
@@ -471,7 +470,6 @@ class MavlinkVehicle:
                 self._boot_ms(), self._target[0], self._target[1], M.MAV_FRAME_LOCAL_NED, mask,
                 *position_ned, *velocity_ned, 0.0, 0.0, 0.0,
                 0.0 if yaw is None else yaw_enu_to_ned(yaw), 0.0)
-        self._setpoints_sent += 1
 
     def _boot_ms(self) -> int:
         with self._lock:

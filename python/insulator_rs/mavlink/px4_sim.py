@@ -107,6 +107,7 @@ class SimStats:
     received: int = 0
     dropped: int = 0
     rejected_signature: int = 0
+    bad_data: int = 0
     setpoints: int = 0
     commands: dict[str, int] = field(default_factory=dict)
     last_ack: dict[int, int] = field(default_factory=dict)
@@ -301,14 +302,14 @@ class SimulatedPx4:
                 return
             except OSError:
                 return
-            if self._lost(now):
+            if self._lost():
                 continue
             if self.faults.delay_s > 0.0:
                 self._queue(now + self.faults.delay_s, "in", data, addr)
             else:
                 self._handle_datagram(data, addr)
 
-    def _lost(self, now: float) -> bool:
+    def _lost(self) -> bool:
         if self.faults.link_lost or (self.faults.drop_probability > 0.0
                                      and self._rng.random() < self.faults.drop_probability):
             self.stats.dropped += 1
@@ -331,12 +332,21 @@ class SimulatedPx4:
         try:
             messages = self._mav.parse_buffer(data) or []
         except M.MAVError:
-            self.stats.rejected_signature += 1
-            return
+            self.stats.bad_data += 1
+            messages = []
+        if self._mav.buf_len() > 0:
+            # A UDP datagram carries whole frames: a leftover is a truncated or
+            # garbage frame, and must not swallow the start of the next datagram.
+            self.stats.bad_data += 1
+            self._mav.buf = bytearray()
+            self._mav.buf_index = 0
+            self._mav.expected_length = M.HEADER_LEN_V1 + 2
         for msg in messages:
             if msg.get_type() == "BAD_DATA":
                 if "signature" in str(getattr(msg, "reason", "")).lower():
                     self.stats.rejected_signature += 1
+                else:
+                    self.stats.bad_data += 1
                 continue
             self.stats.received += 1
             if addr not in self._peers:
@@ -448,7 +458,7 @@ class SimulatedPx4:
     def _send(self, msg: Any) -> None:
         data = msg.pack(self._mav)
         now = time.monotonic()
-        if self._lost(now):
+        if self._lost():
             return
         if self.faults.delay_s > 0.0:
             self._queue(now + self.faults.delay_s, "out", data, None)
