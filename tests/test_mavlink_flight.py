@@ -361,6 +361,11 @@ def test_bad_connection_strings(connection, error, match) -> None:
         MavlinkVehicle(connection)  # type: ignore[arg-type]
 
 
+def test_sim_options_with_a_real_connection_are_refused() -> None:
+    with pytest.raises(ValueError, match="sim_options only apply when connection is None"):
+        connect_vehicle("udpin:127.0.0.1:14540", sim_options={"time_scale": 2.0})
+
+
 def test_bad_setpoints_name_the_argument(vehicle: MavlinkVehicle) -> None:
     with pytest.raises(ValueError, match="position must have shape"):
         vehicle.send_setpoint(np.zeros(2))

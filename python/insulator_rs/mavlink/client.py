@@ -616,6 +616,8 @@ def connect_vehicle(
     if signing_key is not None and not isinstance(signing_key, bytes):
         signing_key = load_signing_key(signing_key)
     if connection is not None:
+        if sim_options:
+            raise ValueError("sim_options only apply when connection is None (the built-in simulated PX4)")
         return MavlinkVehicle(connection, time_scale=time_scale, signing_key=signing_key, **client_options)
     from insulator_rs.mavlink.px4_sim import SimulatedPx4
 
