@@ -54,7 +54,6 @@ def test_cells_are_deterministic_under_a_seed():
                       seed=4)
     rig = study.SensorRig("tower_b", cfg, seed=cfg.seed)
     a = study.run_cell(rig, "B", 9.0, cfg)
-    rig = study.SensorRig("tower_b", cfg, seed=cfg.seed)
     b = study.run_cell(rig, "B", 9.0, cfg)
     assert a == b
     assert len(a) == 2

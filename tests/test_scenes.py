@@ -35,13 +35,18 @@ SCENES = scene_mod.SCENES_DIR
 
 
 @pytest.fixture(scope="module")
-def tower_a():
-    return load_tower("tower_a")
+def towers():
+    return {name: load_tower(name) for name in ("tower_a", "tower_b")}
 
 
 @pytest.fixture(scope="module")
-def tower_b():
-    return load_tower("tower_b")
+def tower_a(towers):
+    return towers["tower_a"]
+
+
+@pytest.fixture(scope="module")
+def tower_b(towers):
+    return towers["tower_b"]
 
 
 def _vertices_of(mesh: Mesh, instance_id: int) -> np.ndarray:
@@ -69,8 +74,8 @@ def test_tower_b_has_four_vertical_insulators(tower_b):
 
 
 @pytest.mark.parametrize("name", ["tower_a", "tower_b"])
-def test_dimensions_are_those_of_a_110_to_400_kv_tower(name):
-    tower = load_tower(name)
+def test_dimensions_are_those_of_a_110_to_400_kv_tower(towers, name):
+    tower = towers[name]
     lo, hi = tower.mesh.bounds()
     steel = _vertices_of(tower.mesh, TOWER_STEEL_ID)
     height = steel[:, 2].max()
@@ -86,12 +91,12 @@ def test_dimensions_are_those_of_a_110_to_400_kv_tower(name):
 
 
 @pytest.mark.parametrize("name", ["tower_a", "tower_b"])
-def test_ground_truth_matches_the_insulator_mesh(name):
+def test_ground_truth_matches_the_insulator_mesh(towers, name):
     """Reference: numpy on the insulator's own vertices. Centre of the core rod's two end
     rings (mean of its ring centres), axis = first eigenvector of np.cov of all the
     insulator's vertices (tol 1e-6), length = extent of the vertices along the axis
     (exactly the core rod, tol 1e-9), side = sign of the centre's offset across the line."""
-    tower = load_tower(name)
+    tower = towers[name]
     lateral = np.asarray(tower.spec.lateral_direction)
     for ins in tower.insulators:
         v = _vertices_of(tower.mesh, ins.instance_id)
@@ -192,8 +197,8 @@ def test_catenary_passes_through_both_ends_and_satisfies_its_ode():
     assert z.min() < min(p[2], q[2]) - 1.0  # it sags
 
 
-def test_deterministic_build():
-    a1, a2 = load_tower("tower_a"), load_tower("tower_a")
+def test_deterministic_build(tower_b):
+    a1, a2 = tower_b, load_tower("tower_b")
     np.testing.assert_array_equal(a1.mesh.vertices, a2.mesh.vertices)
     np.testing.assert_array_equal(a1.mesh.triangles, a2.mesh.triangles)
 
