@@ -31,7 +31,7 @@ class GeoPoint:
 def gps_to_enu(points: GeoPoint | list[GeoPoint], origin: GeoPoint) -> np.ndarray:
     """ENU coordinates (m) of ``points`` relative to ``origin``: (3,) for one point, (N, 3) for a list."""
     single = isinstance(points, GeoPoint)
-    pts = [points] if single else list(points)
+    pts: list[GeoPoint] = [points] if isinstance(points, GeoPoint) else list(points)
     out = np.array(
         [pymap3d.geodetic2enu(p.lat, p.lon, p.alt, origin.lat, origin.lon, origin.alt) for p in pts],
         dtype=np.float64,
@@ -72,11 +72,10 @@ class LineFrame:
         return (q[..., :1] * self.along + q[..., 1:2] * self.lateral
                 + q[..., 2:3] * np.array([0.0, 0.0, 1.0]))
 
-    def side(self, points_w: np.ndarray) -> np.ndarray | int:
-        """The side (+1 or -1) of W points; a point on the line plane counts as +1."""
-        lat = np.asarray(points_w, dtype=np.float64)[..., :2] @ self.lateral[:2]
-        s = np.where(lat >= 0.0, 1, -1)
-        return int(s) if s.ndim == 0 else s
+    def side(self, point_w: np.ndarray) -> int:
+        """The side (+1 or -1) of a W point (3,); a point on the line plane counts as +1."""
+        lat = float(np.asarray(point_w, dtype=np.float64).reshape(3)[:2] @ self.lateral[:2])
+        return 1 if lat >= 0.0 else -1
 
 
 def line_frame(neighbours_enu: np.ndarray) -> LineFrame:

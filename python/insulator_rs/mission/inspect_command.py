@@ -59,6 +59,8 @@ LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
 # The vehicle's own limits get this much headroom over the planning limits so the
 # position loop can track the trajectory.
 LIMIT_HEADROOM = 1.5
+# m: a localized insulator this close to a true one counts as having found it.
+MATCH_DISTANCE = 1.5
 
 
 def _T_w_b(position: np.ndarray, yaw: float) -> np.ndarray:
@@ -81,7 +83,7 @@ def _scaled_camera(model: ir.CameraModel, scale: float) -> ir.CameraModel:
     w, h = max(16, int(round(model.width * scale))), max(12, int(round(model.height * scale)))
     sx, sy = w / model.width, h / model.height
     return ir.CameraModel(model.fx * sx, model.fy * sy, (w - 1) / 2, (h - 1) / 2, w, h,
-                          dist=tuple(model.dist))
+                          dist=[float(k) for k in model.dist])
 
 
 def _angle_wrap(a: float) -> float:
@@ -392,7 +394,8 @@ class InspectionRun:
     # -- report --------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
         st = self.vehicle.state()
-        insulators = []
+        insulators: list[dict[str, Any]] = []
+        errors: list[float] = []
         for ins in self.registry.insulators:
             gt_id, err, ang = self._gt_match(ins)
             insulators.append({
@@ -400,8 +403,9 @@ class InspectionRun:
                 "side": ins.side, "inspected": ins.inspected,
                 "photos": [p["file"] for p in self.photos if p["insulator_id"] == ins.id],
                 "gt_instance_id": gt_id, "error_m": err, "axis_error_deg": ang})
-        found_gt = {r["gt_instance_id"] for r in insulators if r["error_m"] < 1.5}
-        errors = [r["error_m"] for r in insulators if r["gt_instance_id"] is not None]
+            if gt_id is not None:
+                errors.append(err)
+        found_gt = {r["gt_instance_id"] for r in insulators if r["error_m"] < MATCH_DISTANCE}
         traj = np.array([p[1:] for p in self.report.trajectory]) if self.report.trajectory else np.zeros((0, 3))
         return {
             "status": self.status,

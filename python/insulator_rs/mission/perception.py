@@ -14,11 +14,13 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal, cast
 
 import numpy as np
 
 import insulator_rs as ir
 
+Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 EVENTS_PER_LOCALIZATION = 3
 # m: a box whose points' median lies this close to a track's belongs to it.
 ASSOCIATION_GATE = 2.5
@@ -80,7 +82,7 @@ class OnboardPerception:
             acc_w = np.vstack(list(track.events))
             acc_b = acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3]
             try:
-                est = ir.localize(acc_b, method=self.method)
+                est = ir.localize(acc_b, method=cast(Method, self.method))
             except ir.LocalizationError:
                 self.failures += 1
                 continue

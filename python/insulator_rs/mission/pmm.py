@@ -72,9 +72,9 @@ def axis_min_time(d: np.ndarray, v0: np.ndarray, v1: np.ndarray, v_max: np.ndarr
     return np.minimum(t_pos, t_neg)
 
 
-def _fixed_time_candidates(d: np.ndarray, v0: np.ndarray, v1: np.ndarray, duration: np.ndarray,
-                           v_max: np.ndarray | float, a_max: np.ndarray | float
-                           ) -> list[tuple[np.ndarray, ...]]:
+def _fixed_time_candidates(d: np.ndarray | float, v0: np.ndarray | float, v1: np.ndarray | float,
+                           duration: np.ndarray | float, v_max: np.ndarray | float,
+                           a_max: np.ndarray | float) -> list[tuple[np.ndarray, ...]]:
     """Closed-form profiles of exactly ``duration`` s at full acceleration (vectorised).
 
     Three families: accelerate-coast-brake with either sign s (the coast
@@ -86,7 +86,7 @@ def _fixed_time_candidates(d: np.ndarray, v0: np.ndarray, v1: np.ndarray, durati
     d, v0, v1, T, vm, am = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
                                                  for x in (d, v0, v1, duration, v_max, a_max)))
     tol = 1e-9
-    out = []
+    out: list[tuple[np.ndarray, ...]] = []
     for s in (1.0, -1.0):
         qa, qb = -s / am, T + s * (v0 + v1) / am
         qc = -s * (v0 * v0 + v1 * v1) / (2 * am) - d

@@ -110,12 +110,12 @@ class ReportWriter:
             ax3.plot(traj[:, 1], traj[:, 2], traj[:, 3], lw=1.0, label="flown")
             ax2.plot(traj[:, 1], traj[:, 2], lw=1.0, label="flown")
             ax3.scatter(*traj[0, 1:4], color="blue", s=30, label="start")
-        for arr, style, label in ((waypoints, dict(color="green", s=18), "inspection waypoints"),
-                                  (found, dict(color="red", marker="x", s=30), "localized"),
-                                  (truth, dict(color="black", marker="+", s=30), "ground truth")):
+        for arr, color, marker, label in ((waypoints, "green", "o", "inspection waypoints"),
+                                          (found, "red", "x", "localized"),
+                                          (truth, "black", "+", "ground truth")):
             if len(arr):
-                ax3.scatter(arr[:, 0], arr[:, 1], arr[:, 2], label=label, **style)
-                ax2.scatter(arr[:, 0], arr[:, 1], **style)
+                ax3.scatter(arr[:, 0], arr[:, 1], arr[:, 2], color=color, marker=marker, s=24, label=label)
+                ax2.scatter(arr[:, 0], arr[:, 1], color=color, marker=marker, s=24)
         ax3.set_xlabel("x east [m]")
         ax3.set_ylabel("y north [m]")
         ax3.set_zlabel("z up [m]")

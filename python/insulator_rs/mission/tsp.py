@@ -105,23 +105,23 @@ def cpsat_tour(costs: np.ndarray, *, time_limit_s: float = CPSAT_TIME_LIMIT_S,
     for i in range(n):
         for j in range(n):
             if i != j:
-                lit = model.NewBoolVar(f"x{i}_{j}")
+                lit = model.new_bool_var(f"x{i}_{j}")
                 lits[i, j] = lit
                 arcs.append((i, j, lit))
-    model.AddCircuit(arcs)
-    model.Minimize(sum(int(round(c[i, j] / CPSAT_RESOLUTION)) * lit for (i, j), lit in lits.items()))
+    model.add_circuit(arcs)
+    model.minimize(sum(int(round(c[i, j] / CPSAT_RESOLUTION)) * lit for (i, j), lit in lits.items()))
     solver = cp_model.CpSolver()
     solver.parameters.max_time_in_seconds = time_limit_s
     solver.parameters.num_workers = workers
-    status = solver.Solve(model)
+    status = solver.solve(model)
     if status != cp_model.OPTIMAL:
-        raise RuntimeError(f"CP-SAT did not prove optimality (status {solver.StatusName(status)}) "
+        raise RuntimeError(f"CP-SAT did not prove optimality (status {solver.status_name(status)}) "
                            f"for {n} nodes within {time_limit_s} s")
-    succ = {i: j for (i, j), lit in lits.items() if solver.Value(lit)}
-    order = [0]
-    while len(order) < n:
-        order.append(succ[order[-1]])
-    return Tour(tuple(order), tour_cost(c, order), "cp-sat")
+    succ = {i: j for (i, j), lit in lits.items() if solver.value(lit)}
+    seq = [0]
+    while len(seq) < n:
+        seq.append(succ[seq[-1]])
+    return Tour(tuple(seq), tour_cost(c, seq), "cp-sat")
 
 
 def solve_tour(costs: np.ndarray) -> Tour:
