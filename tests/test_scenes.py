@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -245,7 +246,7 @@ def test_contradictory_fields_name_the_field_and_the_file(tmp_path):
 def test_invalid_values_name_the_field(tmp_path, old, new, field):
     text = (SCENES / "tower_a.toml").read_text()
     assert old in text
-    with pytest.raises(SceneError, match=rf"tower_x\.toml: field '{__import__('re').escape(field)}'"):
+    with pytest.raises(SceneError, match=rf"tower_x\.toml: field '{re.escape(field)}'"):
         load_scene(_write(tmp_path, text.replace(old, new, 1), "tower_x.toml"))
 
 
@@ -258,14 +259,13 @@ def test_bad_toml_and_missing_file(tmp_path):
 
 def test_new_tower_type_needs_no_code(tmp_path):
     """A third tower type (a single-level 400 kV suspension tower) from a TOML file alone."""
-    data = _raw("tower_b")
     text = (SCENES / "tower_b.toml").read_text()
     arm2 = text.index("[[cross_arms]]", text.index("[[cross_arms]]") + 1)
     ins = text.index("[insulators]")
     text = text[:arm2] + text[ins:]
     text = text.replace('name = "tower_b"', 'name = "tower_c"').replace("length = 1.5", "length = 3.2")
     tower = build_tower(load_scene(_write(tmp_path, text, "tower_c.toml")))
-    assert tower.spec.name == "tower_c" and len(data["cross_arms"]) == 2
+    assert tower.spec.name == "tower_c" and len(tower.spec.cross_arms) == 1
     assert len(tower.insulators) == 2
     assert all(i.length == 3.2 for i in tower.insulators)
 
