@@ -163,15 +163,16 @@ def test_any_custom_mode_decodes_to_a_name(custom_mode: int) -> None:
 def test_any_type_mask_reads_without_error_and_nan_marks_ignored_axes(mask: int, values) -> None:
     sp = setpoint_from_target_local_ned(_target(mask, pos=values[0:3], vel=values[3:6], yaw=values[9],
                                                 yaw_rate=values[10]))
-    ned_pos_ignored = [bool(mask & bit) for bit in (1, 2, 4)]
-    if all(ned_pos_ignored):
+    # An axis is uncontrolled when its bit is set or its value is NaN (PX4 reads NaN
+    # in a trajectory setpoint as "not controlled").
+    ned_uncontrolled = [bool(mask & bit) or math.isnan(v) for bit, v in zip((1, 2, 4), values[0:3])]
+    if all(ned_uncontrolled):
         assert sp.position is None
     else:
         assert sp.position is not None
-        enu_ignored = [ned_pos_ignored[1], ned_pos_ignored[0], ned_pos_ignored[2]]
-        for axis, ignored in enumerate(enu_ignored):
-            if ignored:
-                assert math.isnan(sp.position[axis])
+        enu_uncontrolled = [ned_uncontrolled[1], ned_uncontrolled[0], ned_uncontrolled[2]]
+        for axis, uncontrolled in enumerate(enu_uncontrolled):
+            assert math.isnan(sp.position[axis]) == uncontrolled
     assert not (sp.yaw is not None and sp.yaw_rate is not None)
     if sp.yaw is not None:
         assert -math.pi <= sp.yaw < math.pi
