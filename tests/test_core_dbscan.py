@@ -42,7 +42,7 @@ def assert_same_as_sklearn(points: np.ndarray, eps: float, min_points: int) -> n
     return labels
 
 
-@pytest.mark.parametrize(("eps", "min_points"), [(0.3, 5), (0.15, 3), (0.5, 10), (1.0, 1)])
+@pytest.mark.parametrize(("eps", "min_points"), [(0.3, 5), (0.15, 3), (0.5, 10), (0.05, 1)])
 def test_line_clusters_match_sklearn(eps: float, min_points: int) -> None:
     """Reference: sklearn.cluster.DBSCAN, same eps/min_samples; exact (see helper)."""
     points = line_clusters(3000, seed=7)

@@ -4,8 +4,8 @@
   side of one insulator (a rod with sheds) seen from the UAV, plus the clutter
   that shares its bounding box in practice (tower members behind its tower end,
   the conductor leaving its line end, stray returns) and range noise.
-* :func:`line_clusters` — several insulator-like line segments plus uniform
-  noise (the DBSCAN benchmark workload).
+* :func:`line_clusters` — insulator-like rods on a grid plus uniform noise, at
+  a density independent of the size (the DBSCAN benchmark workload).
 * :func:`lidar_frame` — a full-frame cloud spread over a Livox Mid-360's field
   of view (the projection/culling benchmark workload).
 
@@ -170,35 +170,50 @@ def insulator_cloud(
 def line_clusters(
     n_points: int,
     *,
-    n_lines: int = 8,
-    noise_fraction: float = 0.1,
-    extent: float = 20.0,
+    points_per_line: int = 500,
+    noise_fraction: float = 0.2,
+    spacing: float = 3.0,
     seed: int = 0,
 ) -> NDArray[np.float64]:
-    """``n_points`` (N,3) float64: insulator-like segments plus uniform noise.
+    """``n_points`` (N,3) float64: insulator-like clusters on a grid, plus uniform noise.
 
-    ``n_lines`` segments 1-2 m long with 3 cm radial scatter, centres uniform in
-    a cube of side ``extent`` m; a ``noise_fraction`` of the points are uniform
-    in that cube. Rows are shuffled. With eps 0.3 m and min_points 5 DBSCAN
-    finds the segments as clusters and most noise as noise.
+    Each cluster is the visible half of a 2 m long, 0.12 m radius rod (radius
+    jittered by +-2 cm) with a random tilt, ``points_per_line`` points;
+    clusters sit ``spacing`` m apart on a square grid in the z = 0 plane; a
+    ``noise_fraction`` of the points are uniform over the grid's box (z within
+    +-2 m). The density stays the same as ``n_points`` grows (the DBSCAN scaling
+    workload; fusion_core's criterion bench builds the same cloud). With eps
+    0.3 m and min_points 5 the rods come out as clusters.
     """
-    if n_points < 0 or n_lines < 1 or not 0.0 <= noise_fraction <= 1.0:
-        raise ValueError("need n_points >= 0, n_lines >= 1, 0 <= noise_fraction <= 1")
+    if n_points < 0 or points_per_line < 1 or not 0.0 <= noise_fraction <= 1.0:
+        raise ValueError("need n_points >= 0, points_per_line >= 1, 0 <= noise_fraction <= 1")
     rng = np.random.default_rng(seed)
-    n_noise = int(round(noise_fraction * n_points))
-    n_line = n_points - n_noise
-    counts = np.full(n_lines, n_line // n_lines)
-    counts[: n_line % n_lines] += 1
-    segments = []
-    for count in counts:
-        start = rng.uniform(0.0, extent, size=3)
-        direction = _canonical(rng.normal(size=3))
-        t = rng.uniform(0.0, rng.uniform(1.0, 2.0), size=count)
-        scatter = rng.normal(scale=0.03, size=(count, 3))
-        segments.append(start + np.outer(t, direction) + scatter)
-    noise = rng.uniform(0.0, extent, size=(n_noise, 3))
-    points = np.concatenate(segments + [noise])
-    return points[rng.permutation(len(points))]
+    n_noise = int(noise_fraction * n_points)
+    n_lines = max(1, (n_points - n_noise) // points_per_line)
+    side = int(np.ceil(np.sqrt(n_lines)))
+    rods = []
+    for k in range(n_lines):
+        centre = spacing * np.array([k % side, k // side, 0.0])
+        axis = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 1.0])
+        axis /= np.linalg.norm(axis)
+        u = np.cross(axis, [0.3, 0.2, 0.9])
+        u /= np.linalg.norm(u)
+        v = np.cross(axis, u)
+        t = rng.uniform(-1.0, 1.0, size=points_per_line)
+        theta = rng.uniform(-np.pi / 2, np.pi / 2, size=points_per_line)
+        r = 0.12 + rng.uniform(-0.02, 0.02, size=points_per_line)
+        radial = np.outer(np.cos(theta), u) + np.outer(np.sin(theta), v)
+        rods.append(centre + np.outer(t, axis) + r[:, None] * radial)
+    points = np.concatenate(rods)[: n_points - n_noise] if n_points else np.zeros((0, 3))
+    extent = spacing * side
+    noise = np.column_stack(
+        [
+            rng.uniform(-1.0, extent, size=n_points - len(points)),
+            rng.uniform(-1.0, extent, size=n_points - len(points)),
+            rng.uniform(-2.0, 2.0, size=n_points - len(points)),
+        ]
+    )
+    return np.concatenate([points, noise])
 
 
 def lidar_frame(
