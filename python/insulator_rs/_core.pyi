@@ -4,14 +4,13 @@ Checked against the built module by ``python -m mypy.stubtest insulator_rs._core
 Frames and units: see the docstrings; metres, pixels, radians.
 """
 
-from typing import Any, Final, Literal, final
+from typing import Any, Final, final
 
 import numpy as np
 from numpy.typing import NDArray
 
 from insulator_rs.exceptions import InsulatorError
 
-_Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 # A point cloud: (N, 3) float32 or float64, any strides.
 _Points = NDArray[np.float32] | NDArray[np.float64]
 
@@ -114,7 +113,7 @@ class Localization:
     @property
     def n_nonfinite(self) -> int: ...
     @property
-    def method(self) -> _Method: ...
+    def method(self) -> str: ...
 
 def chain_transforms(T_c_b: Any, T_b_l: Any) -> NDArray[np.float64]: ...
 def project_points(
@@ -135,7 +134,7 @@ def ransac_line(
 def pca(points: _Points) -> Pca: ...
 def localize(
     points_b: _Points,
-    method: _Method = "dbscan+ransac",
+    method: str = "dbscan+ransac",  # "dbscan" | "ransac" | "dbscan+ransac" | "dbscan+pca"
     *,
     eps: float = ...,
     min_points: int = ...,
