@@ -229,7 +229,7 @@ def test_contradictory_fields_name_the_field_and_the_file(tmp_path):
     text = (SCENES / "tower_a.toml").read_text().replace("height = 25.0", "height = 27.5")
     with pytest.raises(SceneError, match=r"bad\.toml: field 'cross_arms\[2\]\.height'"):
         load_scene(_write(tmp_path, text))
-    text = (SCENES / "tower_b.toml").read_text().replace("sheds = 12", "sheds = 60")
+    text = (SCENES / "tower_b.toml").read_text().replace("sheds = 10", "sheds = 60")
     with pytest.raises(SceneError, match=r"field 'insulators\.sheds'"):
         load_scene(_write(tmp_path, text))
 

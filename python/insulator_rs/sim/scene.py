@@ -78,8 +78,9 @@ class InsulatorSpec:
     the shed stack. sheds: number of large sheds; a small shed sits between
     consecutive large ones (alternating radii, as on composite insulators).
     shed_radius / small_shed_radius / core_radius: m. shed_thickness: m, axial
-    thickness of one shed. fitting_length: m of the metal fitting between the
-    arm (or conductor) and the shed stack at each end.
+    height of one shed (a cone frustum from its root on the core to its skirt).
+    fitting_length: m of the metal fitting between the arm (or conductor) and
+    the shed stack at each end.
     """
 
     kind: InsulatorKind

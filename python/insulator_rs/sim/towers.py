@@ -48,6 +48,8 @@ SHED_SEGMENTS = 16
 CONDUCTOR_SEGMENTS = 6
 MEMBER_SEGMENTS = 4
 JUMPER_SEGMENT_LENGTH = 0.25  # m
+# Radius of a shed where it meets the core, as a multiple of the core radius.
+SHED_ROOT_FACTOR = 1.3
 
 
 @dataclass(frozen=True)
@@ -184,7 +186,7 @@ def _cross_arm(spec: SceneSpec, arm: CrossArmSpec) -> list[Mesh]:
 
 def _shed_stack(spec: SceneSpec, start: np.ndarray, axis: np.ndarray, instance_id: int,
                 info: InstanceInfo) -> list[Mesh]:
-    """Core rod plus 2*sheds-1 sheds alternating large/small along ``axis`` from ``start``."""
+    """Core rod plus 2*sheds-1 conical sheds alternating large/small along ``axis`` from ``start``."""
     ins = spec.insulators
     end = start + ins.length * axis
     parts = [cylinder(start, end, ins.core_radius, instance_id=instance_id, info=info,
@@ -192,12 +194,17 @@ def _shed_stack(spec: SceneSpec, start: np.ndarray, axis: np.ndarray, instance_i
     n = 2 * ins.sheds - 1
     # Sheds spread evenly, the first and last one shed-thickness inside the ends.
     centres = np.linspace(ins.shed_thickness, ins.length - ins.shed_thickness, n)
+    # Each shed is a cone frustum, wide at its skirt (the end toward the free end of the
+    # string, i.e. downward on a suspension string) and narrow at its root on the core, as real
+    # sheds slope: a flat disc would be seen edge-on at grazing incidence by a LiDAR level with
+    # it and return almost nothing.
+    root = ins.core_radius * SHED_ROOT_FACTOR
     for i, s in enumerate(centres):
         r = ins.shed_radius if i % 2 == 0 else ins.small_shed_radius
         c = start + s * axis
         half = 0.5 * ins.shed_thickness * axis
-        parts.append(cylinder(c - half, c + half, r, instance_id=instance_id, info=info,
-                              segments=SHED_SEGMENTS))
+        parts.append(cylinder(c - half, c + half, root, radius_end=r, instance_id=instance_id,
+                              info=info, segments=SHED_SEGMENTS))
     return parts
 
 
