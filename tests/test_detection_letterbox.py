@@ -40,6 +40,14 @@ def test_geometry_hand_worked_cases(orig, target, resized, pads) -> None:
     assert geo.pad_left + geo.pad_right + resized[0] == target[1]
 
 
+def test_auto_pads_only_to_the_stride() -> None:
+    """Ultralytics' rect mode: (300, 412) into 320 -> resized 320x233, padded 23 rows (11 + 12) to 256."""
+    geo = letterbox_geometry((300, 412), (320, 320), auto=True, stride=32)
+    assert geo.input_hw == (256, 320) and geo.resized_wh == (320, 233)
+    assert (geo.pad_top, geo.pad_bottom, geo.pad_left, geo.pad_right) == (11, 12, 0, 0)
+    assert letterbox_geometry((480, 640), (640, 640), auto=True).input_hw == (480, 640)
+
+
 @settings(max_examples=200, deadline=None)
 @given(
     h=st.integers(1, 3000), w=st.integers(1, 3000), side=st.sampled_from([32, 320, 416, 640]),
@@ -91,8 +99,8 @@ def test_geometry_rejects_bad_sizes() -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(h=st.integers(8, 900), w=st.integers(8, 900), side=st.sampled_from([320, 640]))
-def test_matches_ultralytics_letterbox(h: int, w: int, side: int) -> None:
+@given(h=st.integers(8, 900), w=st.integers(8, 900), side=st.sampled_from([320, 640]), auto=st.booleans())
+def test_matches_ultralytics_letterbox(h: int, w: int, side: int, auto: bool) -> None:
     """Pixel-exact against ultralytics.data.augment.LetterBox; boxes vs ops.scale_boxes (1e-4 px)."""
     if importlib.util.find_spec("ultralytics") is None:
         pytest.skip("the train extra (ultralytics) is not installed")
@@ -102,9 +110,10 @@ def test_matches_ultralytics_letterbox(h: int, w: int, side: int) -> None:
 
     rng = np.random.default_rng(h * 1000 + w)
     image = rng.integers(0, 255, size=(h, w, 3), dtype=np.uint8)
-    ref = augment.LetterBox((side, side), auto=False, stride=32)(image=image)
-    ours, geo = letterbox(image, (side, side))
+    ref = augment.LetterBox((side, side), auto=auto, stride=32)(image=image)
+    ours, geo = letterbox(image, (side, side), auto=auto, stride=32)
     np.testing.assert_array_equal(ours, ref)
-    boxes = np.array([[1.5, 2.25, side - 3.0, side - 7.5], [side / 2, 0, side / 2 + 1, side]], dtype=np.float32)
-    ref_boxes = ops.scale_boxes((side, side), boxes.copy(), (h, w))
+    hi, wi = geo.input_hw
+    boxes = np.array([[1.5, 2.25, wi - 3.0, hi - 7.5], [wi / 2, 0, wi / 2 + 1, hi]], dtype=np.float32)
+    ref_boxes = ops.scale_boxes((hi, wi), boxes.copy(), (h, w))
     np.testing.assert_allclose(geo.to_original(boxes), ref_boxes, atol=1e-4)

@@ -104,6 +104,8 @@ class Detector:
         threads: intra-op threads for the CPU provider (None: onnxruntime's default).
         warmup: run one blank image at construction so the first real frame is not slow.
         agnostic: class-agnostic NMS.
+        rect: pad only to the next multiple of the stride (needs a dynamic input);
+            default: on for dynamic models, as Ultralytics' predict does.
 
     Raises:
         ModelError: the file is missing, truncated/not ONNX, or not a YOLO detection export.
@@ -121,6 +123,7 @@ class Detector:
         threads: int | None = None,
         warmup: bool = True,
         agnostic: bool = False,
+        rect: bool | None = None,
     ) -> None:
         if not 0.0 <= conf <= 1.0:
             raise ValueError(f"conf must be in [0, 1], got {conf}")
@@ -154,6 +157,10 @@ class Detector:
         self.names = self._read_names(meta, outs[0].shape)
         self.dynamic = not all(isinstance(d, int) for d in inp[0].shape[2:])
         self.imgsz = self._input_size(imgsz, meta, inp[0].shape)
+        if rect and not self.dynamic:
+            raise ValueError(f"rect=True needs a model with a dynamic input; {self.path} is fixed at {self.imgsz}")
+        self.rect = self.dynamic if rect is None else rect
+        self.stride = int(_parse_meta(meta["stride"], "stride", self.path)) if "stride" in meta else 32  # type: ignore[call-overload]
         self.metadata = dict(meta)
         if warmup:
             self.warmup()
@@ -225,7 +232,7 @@ class Detector:
     def raw(self, image: np.ndarray) -> tuple[np.ndarray, LetterboxGeometry]:
         """Network output ``[1, 4 + nc, N]`` for one image, and its letterbox geometry."""
         bgr = as_bgr_uint8(image)
-        padded, geo = letterbox(bgr, self.imgsz)
+        padded, geo = letterbox(bgr, self.imgsz, auto=self.rect, stride=self.stride)
         out = self.session.run(None, {self.input_name: to_network_input(padded)})[0]
         return out, geo
 
@@ -240,7 +247,7 @@ class Detector:
 
     def __repr__(self) -> str:
         return (f"Detector({str(self.path)!r}, imgsz={self.imgsz}, names={self.names}, conf={self.conf}, "
-                f"iou={self.iou}, providers={self.providers})")
+                f"iou={self.iou}, rect={self.rect}, providers={self.providers})")
 
 
 def _as_hw(imgsz: int | Sequence[int]) -> tuple[int, int]:

@@ -6,6 +6,9 @@ to the rounding: the resized size is ``round(side * r)`` per axis (at least 1
 pixel), the padding is split as ``round(d/2 - 0.1)`` before and
 ``round(d/2 + 0.1)`` after (Python's round-half-to-even, like Ultralytics), and
 boxes are mapped back with the per-axis gains ``new_w / w0`` and ``new_h / h0``.
+With ``auto=True`` (what Ultralytics' predict does for models with a dynamic
+input, ``rect=True``) the padding is only what reaches the next multiple of the
+stride, so a 640x480 frame becomes a 640x480 input instead of 640x640.
 
 All coordinates are pixels, x right and y down, origin at the top-left corner
 of the top-left pixel.
@@ -67,8 +70,14 @@ class LetterboxGeometry:
         return out
 
 
-def letterbox_geometry(orig_hw: tuple[int, int], input_hw: tuple[int, int]) -> LetterboxGeometry:
-    """Geometry of letterboxing an ``orig_hw`` (height, width) image into ``input_hw``."""
+def letterbox_geometry(
+    orig_hw: tuple[int, int], input_hw: tuple[int, int], *, auto: bool = False, stride: int = 32
+) -> LetterboxGeometry:
+    """Geometry of letterboxing an ``orig_hw`` (height, width) image into ``input_hw``.
+
+    ``auto``: pad only up to a multiple of ``stride`` (minimum rectangle); the
+    network input is then smaller than ``input_hw`` on one axis.
+    """
     h0, w0 = (int(v) for v in orig_hw)
     hi, wi = (int(v) for v in input_hw)
     if h0 < 1 or w0 < 1:
@@ -77,10 +86,15 @@ def letterbox_geometry(orig_hw: tuple[int, int], input_hw: tuple[int, int]) -> L
         raise ValueError(f"input_hw must be positive, got {input_hw}")
     r = min(hi / h0, wi / w0)
     new_w, new_h = max(round(w0 * r), 1), max(round(h0 * r), 1)
-    dw, dh = (wi - new_w) / 2, (hi - new_h) / 2
+    dw_total, dh_total = wi - new_w, hi - new_h
+    if auto:
+        if stride < 1:
+            raise ValueError(f"stride must be >= 1, got {stride}")
+        dw_total, dh_total = dw_total % stride, dh_total % stride
+    dw, dh = dw_total / 2, dh_total / 2
     return LetterboxGeometry(
         orig_hw=(h0, w0),
-        input_hw=(hi, wi),
+        input_hw=(new_h + dh_total, new_w + dw_total),
         resized_wh=(new_w, new_h),
         pad_top=round(dh - 0.1),
         pad_bottom=round(dh + 0.1),
@@ -89,9 +103,11 @@ def letterbox_geometry(orig_hw: tuple[int, int], input_hw: tuple[int, int]) -> L
     )
 
 
-def letterbox(image: np.ndarray, input_hw: tuple[int, int]) -> tuple[np.ndarray, LetterboxGeometry]:
+def letterbox(
+    image: np.ndarray, input_hw: tuple[int, int], *, auto: bool = False, stride: int = 32
+) -> tuple[np.ndarray, LetterboxGeometry]:
     """Letterbox an (H, W, 3) uint8 image into ``input_hw``; returns (padded image, geometry)."""
-    geo = letterbox_geometry(image.shape[:2], input_hw)
+    geo = letterbox_geometry(image.shape[:2], input_hw, auto=auto, stride=stride)
     if (image.shape[1], image.shape[0]) != geo.resized_wh:
         image = cv2.resize(image, geo.resized_wh, interpolation=cv2.INTER_LINEAR)
     padded = cv2.copyMakeBorder(
