@@ -178,39 +178,43 @@ def line_clusters(
     """``n_points`` (N,3) float64: insulator-like clusters on a grid, plus uniform noise.
 
     Each cluster is the visible half of a 2 m long, 0.12 m radius rod (radius
-    jittered by +-2 cm) with a random tilt, ``points_per_line`` points;
+    jittered by +-2 cm) with a random tilt, about ``points_per_line`` points;
     clusters sit ``spacing`` m apart on a square grid in the z = 0 plane; a
     ``noise_fraction`` of the points are uniform over the grid's box (z within
     +-2 m). The density stays the same as ``n_points`` grows (the DBSCAN scaling
-    workload; fusion_core's criterion bench builds the same cloud). With eps
+    workload; fusion_core's criterion bench builds nearly the same cloud). With eps
     0.3 m and min_points 5 the rods come out as clusters.
     """
     if n_points < 0 or points_per_line < 1 or not 0.0 <= noise_fraction <= 1.0:
         raise ValueError("need n_points >= 0, points_per_line >= 1, 0 <= noise_fraction <= 1")
     rng = np.random.default_rng(seed)
     n_noise = int(noise_fraction * n_points)
-    n_lines = max(1, (n_points - n_noise) // points_per_line)
+    n_rod_points = n_points - n_noise
+    n_lines = max(1, round(n_rod_points / points_per_line))
+    # Split the rod points evenly so the noise share is exactly noise_fraction at every size.
+    per_rod = np.full(n_lines, n_rod_points // n_lines)
+    per_rod[: n_rod_points % n_lines] += 1
     side = int(np.ceil(np.sqrt(n_lines)))
     rods = []
-    for k in range(n_lines):
+    for k, count in enumerate(per_rod):
         centre = spacing * np.array([k % side, k // side, 0.0])
         axis = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 1.0])
         axis /= np.linalg.norm(axis)
         u = np.cross(axis, [0.3, 0.2, 0.9])
         u /= np.linalg.norm(u)
         v = np.cross(axis, u)
-        t = rng.uniform(-1.0, 1.0, size=points_per_line)
-        theta = rng.uniform(-np.pi / 2, np.pi / 2, size=points_per_line)
-        r = 0.12 + rng.uniform(-0.02, 0.02, size=points_per_line)
+        t = rng.uniform(-1.0, 1.0, size=count)
+        theta = rng.uniform(-np.pi / 2, np.pi / 2, size=count)
+        r = 0.12 + rng.uniform(-0.02, 0.02, size=count)
         radial = np.outer(np.cos(theta), u) + np.outer(np.sin(theta), v)
         rods.append(centre + np.outer(t, axis) + r[:, None] * radial)
-    points = np.concatenate(rods)[: n_points - n_noise] if n_points else np.zeros((0, 3))
+    points = np.concatenate(rods)
     extent = spacing * side
     noise = np.column_stack(
         [
-            rng.uniform(-1.0, extent, size=n_points - len(points)),
-            rng.uniform(-1.0, extent, size=n_points - len(points)),
-            rng.uniform(-2.0, 2.0, size=n_points - len(points)),
+            rng.uniform(-1.0, extent, size=n_noise),
+            rng.uniform(-1.0, extent, size=n_noise),
+            rng.uniform(-2.0, 2.0, size=n_noise),
         ]
     )
     return np.concatenate([points, noise])
