@@ -137,3 +137,14 @@ def test_bad_rates_are_refused(tmp_path):
         main(["eval", "localization", "--miss-rate", "1.5", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="--box-jitter"):
         main(["eval", "localization", "--box-jitter", "-0.1", "--out", str(tmp_path)])
+
+
+def test_missed_detections_are_skipped_until_three_accumulate():
+    """With half the boxes missed, an event still gathers its 3 detection events from the
+    later images (up to MAX_IMAGES_PER_EVENT), so the cell completes."""
+    cfg = StudyConfig(towers=("B",), standoffs={"B": (8.0,)}, events=2, methods=("dbscan",),
+                      miss_rate=0.5, seed=2)
+    rig = study.SensorRig("tower_b", cfg, seed=cfg.seed)
+    results = study.run_cell(rig, "B", 8.0, cfg)
+    assert [r.event for r in results] == [0, 1]
+    assert all(r.n_input > 0 for r in results)
