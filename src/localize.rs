@@ -95,7 +95,11 @@ impl PyLocalization {
     max_iterations = Count(LocalizeParams::default().ransac.max_iterations as i128),
     confidence = LocalizeParams::default().ransac.confidence,
     seed = Count(i128::from(LocalizeParams::default().ransac.seed)),
-))]
+),
+// The defaults spelled out for help(); tests/test_core_localize.py checks them against
+// localize_defaults() (the fusion_core constants), so they cannot drift.
+text_signature = "(points_b, method='dbscan+ransac', *, eps=0.3, min_points=5, tau=0.2, \
+ransac_threshold=0.1, max_iterations=1000, confidence=0.99, seed=0)")]
 #[allow(clippy::too_many_arguments)]
 fn localize(
     py: Python<'_>,

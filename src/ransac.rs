@@ -86,7 +86,10 @@ impl PyLineFit {
     max_iterations = Count(RansacParams::default().max_iterations as i128),
     confidence = RansacParams::default().confidence,
     seed = Count(i128::from(RansacParams::default().seed)),
-))]
+),
+// The defaults spelled out for help(); tests/test_core_pca_ransac.py checks them against
+// localize_defaults() (the fusion_core constants), so they cannot drift.
+text_signature = "(points, threshold, *, max_iterations=1000, confidence=0.99, seed=0)")]
 fn ransac_line<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,

@@ -3,6 +3,7 @@ synthetic clouds with clutter, and its error contract."""
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 
 import numpy as np
@@ -144,6 +145,14 @@ def test_bad_parameters_name_the_argument(kwargs: dict[str, object], exc: type[E
     points = clean_cloud(0, "horizontal", 9.0)
     with pytest.raises(exc, match=name):
         ir.localize(points, **kwargs)  # type: ignore[arg-type]
+
+
+def test_signature_shows_the_core_defaults() -> None:
+    """help(ir.localize) spells out the defaults; they must be fusion_core's."""
+    params = inspect.signature(ir.localize).parameters
+    for name, value in D.items():
+        assert params[name].default == value, name
+    assert params["method"].default == "dbscan+ransac"
 
 
 ACCURACY_CASES = [

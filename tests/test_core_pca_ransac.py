@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 import pytest
 from reference_algorithms import canonical_direction, reference_pca
@@ -105,6 +107,13 @@ def test_ransac_skips_nonfinite_and_keeps_input_indices() -> None:
     assert fit.inliers.tolist() == [0, 2, 3]
     np.testing.assert_allclose(np.abs(fit.direction), [1, 0, 0], atol=1e-12)
     assert repr(fit).startswith("LineFit(point=[1.0000, 0.0000, 0.0000], direction=[1.0000, ")
+
+
+def test_ransac_signature_shows_the_core_defaults() -> None:
+    params = inspect.signature(ir.ransac_line).parameters
+    defaults = ir.localize_defaults()  # shares max_iterations, confidence and seed with RansacParams
+    for name in ("max_iterations", "confidence", "seed"):
+        assert params[name].default == defaults[name], name
 
 
 @pytest.mark.parametrize(
