@@ -48,7 +48,4 @@ pub enum RaycastError {
         reason: &'static str,
         value: f64,
     },
-    /// parry3d refused to build the triangle mesh.
-    #[error("triangles: could not build the BVH ({0})")]
-    Build(String),
 }

@@ -296,3 +296,86 @@ fn standard_normal(rng: &mut Pcg64Mcg) -> f64 {
     let u2: f64 = rng.random::<f64>();
     (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2x2 floor at z = 0 and a camera 10 m above it looking straight down.
+    fn floor() -> Result<Scene, RaycastError> {
+        let h = 100.0;
+        Scene::new(
+            &[[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]],
+            &[[0, 1, 2], [0, 2, 3]],
+            &[0, 0],
+        )
+    }
+
+    fn down() -> Matrix3<f64> {
+        Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0))
+    }
+
+    fn encode(linear: f64) -> u8 {
+        (255.0 * linear.powf(1.0 / GAMMA)).round() as u8
+    }
+
+    #[test]
+    fn lambert_with_haze_matches_the_formula() -> Result<(), RaycastError> {
+        let scene = floor()?;
+        let lighting = Lighting {
+            sun_direction: Vector3::new(0.0, 0.6, 0.8),
+            sun_color: [1.0, 1.0, 1.0],
+            ambient: [0.2, 0.2, 0.2],
+            haze_density: 0.05,
+            sky_horizon: [0.9, 0.9, 0.9],
+            ..Lighting::default()
+        };
+        let img = render(&scene, &down(), &Point3::new(0.0, 0.0, 10.0), &[[0.0, 0.0, 1.0]], 1, 1, &[[0.5, 0.5, 0.5]], &lighting)?;
+        let lit = 0.5 * (0.2 + 0.8);
+        let tr = (-0.05f64 * 10.0).exp();
+        let expected = encode(lit * tr + 0.9 * (1.0 - tr));
+        assert_eq!(img.rgb, vec![expected; 3]);
+        assert_eq!(img.instance_id, vec![0]);
+        assert!((img.depth[0] - 10.0).abs() < 1e-5);
+        Ok(())
+    }
+
+    #[test]
+    fn sky_and_far_ground_beyond_the_scene() -> Result<(), RaycastError> {
+        let scene = floor()?;
+        let lighting = Lighting {
+            sun_direction: Vector3::z(),
+            noise_sigma: 0.0,
+            ..Lighting::default()
+        };
+        // Horizontal-ish rays from 50 m up: downward beyond the 100 m floor -> far ground;
+        // upward -> sky between horizon and zenith.
+        let rays = [[1.0, 0.0, -0.2], [1.0, 0.0, 0.5]]; // C = W here
+        let img = render(&scene, &Matrix3::identity(), &Point3::new(0.0, 0.0, 50.0), &rays, 2, 1, &[], &lighting)?;
+        assert_eq!(img.instance_id, vec![-1, -1]);
+        let g = lighting.ground_color[0] * (lighting.ambient[0] + lighting.sun_color[0]);
+        assert_eq!(img.rgb[0], encode(g));
+        let up = (0.5f64 / 1.25f64.sqrt()).sqrt();
+        let sky = lighting.sky_horizon[2] * (1.0 - up) + lighting.sky_zenith[2] * up;
+        assert_eq!(img.rgb[5], encode(sky));
+        Ok(())
+    }
+
+    #[test]
+    fn bad_arguments_are_named() -> Result<(), RaycastError> {
+        let scene = floor()?;
+        let l = Lighting::default();
+        let p = Point3::new(0.0, 0.0, 5.0);
+        let r = |w, h, rays: &[[f64; 3]], rot: &Matrix3<f64>, l: &Lighting| render(&scene, rot, &p, rays, w, h, &[], l);
+        let name = |e: Result<Image, RaycastError>| e.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(name(r(0, 1, &[], &down(), &l)).starts_with("width/height"));
+        assert!(name(r(2, 1, &[[0.0, 0.0, 1.0]], &down(), &l)).starts_with("rays_c"));
+        assert!(name(r(1, 1, &[[0.0, 0.0, 0.0]], &down(), &l)).starts_with("rays_c"));
+        assert!(name(r(1, 1, &[[0.0, 0.0, 1.0]], &(down() * 2.0), &l)).starts_with("T_w_c"));
+        let bad = Lighting { haze_density: -1.0, ..Lighting::default() };
+        assert!(name(r(1, 1, &[[0.0, 0.0, 1.0]], &down(), &bad)).starts_with("haze_density"));
+        let bad = Lighting { sun_direction: Vector3::zeros(), ..Lighting::default() };
+        assert!(name(r(1, 1, &[[0.0, 0.0, 1.0]], &down(), &bad)).starts_with("sun_direction"));
+        Ok(())
+    }
+}

@@ -1,25 +1,38 @@
 //! A triangle scene in the world frame W and batched ray casting against it.
 //!
-//! The BVH is parry3d's (`TriMesh`, single precision). parry3d 0.25 is f32, which
-//! alone would put hit distances off by ~1e-5 m at tower scale, so the BVH only
-//! picks the triangle: the distance is then recomputed in f64 against that
-//! triangle's plane from the original f64 vertices. Vertices are stored relative
-//! to the centre of the scene's bounds to keep the f32 BVH as precise as it can be.
+//! The BVH is parry3d's (`Bvh`, binned SAH, single precision) over slightly
+//! loosened bounding boxes of the triangles, with coordinates taken relative to the
+//! centre of the scene's bounds. parry3d 0.25 is f32 only, which would put hit
+//! distances off by ~1e-5 m at tower scale, so the BVH only culls: each candidate
+//! triangle is intersected in f64 (Moeller-Trumbore) from the original vertices.
+//! Long thin triangles get several boxes (see [`BVH_SPLIT_EDGE`]); the triangle
+//! itself is never cut, so the surface stays exactly the input's, without cracks.
 
 use nalgebra::{Point3, Vector3};
+use parry3d::bounding_volume::Aabb;
+use parry3d::partitioning::{Bvh, BvhBuildStrategy};
 use parry3d::query::Ray;
-use parry3d::shape::{CompositeShapeRef, TriMesh};
+use std::cell::Cell;
 use rayon::prelude::*;
 
 use crate::error::RaycastError;
 
 /// Triangles with a smaller area (m^2) are refused as degenerate.
 pub const MIN_TRIANGLE_AREA: f64 = 1e-14;
+/// Triangles of the BVH are split (longest edge halved, recursively) while their
+/// longest edge exceeds this many metres and is also more than
+/// [`BVH_SPLIT_ASPECT`] times the triangle's height over it. Long thin facets (the
+/// sides of a diagonal lattice member) otherwise get bounding boxes that are
+/// mostly empty and that every ray through the tower must open.
+pub const BVH_SPLIT_EDGE: f64 = 1.0;
+/// See [`BVH_SPLIT_EDGE`].
+pub const BVH_SPLIT_ASPECT: f64 = 4.0;
 /// Rays handed to one rayon task at a time.
 const RAYS_PER_TASK: usize = 512;
-/// |n . d| below this keeps the BVH's distance instead of the plane refinement
-/// (a ray grazing a triangle's plane has an ill-conditioned plane intersection).
-const GRAZING_DENOMINATOR: f64 = 1e-9;
+/// Loosening of the f32 bounding boxes, m, so that rounding never culls a hit.
+const AABB_MARGIN: f64 = 1e-5;
+/// |det| below this (relative to the edge lengths) is a ray in the triangle's plane.
+const PARALLEL_DETERMINANT: f64 = 1e-14;
 
 /// The result of one ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -89,7 +102,8 @@ impl Hits {
 
 /// A static triangle scene in W with one instance id per triangle.
 pub struct Scene {
-    bvh_mesh: TriMesh,
+    /// Leaves carry the index of their triangle (a split triangle has several leaves).
+    bvh: Bvh,
     /// W coordinates of the origin of the BVH's (f32) frame.
     center: Vector3<f64>,
     vertices: Vec<Point3<f64>>,
@@ -164,14 +178,10 @@ impl Scene {
             |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
         );
         let center = 0.5 * (lo + hi);
-        let local: Vec<Point3<f32>> = points
-            .iter()
-            .map(|p| Point3::from((p.coords - center).map(|c| c as f32)))
-            .collect();
-        let bvh_mesh = TriMesh::new(local, triangles.to_vec())
-            .map_err(|e| RaycastError::Build(e.to_string()))?;
+        let leaves = leaf_boxes(&points, triangles, &center);
+        let bvh = Bvh::from_iter(BvhBuildStrategy::Binned, leaves);
         Ok(Self {
-            bvh_mesh,
+            bvh,
             center,
             vertices: points,
             triangles: triangles.to_vec(),
@@ -214,26 +224,50 @@ impl Scene {
         } else {
             f32::MAX
         };
-        let (tri, toi) = CompositeShapeRef(&self.bvh_mesh).cast_local_ray(&ray, bvh_max, true)?;
-        let t = tri as usize;
-        let normal = *self.normals.get(t)?;
-        let denom = normal.dot(direction);
-        let mut distance = f64::from(toi);
-        if denom.abs() > GRAZING_DENOMINATOR {
-            let v0 = self.vertices[self.triangles[t][0] as usize];
-            let refined = normal.dot(&(v0 - origin)) / denom;
-            // The refinement only corrects f32 rounding; a large disagreement means
-            // an ill-conditioned case, where the BVH's answer is kept.
-            if refined.is_finite() && (refined - distance).abs() <= 1e-3 * (1.0 + distance) {
-                distance = refined.max(0.0);
+        // The BVH compares f32 distances; the f64 answer is kept beside it.
+        let best: Cell<Option<(f64, u32)>> = Cell::new(None);
+        self.bvh.cast_ray(&ray, bvh_max, |leaf, _| {
+            let t = self.intersect(leaf, origin, direction)?;
+            if t <= max_range && best.get().is_none_or(|(b, _)| t < b) {
+                best.set(Some((t, leaf)));
             }
-        }
-        (distance <= max_range).then(|| Hit {
+            Some(t as f32)
+        });
+        let (distance, tri) = best.get()?;
+        let t = tri as usize;
+        Some(Hit {
             distance,
             triangle: tri,
             instance_id: self.instance_ids[t],
-            normal,
+            normal: self.normals[t],
         })
+    }
+
+    /// Distance along the unit `direction` at which the ray meets triangle `t`
+    /// (either side), f64 Moeller-Trumbore; None if it does not.
+    fn intersect(&self, t: u32, origin: &Point3<f64>, direction: &Vector3<f64>) -> Option<f64> {
+        let [ia, ib, ic] = *self.triangles.get(t as usize)?;
+        let a = self.vertices[ia as usize];
+        let e1 = self.vertices[ib as usize] - a;
+        let e2 = self.vertices[ic as usize] - a;
+        let p = direction.cross(&e2);
+        let det = e1.dot(&p);
+        if det.abs() < PARALLEL_DETERMINANT * e1.norm() * e2.norm() {
+            return None;
+        }
+        let inv = 1.0 / det;
+        let s = origin - a;
+        let u = s.dot(&p) * inv;
+        if !(0.0..=1.0).contains(&u) {
+            return None;
+        }
+        let q = s.cross(&e1);
+        let v = direction.dot(&q) * inv;
+        if v < 0.0 || u + v > 1.0 {
+            return None;
+        }
+        let distance = e2.dot(&q) * inv;
+        (distance >= 0.0).then_some(distance)
     }
 
     /// Casts a batch of rays in parallel.
@@ -265,6 +299,56 @@ impl Scene {
             .collect();
         Ok(Hits::from_options(hits))
     }
+}
+
+/// The BVH's leaves: (triangle index, loosened f32 box relative to `center`), one
+/// per triangle, or one per piece of a long thin triangle (see [`BVH_SPLIT_EDGE`]).
+fn leaf_boxes(
+    points: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    center: &Vector3<f64>,
+) -> Vec<(usize, Aabb)> {
+    let boxed = |c: &[Point3<f64>; 3]| {
+        let lo = c.iter().fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(&p.coords)) - center;
+        let hi = c.iter().fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(&p.coords)) - center;
+        let pad = |v: &Vector3<f64>| v.map(|x| AABB_MARGIN + 1e-6 * x.abs());
+        Aabb::new(
+            Point3::from((lo - pad(&lo)).map(|x| x as f32)),
+            Point3::from((hi + pad(&hi)).map(|x| x as f32)),
+        )
+    };
+    let mut leaves = Vec::with_capacity(triangles.len());
+    let mut stack: Vec<[Point3<f64>; 3]> = Vec::new();
+    for (t, tri) in triangles.iter().enumerate() {
+        stack.push(tri.map(|i| points[i as usize]));
+        while let Some(c) = stack.pop() {
+            if needs_split(&c) {
+                // Halve the longest edge (a, b); o is the corner opposite it.
+                let k = (0..3)
+                    .max_by(|&i, &j| edge(&c, i).total_cmp(&edge(&c, j)))
+                    .unwrap_or(0);
+                let (a, b, o) = (c[(k + 1) % 3], c[(k + 2) % 3], c[k]);
+                let m = Point3::from((a.coords + b.coords) * 0.5);
+                stack.push([o, a, m]);
+                stack.push([o, m, b]);
+            } else {
+                leaves.push((t, boxed(&c)));
+            }
+        }
+    }
+    leaves
+}
+
+/// Length of the edge opposite corner `k`.
+fn edge(c: &[Point3<f64>; 3], k: usize) -> f64 {
+    (c[(k + 1) % 3] - c[(k + 2) % 3]).norm()
+}
+
+fn needs_split(c: &[Point3<f64>; 3]) -> bool {
+    let longest = (0..3).map(|k| edge(c, k)).fold(0.0, f64::max);
+    let twice_area = (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
+    let height = twice_area / longest;
+    longest > BVH_SPLIT_EDGE && longest > BVH_SPLIT_ASPECT * height
 }
 
 /// `max_range` must be > 0 (infinity allowed), never NaN.

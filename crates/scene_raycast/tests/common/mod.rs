@@ -94,6 +94,55 @@ pub fn cylinder_z(cx: f64, cy: f64, r: f64, z0: f64, z1: f64, segments: u32, id:
     }
 }
 
+/// An open (uncapped) faceted tube from `p0` to `p1` of radius `r`.
+pub fn tube(p0: [f64; 3], p1: [f64; 3], r: f64, segments: u32, id: i32) -> Soup {
+    let (a, b) = (nalgebra::Vector3::from(p0), nalgebra::Vector3::from(p1));
+    let axis = (b - a).normalize();
+    let helper = if axis.x.abs() < 0.9 { nalgebra::Vector3::x() } else { nalgebra::Vector3::y() };
+    let u = axis.cross(&helper).normalize();
+    let v = axis.cross(&u);
+    let mut vertices = Vec::new();
+    for end in [a, b] {
+        for k in 0..segments {
+            let ang = 2.0 * PI * f64::from(k) / f64::from(segments);
+            let p = end + r * (ang.cos() * u + ang.sin() * v);
+            vertices.push([p.x, p.y, p.z]);
+        }
+    }
+    let n = segments;
+    let mut triangles = Vec::new();
+    for i in 0..n {
+        let j = (i + 1) % n;
+        triangles.push([i, j, n + j]);
+        triangles.push([i, n + j, n + i]);
+    }
+    let count = triangles.len();
+    Soup { vertices, triangles, ids: vec![id; count] }
+}
+
+/// A lattice-tower-like scene of about `n_members * 2 * segments` triangles: a
+/// ground plane and slender members, vertical and diagonal, 2 to 8 m long, in a
+/// 10 m x 10 m x 30 m volume (deterministic).
+pub fn tower_like(n_members: u32, segments: u32) -> Soup {
+    let mut soup = plane_z(0.0, 200.0, 0);
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = move || {
+        // xorshift64*: a fixed, dependency-free sequence for a reproducible bench scene.
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for m in 0..n_members {
+        let p0 = [-5.0 + 10.0 * next(), -5.0 + 10.0 * next(), 30.0 * next()];
+        let len = 2.0 + 6.0 * next();
+        let (az, el) = (2.0 * PI * next(), (next() - 0.5) * PI);
+        let p1 = [p0[0] + len * el.cos() * az.cos(), p0[1] + len * el.cos() * az.sin(), p0[2] + len * el.sin()];
+        soup.add(tube(p0, p1, 0.03 + 0.05 * next(), segments, 1 + (m % 100) as i32));
+    }
+    soup
+}
+
 /// A tower-sized test scene: a ground plane and a lattice of `n_members`
 /// slender vertical and diagonal-free members as faceted cylinders.
 pub fn lattice(n_members: u32, segments: u32) -> Soup {
