@@ -35,6 +35,7 @@ flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``)::
     registry_gate = 1.5           # m, optional: a localization this close to a known insulator updates it
     pass_spacing = 8.0            # m, optional: vertical spacing of the exploration passes
     crossing_clearance = 3.0      # m, optional: height above the safety box when crossing sides
+    insulator_length = 2.0        # m, optional: length of the insulator strings (for framing and plausibility)
 """
 
 from __future__ import annotations
@@ -81,6 +82,7 @@ class InspectionParams:
     registry_gate: float = 1.5
     pass_spacing: float = 8.0
     crossing_clearance: float = 3.0
+    insulator_length: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -230,6 +232,8 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
                               positive=True),
         crossing_clearance=r.number(insp_t, "inspection", "crossing_clearance",
                                     default=d.crossing_clearance, positive=True),
+        insulator_length=r.number(insp_t, "inspection", "insulator_length",
+                                  default=d.insulator_length, positive=True),
     )
     if inspection.standoff <= inspection.safety_margin:
         raise r.fail("inspection.standoff",

@@ -118,7 +118,8 @@ class InspectionRun:
         self.lidar = Mid360()
         self.detector = DetectorStandin(seed=seed)
         self.perception = OnboardPerception(self.det_camera.model, self.det_camera.T_b_c,
-                                            self.lidar.T_b_l, method=method)
+                                            self.lidar.T_b_l, method=method,
+                                            insulator_length=mission.inspection.insulator_length)
         self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate)
         self.fov = 2 * math.atan((self.photo_model.height / 2) / self.photo_model.fy)
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints, policy=policy,
@@ -141,11 +142,10 @@ class InspectionRun:
     # -- helpers -------------------------------------------------------------------------
     def _waypoints(self, ins: Insulator) -> list[InspectionWaypoint]:
         p = self.mission.inspection
-        length = max(t.length for t in self.tower.insulators) if self.tower.insulators else 2.0
         wps = inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=self.geom.line,
                                    volumes=self.geom.volumes, count=p.waypoints_per_insulator,
                                    inspection_distance=p.inspection_distance,
-                                   insulator_length=length, fov=self.fov)
+                                   insulator_length=p.insulator_length, fov=self.fov)
         self.waypoints.extend(wps)
         return wps
 
@@ -511,6 +511,7 @@ def run(args: argparse.Namespace) -> int:
         runner.finish_report()
         raise
     summary = runner.finish_report()
+    runner.vehicle.close()
     if summary["status"] == "aborted":
         code = 1
     print(f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "

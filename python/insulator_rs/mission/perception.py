@@ -3,7 +3,7 @@
 Per detection event (one camera image with its boxes and the LiDAR frame taken
 with it) the points of each box are culled with ``ir.points_in_boxes`` and
 moved into W with the vehicle's pose. Boxes are associated across events by
-the W position of their points (median), so each track holds the culled points
+the W position of their nearest points (median), so each track holds the culled points
 of the last :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator,
 as the paper accumulates three. Once a track has them, the accumulated points
 are expressed in the current body frame B and localized with ``ir.localize``;
@@ -22,10 +22,19 @@ import insulator_rs as ir
 
 Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 EVENTS_PER_LOCALIZATION = 3
-# m: a box whose points' median lies this close to a track's belongs to it.
-ASSOCIATION_GATE = 2.5
+# m: a box whose anchor lies this close to a track's belongs to it. Anchors are in W, so
+# they do not move with the vehicle; the gate is below the spacing of neighbouring
+# insulators (about 2.9 m between the two strings of a strain tower's arm tip).
+ASSOCIATION_GATE = 1.2
+# The anchor of a box is the median of its nearest points (this fraction by range): the
+# insulator is in front of the lattice and conductors seen through the same box.
+ANCHOR_NEAR_FRACTION = 0.3
 # Fewer culled points than this and a box is not an event (nothing to localize).
 MIN_POINTS_PER_BOX = 3
+# The localized insulator, projected into the image of the latest event, must span the
+# detection box to within this factor: a far-side insulator seen through the lattice
+# gets localized on the nearer lattice, and then looks too long for its box.
+SCALE_TOLERANCE = 1.5
 # A localization resting on fewer points than this is discarded: a handful of returns
 # is as likely a lattice member or a conductor clamp as the insulator.
 MIN_LOCALIZATION_POINTS = 10
@@ -52,13 +61,16 @@ class OnboardPerception:
     """Turns detection events into localizations in W (see the module docstring)."""
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
-                 method: str = "dbscan+ransac") -> None:
+                 method: str = "dbscan+ransac", insulator_length: float | None = None) -> None:
         self.camera = camera
         self.T_b_l = np.asarray(T_b_l, dtype=np.float64)
         self.T_c_l = np.linalg.inv(np.asarray(T_b_c, dtype=np.float64)) @ self.T_b_l
         self.method = method
+        self.insulator_length = insulator_length
+        self.T_b_c = np.asarray(T_b_c, dtype=np.float64)
         self.tracks: list[Track] = []
         self.failures = 0
+        self.implausible = 0
 
     def event(self, boxes: np.ndarray, points_l: np.ndarray, T_w_b: np.ndarray) -> list[Localization]:
         """One detection event: ``boxes`` (K, 4 or 5) px, the LiDAR frame ``points_l`` (N, 3) in L,
@@ -70,11 +82,13 @@ class OnboardPerception:
         culled = ir.points_in_boxes(points_l, self.T_c_l, self.camera, boxes)
         T_b_w = np.linalg.inv(T_w_b)
         out = []
-        for idx in culled:
+        for box, idx in zip(boxes, culled):
             if len(idx) < MIN_POINTS_PER_BOX:
                 continue
             pts_w = points_l[idx] @ T_w_l[:3, :3].T + T_w_l[:3, 3]
-            anchor = np.median(pts_w, axis=0)
+            rng = np.linalg.norm(points_l[idx], axis=1)
+            near = rng <= np.quantile(rng, ANCHOR_NEAR_FRACTION)
+            anchor = np.median(pts_w[near], axis=0)
             track = self._associate(anchor)
             track.events.append(pts_w)
             if len(track.events) < EVENTS_PER_LOCALIZATION:
@@ -91,9 +105,28 @@ class OnboardPerception:
                 continue
             center = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
             axis = T_w_b[:3, :3] @ np.asarray(est.direction)
+            if not self._scale_plausible(center, axis, box, T_w_b):
+                self.implausible += 1
+                continue
             track.anchor = center
             out.append(Localization(center, axis / np.linalg.norm(axis), int(est.n_points)))
         return out
+
+    def _scale_plausible(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
+                         T_w_b: np.ndarray) -> bool:
+        """Whether an insulator of the known length at ``center`` along ``axis`` (W) would span
+        the box (its longer side, px) to within SCALE_TOLERANCE. True without a known length."""
+        if self.insulator_length is None:
+            return True
+        half = 0.5 * self.insulator_length * axis / np.linalg.norm(axis)
+        T_c_w = np.linalg.inv(T_w_b @ self.T_b_c)
+        uv, _ = ir.project_points(np.stack([center - half, center + half]), T_c_w, self.camera)
+        if not np.all(np.isfinite(uv)):
+            return True  # an end behind the camera: no scale to compare
+        predicted = float(np.max(np.abs(uv[1] - uv[0])))
+        measured = float(max(box[2] - box[0], box[3] - box[1]))
+        ratio = predicted / max(measured, 1.0)
+        return 1.0 / SCALE_TOLERANCE <= ratio <= SCALE_TOLERANCE
 
     def _associate(self, anchor: np.ndarray) -> Track:
         if self.tracks:
