@@ -165,9 +165,11 @@ class Mid360:
         t_end = float(t_start) + self.frame_period
         track = _pose_track(trajectory, float(t_start), t_end)
         # Rotate vectors rather than build a matrix per shot: this is the hot path.
-        origins = track.position(t) + track.rotate(t, np.broadcast_to(self.T_b_l[:3, 3], dirs_l.shape))
+        n = len(t)
+        both = track.rotate(np.concatenate([t, t]), np.vstack([
+            dirs_l @ self.T_b_l[:3, :3].T, np.broadcast_to(self.T_b_l[:3, 3], dirs_l.shape)]))
+        dirs_w, origins = both[:n], track.position(t) + both[n:]
         check_outside(mesh, origins[0], "LiDAR")
-        dirs_w = track.rotate(t, dirs_l @ self.T_b_l[:3, :3].T)
         hits = mesh.raycaster.cast(origins, dirs_w, self.max_range)
 
         rng = np.random.default_rng(seed)
@@ -228,6 +230,8 @@ class PoseTrack:
         """R(t_i) @ v_i for every row: (N,) times, (N, 3) vectors -> (N, 3)."""
         seg, s = self._segments(t)
         local = _rotate_by_vector(self._omega[seg] * s[:, None], v)
+        if len(self._R0) == 1:
+            return local @ self._R0[0].T
         out = np.empty_like(local)
         for k in np.unique(seg):
             rows = seg == k
