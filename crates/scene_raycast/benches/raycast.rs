@@ -98,9 +98,9 @@ fn bench(c: &mut Criterion) {
         }
         t.elapsed().as_secs_f64() / 5.0
     };
-    let par = time(&|| drop(scene.cast(&origins, &dirs, 40.0)));
+    let par = time(&|| drop(std::hint::black_box(scene.cast(&origins, &dirs, 40.0))));
     let seq = time(&|| {
-        drop(origins.iter().zip(&dirs).filter_map(|(o, d)| scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)).count())
+        std::hint::black_box(origins.iter().zip(&dirs).filter_map(|(o, d)| scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)).count());
     });
     let lit = |s| Lighting { shadows: s, ..Lighting::default() };
     let no_sh = time(&|| drop(render(&scene, &rot, &pos, &rays, w, h, &[], &lit(false))));

@@ -1,6 +1,6 @@
 //! A triangle scene in the world frame W and batched ray casting against it.
 //!
-//! The BVH is parry3d's (`Bvh`, binned SAH, single precision) over slightly
+//! The BVH is parry3d's (`Bvh`, PLOC-built, single precision) over slightly
 //! loosened bounding boxes of the triangles, with coordinates taken relative to the
 //! centre of the scene's bounds. parry3d 0.25 is f32 only, which would put hit
 //! distances off by ~1e-5 m at tower scale, so the BVH only culls: each candidate
@@ -102,8 +102,10 @@ impl Hits {
 
 /// A static triangle scene in W with one instance id per triangle.
 pub struct Scene {
-    /// Leaves carry the index of their triangle (a split triangle has several leaves).
     bvh: Bvh,
+    /// Triangle of each BVH leaf (a long thin triangle has several leaves). Leaf
+    /// ids must be unique in parry's `Bvh`, hence this map.
+    leaf_triangle: Vec<u32>,
     /// W coordinates of the origin of the BVH's (f32) frame.
     center: Vector3<f64>,
     vertices: Vec<Point3<f64>>,
@@ -178,10 +180,12 @@ impl Scene {
             |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
         );
         let center = 0.5 * (lo + hi);
-        let leaves = leaf_boxes(&points, triangles, &center);
-        let bvh = Bvh::from_iter(BvhBuildStrategy::Binned, leaves);
+        let (leaf_triangle, boxes) = leaf_boxes(&points, triangles, &center);
+        // PLOC: slower to build than binned SAH, better trees for heavy ray casting.
+        let bvh = Bvh::from_leaves(BvhBuildStrategy::Ploc, &boxes);
         Ok(Self {
             bvh,
+            leaf_triangle,
             center,
             vertices: points,
             triangles: triangles.to_vec(),
@@ -227,9 +231,10 @@ impl Scene {
         // The BVH compares f32 distances; the f64 answer is kept beside it.
         let best: Cell<Option<(f64, u32)>> = Cell::new(None);
         self.bvh.cast_ray(&ray, bvh_max, |leaf, _| {
-            let t = self.intersect(leaf, origin, direction)?;
+            let tri = *self.leaf_triangle.get(leaf as usize)?;
+            let t = self.intersect(tri, origin, direction)?;
             if t <= max_range && best.get().is_none_or(|(b, _)| t < b) {
-                best.set(Some((t, leaf)));
+                best.set(Some((t, tri)));
             }
             Some(t as f32)
         });
@@ -301,13 +306,14 @@ impl Scene {
     }
 }
 
-/// The BVH's leaves: (triangle index, loosened f32 box relative to `center`), one
-/// per triangle, or one per piece of a long thin triangle (see [`BVH_SPLIT_EDGE`]).
+/// The BVH's leaves: (triangle of each leaf, loosened f32 box of each leaf relative
+/// to `center`); one leaf per triangle, or one per piece of a long thin triangle
+/// (see [`BVH_SPLIT_EDGE`]).
 fn leaf_boxes(
     points: &[Point3<f64>],
     triangles: &[[u32; 3]],
     center: &Vector3<f64>,
-) -> Vec<(usize, Aabb)> {
+) -> (Vec<u32>, Vec<Aabb>) {
     let boxed = |c: &[Point3<f64>; 3]| {
         let lo = c.iter().fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(&p.coords)) - center;
         let hi = c.iter().fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(&p.coords)) - center;
@@ -317,6 +323,7 @@ fn leaf_boxes(
             Point3::from((hi + pad(&hi)).map(|x| x as f32)),
         )
     };
+    let mut leaf_triangle = Vec::with_capacity(triangles.len());
     let mut leaves = Vec::with_capacity(triangles.len());
     let mut stack: Vec<[Point3<f64>; 3]> = Vec::new();
     for (t, tri) in triangles.iter().enumerate() {
@@ -332,11 +339,12 @@ fn leaf_boxes(
                 stack.push([o, a, m]);
                 stack.push([o, m, b]);
             } else {
-                leaves.push((t, boxed(&c)));
+                leaf_triangle.push(t as u32);
+                leaves.push(boxed(&c));
             }
         }
     }
-    leaves
+    (leaf_triangle, leaves)
 }
 
 /// Length of the edge opposite corner `k`.

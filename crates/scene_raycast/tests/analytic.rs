@@ -97,8 +97,8 @@ fn plane_hit_distances_match_the_ray_plane_formula() {
     }
     let hits = s.cast(&origins, &dirs, f64::INFINITY).unwrap_or_default();
     assert_eq!(hits.len(), expected.len());
-    for i in 0..expected.len() {
-        assert!((hits.distance[i] - expected[i]).abs() < TOL, "ray {i}: {} vs {}", hits.distance[i], expected[i]);
+    for (i, want) in expected.iter().enumerate() {
+        assert!((hits.distance[i] - want).abs() < TOL, "ray {i}: {} vs {want}", hits.distance[i]);
         assert_eq!(hits.instance_id[i], 7);
         assert_eq!(hits.normal[i], [0.0, 0.0, 1.0]);
     }
@@ -182,11 +182,11 @@ fn faceted_cylinder_hit_distances_match_the_exact_prism() {
 fn finely_tessellated_cylinder_matches_the_true_cylinder_along_radial_rays() {
     // Sagitta of a 720-gon of radius 0.1 m: 0.1 (1 - cos(pi/720)) = 9.5e-7 m < TOL.
     let (r, segments) = (0.1, 720);
-    let s = scene(&cylinder_z(2.0, -1.0, r, 0.0, 10.0, segments, 1));
+    let s = scene(&cylinder_z(2.0, -1.0, r, 0.0, 2.0, segments, 1));
     let mut rng = Pcg64Mcg::seed_from_u64(4);
     for _ in 0..2000 {
         let a = rng.random_range(0.0..2.0 * PI);
-        let z = rng.random_range(0.5..9.5);
+        let z = rng.random_range(0.1..1.9);
         let dist0 = rng.random_range(1.0..30.0);
         let radial = Vector3::new(a.cos(), a.sin(), 0.0);
         let o = Vector3::new(2.0, -1.0, z) + radial * dist0;
@@ -225,4 +225,31 @@ fn bad_rays_are_refused_with_the_argument_named() {
         assert!(matches!(err, Some(RaycastError::BadParameter { name: "max_range", .. })));
     }
     assert!(s.cast(&[], &[], 1.0).map(|h| h.is_empty()).unwrap_or(false));
+}
+
+#[test]
+fn long_thin_triangles_boxed_piecewise_are_hit_everywhere() {
+    // One 10 m x 5 cm sliver in the plane z = 1: its BVH leaves are pieces of it.
+    // Rays straight down anywhere over it must hit at distance 4 (from z = 5).
+    for n_extra in [0usize, 1] {
+        let mut vertices = vec![[0.0, 0.0, 1.0], [10.0, 0.0, 1.0], [10.0, 0.05, 1.0]];
+        let mut triangles = vec![[0u32, 1, 2]];
+        if n_extra == 1 {
+            vertices.extend([[0.0, 3.0, 1.0], [10.0, 3.0, 1.0], [10.0, 3.05, 1.0]]);
+            triangles.push([3, 4, 5]);
+        }
+        let ids = vec![0; triangles.len()];
+        let s = match Scene::new(&vertices, &triangles, &ids) {
+            Ok(s) => s,
+            Err(e) => panic!("{e}"),
+        };
+        let mut rng = Pcg64Mcg::seed_from_u64(5);
+        for _ in 0..2000 {
+            let x: f64 = rng.random_range(0.01..9.99);
+            // Strictly inside: y < 0.05 x / 10.
+            let y = rng.random_range(0.0..1.0) * 0.005 * x * 0.999;
+            let hit = s.cast_one(&Point3::new(x, y, 5.0), &-Vector3::z(), 10.0);
+            assert!(hit.is_some_and(|h| (h.distance - 4.0).abs() < TOL && h.triangle == 0), "missed at x={x}");
+        }
+    }
 }
