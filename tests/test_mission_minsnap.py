@@ -128,3 +128,22 @@ def test_moving_start_keeps_its_velocity_and_the_limits():
     assert np.all(tr.max_abs(1) <= VM * (1 + 1e-9)) and np.all(tr.max_abs(2) <= AM * (1 + 1e-9))
     with pytest.raises(ValueError, match="v_start"):
         plan_min_snap(wp, VM, AM, v_start=np.array([5.0, 0, 0]))
+
+
+def test_deviation_bound_keeps_the_curve_near_the_straight_path():
+    lf = line_frame(np.array([[0.0, -280.0, 0.0], [0.0, 300.0, 1.5]]))
+    vol = safety_volumes(lf, max_width=10.0, max_height=31.0, margin=2.0)
+    # long and short legs mixed: the free min-snap swings far off the polyline
+    wp = np.array([[13.0, -7, 7], [13.0, 7, 7], [13.0, 7, 8], [13.0, -7, 8], [30.0, -7, 8]])
+    plain = plan_min_snap_safe(wp, VM, AM, vol, dt=0.02)
+    bounded = plan_min_snap_safe(wp, VM, AM, vol, dt=0.02, max_deviation=1.0, max_refinements=10)
+
+    def worst(tr):
+        t = np.linspace(0, tr.total_time, 4000)
+        pos = tr.evaluate(t)
+        d = [min(np.linalg.norm(np.cross(b - a, p - a)) / np.linalg.norm(b - a)
+                 if 0 <= (p - a) @ (b - a) <= (b - a) @ (b - a) else min(np.linalg.norm(p - a), np.linalg.norm(p - b))
+                 for a, b in zip(wp[:-1], wp[1:])) for p in pos]
+        return max(d)
+
+    assert worst(bounded) <= 1.0 + 0.05 < worst(plain)

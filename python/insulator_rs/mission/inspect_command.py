@@ -49,6 +49,9 @@ from insulator_rs.vehicle import Vehicle, VehicleState
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 CONTROL_PERIOD = 0.05  # s: 20 Hz setpoint stream, as PX4 offboard wants
 SAFETY_CHECK_DT = 0.05  # s: sampling of planned trajectories for the safety check
+# m: a min-snap curve straying further than this from its straight path gets extra waypoints
+# (keeps the flight near the planned path, away from the conductors beyond it).
+MAX_PATH_DEVIATION = 2.0
 PHOTO_YAW_TOLERANCE = math.radians(3.0)
 PHOTO_SPEED_TOLERANCE = 0.2  # m/s
 PHOTO_SETTLE_TIMEOUT = 8.0  # s
@@ -248,7 +251,8 @@ class InspectionRun:
             return True
         v0 = np.clip(st.velocity, -self.v_max, self.v_max)
         traj: MinSnapTrajectory = plan_min_snap_safe(pts, self.v_max, self.a_max, self.geom.volumes,
-                                                     dt=SAFETY_CHECK_DT, v_start=v0)
+                                                     dt=SAFETY_CHECK_DT, v_start=v0,
+                                                     max_deviation=MAX_PATH_DEVIATION)
         # the time at which the trajectory passes each item (items are among its waypoints)
         knots = np.concatenate([[0.0], np.cumsum(traj.durations)])
         item_times = []

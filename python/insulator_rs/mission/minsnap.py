@@ -198,27 +198,41 @@ def plan_min_snap(waypoints: np.ndarray, v_max: np.ndarray | float,
     raise ValueError("v_start: no time scaling keeps the limits with this start velocity")
 
 
+def _segment_deviation(pos: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (m) of each point pos[i] from the straight segment a[i] -> b[i]."""
+    d = b - a
+    den = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    t = np.clip(np.einsum("ij,ij->i", pos - a, d) / den, 0.0, 1.0)
+    return np.linalg.norm(pos - (a + t[:, None] * d), axis=1)
+
+
 def plan_min_snap_safe(waypoints: np.ndarray, v_max: np.ndarray | float, a_max: np.ndarray | float,
                        volumes: SafetyVolumes, *, dt: float = 0.05, max_refinements: int = 8,
-                       v_start: np.ndarray | None = None) -> MinSnapTrajectory:
+                       v_start: np.ndarray | None = None,
+                       max_deviation: float | None = None) -> MinSnapTrajectory:
     """:func:`plan_min_snap`, re-planned with a waypoint inserted at the middle of every segment
-    whose curve touches a safety volume, until the sampled curve (checked conservatively,
-    see :meth:`SafetyVolumes.samples_clear`) is clear. The straight polyline through the
-    waypoints must itself be clear (ValueError otherwise)."""
+    whose curve touches a safety volume (or strays more than ``max_deviation`` m from the
+    straight segment, if given), until the sampled curve (checked conservatively, see
+    :meth:`SafetyVolumes.samples_clear`) is clear. The straight polyline through the
+    waypoints must itself be clear (ValueError otherwise). Only safety is required: if the
+    deviation bound still fails after ``max_refinements`` the safe trajectory is returned."""
     p = np.asarray(waypoints, dtype=np.float64)
     if not volumes.polyline_clear(p):
         raise ValueError("waypoints: the straight path through them enters a safety volume")
     vm = np.broadcast_to(np.asarray(v_max, dtype=np.float64), (3,))
     max_step = float(np.linalg.norm(vm)) * dt
-    for _ in range(max_refinements + 1):
+    for refinement in range(max_refinements + 1):
         traj = plan_min_snap(p, vm, a_max, v_start=v_start)
         times, pos, _ = traj.sample(dt)
-        bad_samples = ~volumes.points_clear(pos, inflate=max_step / 2)
-        if not np.any(bad_samples):
-            return traj
         starts = np.concatenate([[0.0], np.cumsum(traj.durations)])
-        bad_segments = np.unique(np.clip(np.searchsorted(starts, times[bad_samples], side="right") - 1,
-                                         0, len(traj.durations) - 1))
+        seg = np.clip(np.searchsorted(starts, times, side="right") - 1, 0, len(traj.durations) - 1)
+        unsafe = ~volumes.points_clear(pos, inflate=max_step / 2)
+        bad_samples = unsafe.copy()
+        if max_deviation is not None:
+            bad_samples |= _segment_deviation(pos, p[seg], p[seg + 1]) > max_deviation
+        if not np.any(bad_samples) or (not np.any(unsafe) and refinement == max_refinements):
+            return traj
+        bad_segments = np.unique(seg[bad_samples])
         new = [p[0]]
         for i in range(len(p) - 1):
             if i in bad_segments:
