@@ -1,0 +1,153 @@
+//! Criterion benches of the fusion_core hot paths, with the targets as constants.
+//!
+//! Run: `nice cargo bench -p fusion_core -- --warm-up-time 1 --measurement-time 3`
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::f64::consts::PI;
+use std::hint::black_box;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use fusion_core::{dbscan, localize, points_in_boxes, project_points, CameraModel, LocalizeParams, Method, PixelBox};
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+/// Points in one accumulated Livox Mid-360 frame (target: project + cull < 100 us).
+const FRAME_POINTS: usize = 20_000;
+/// Detection boxes per frame.
+const FRAME_BOXES: usize = 3;
+/// DBSCAN bench size (target < 1 ms) and its parameters.
+const DBSCAN_POINTS: usize = 3_000;
+const DBSCAN_EPS: f64 = 0.3;
+const DBSCAN_MIN_POINTS: usize = 5;
+/// Sizes of the DBSCAN scaling series.
+const DBSCAN_SCALING: [usize; 4] = [1_000, 10_000, 50_000, 100_000];
+/// Points in the box-culled, 3-frame accumulated cloud for localize (target < 1 ms).
+const LOCALIZE_POINTS: usize = 2_000;
+/// Share of noise points in the DBSCAN clouds.
+const NOISE_SHARE: f64 = 0.2;
+/// Points per insulator-like line cluster: a 2 m insulator as a Mid-360 sees it at 5-10 m
+/// over 3 accumulated frames (~60-200 returns); ~25 neighbours within eps per point.
+const POINTS_PER_LINE: usize = 100;
+/// A much denser variant (500 points per line, ~95 neighbours within eps per point),
+/// reported beside the target case to show how cost follows neighbourhood size.
+const DENSE_POINTS_PER_LINE: usize = 500;
+
+/// A Mid-360-like frame: 360 deg azimuth, -7..52 deg elevation, ranges 1-40 m (L frame).
+fn lidar_frame(n: usize, rng: &mut Pcg64) -> Vec<[f64; 3]> {
+    (0..n)
+        .map(|_| {
+            let az = rng.random_range(-PI..PI);
+            let el = rng.random_range(-7.0f64..52.0).to_radians();
+            let r = rng.random_range(1.0..40.0);
+            [r * el.cos() * az.cos(), r * el.cos() * az.sin(), r * el.sin()]
+        })
+        .collect()
+}
+
+/// Forward-looking camera: optical z = LiDAR x, x = -y, y = -z, 5 cm below the LiDAR.
+fn camera_and_pose() -> (CameraModel, Isometry3<f64>) {
+    let cam = CameraModel::new(1000.0, 1000.0, 640.0, 360.0, 1280, 720, [-0.1, 0.02, 0.001, -0.001, 0.0]).unwrap();
+    let r = Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
+    let t = Isometry3::from_parts(Translation3::new(0.0, -0.05, 0.0), UnitQuaternion::from_matrix(&r));
+    (cam, t)
+}
+
+/// Points on a 2 m long, 0.12 m radius cylinder's surface with 2 cm noise (an insulator).
+fn insulator(centre: [f64; 3], axis: [f64; 3], n: usize, rng: &mut Pcg64) -> Vec<[f64; 3]> {
+    let a = Vector3::from(axis).normalize();
+    let u = a.cross(&Vector3::new(0.3, 0.2, 0.9)).normalize();
+    let v = a.cross(&u);
+    (0..n)
+        .map(|_| {
+            let t = rng.random_range(-1.0..1.0);
+            let th = rng.random_range(-PI / 2.0..PI / 2.0);
+            let r = 0.12 + rng.random_range(-0.02..0.02);
+            let p = Vector3::from(centre) + a * t + (u * th.cos() + v * th.sin()) * r;
+            [p.x, p.y, p.z]
+        })
+        .collect()
+}
+
+/// Line clusters on a grid 3 m apart plus uniform noise: constant density as `n` grows.
+fn line_clusters(n: usize, per_line: usize, rng: &mut Pcg64) -> Vec<[f64; 3]> {
+    let n_noise = (n as f64 * NOISE_SHARE) as usize;
+    let n_lines = ((n - n_noise) / per_line).max(1);
+    let side = (n_lines as f64).sqrt().ceil() as usize;
+    let mut pts = Vec::with_capacity(n);
+    for k in 0..n_lines {
+        let centre = [3.0 * (k % side) as f64, 3.0 * (k / side) as f64, 0.0];
+        let axis = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 1.0];
+        pts.extend(insulator(centre, axis, per_line, rng));
+    }
+    let extent = 3.0 * side as f64;
+    while pts.len() < n {
+        pts.push([rng.random_range(-1.0..extent), rng.random_range(-1.0..extent), rng.random_range(-2.0..2.0)]);
+    }
+    pts
+}
+
+fn bench_project_cull(c: &mut Criterion) {
+    let mut rng = Pcg64::seed_from_u64(1);
+    let pts = lidar_frame(FRAME_POINTS, &mut rng);
+    let (cam, t) = camera_and_pose();
+    let boxes: Vec<PixelBox> = [(300.0, 100.0, 420.0, 330.0), (600.0, 200.0, 700.0, 450.0), (900.0, 50.0, 1100.0, 200.0)]
+        .iter()
+        .take(FRAME_BOXES)
+        .map(|&(a, b, c, d)| PixelBox::new(a, b, c, d).unwrap())
+        .collect();
+    let mut g = c.benchmark_group("frame_20k");
+    g.throughput(Throughput::Elements(FRAME_POINTS as u64));
+    g.bench_function("points_in_boxes_3", |b| b.iter(|| points_in_boxes(black_box(&pts), &t, &cam, &boxes).unwrap()));
+    g.bench_function("project_points", |b| b.iter(|| project_points(black_box(&pts), &t, &cam)));
+    let flat: Vec<f32> = pts.iter().flat_map(|p| p.map(|x| x as f32)).collect();
+    let view = fusion_core::StridedPoints::new(&flat, FRAME_POINTS, 3, 1, 0).unwrap();
+    g.bench_function("points_in_boxes_3_strided_f32", |b| b.iter(|| points_in_boxes(black_box(&view), &t, &cam, &boxes).unwrap()));
+    g.finish();
+}
+
+fn bench_dbscan(c: &mut Criterion) {
+    let mut rng = Pcg64::seed_from_u64(2);
+    let pts = line_clusters(DBSCAN_POINTS, POINTS_PER_LINE, &mut rng);
+    let dense = line_clusters(DBSCAN_POINTS, DENSE_POINTS_PER_LINE, &mut rng);
+    let mut g = c.benchmark_group("dbscan");
+    g.throughput(Throughput::Elements(DBSCAN_POINTS as u64));
+    g.bench_function("lines_3000", |b| b.iter(|| dbscan(black_box(&pts), DBSCAN_EPS, DBSCAN_MIN_POINTS).unwrap()));
+    g.bench_function("dense_lines_3000", |b| b.iter(|| dbscan(black_box(&dense), DBSCAN_EPS, DBSCAN_MIN_POINTS).unwrap()));
+    g.finish();
+
+    let mut g = c.benchmark_group("dbscan_scaling");
+    for n in DBSCAN_SCALING {
+        let pts = line_clusters(n, POINTS_PER_LINE, &mut rng);
+        g.throughput(Throughput::Elements(n as u64));
+        g.bench_with_input(BenchmarkId::from_parameter(n), &pts, |b, pts| {
+            b.iter(|| dbscan(black_box(pts), DBSCAN_EPS, DBSCAN_MIN_POINTS).unwrap())
+        });
+    }
+    g.finish();
+}
+
+fn bench_localize(c: &mut Criterion) {
+    let mut rng = Pcg64::seed_from_u64(3);
+    // A box-culled insulator at ~9 m: 80 % insulator, 15 % lattice member behind one end, 5 % noise.
+    let n_ins = LOCALIZE_POINTS * 80 / 100;
+    let n_lat = LOCALIZE_POINTS * 15 / 100;
+    let mut pts = insulator([9.0, 0.5, 1.0], [0.1, 1.0, 0.2], n_ins, &mut rng);
+    pts.extend((0..n_lat).map(|_| {
+        let t = rng.random_range(-1.0..1.0);
+        [9.4 + 0.2 * t, 1.6, 1.2 + t + rng.random_range(-0.03..0.03)]
+    }));
+    while pts.len() < LOCALIZE_POINTS {
+        pts.push([rng.random_range(8.0..11.0), rng.random_range(-1.0..2.0), rng.random_range(0.0..2.0)]);
+    }
+    let params = LocalizeParams::default();
+    let mut g = c.benchmark_group("localize_2000");
+    g.throughput(Throughput::Elements(LOCALIZE_POINTS as u64));
+    for m in Method::ALL {
+        g.bench_function(m.as_str(), |b| b.iter(|| localize(black_box(&pts), m, &params).unwrap()));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_project_cull, bench_dbscan, bench_localize);
+criterion_main!(benches);
