@@ -1,4 +1,6 @@
-//! Ray-casting and rendering cost on a tower-sized scene (~100k triangles).
+//! Ray-casting and rendering cost on a lattice tower like the simulator's (~75k
+//! triangles) and on a dense thicket of 6250 random members (100k triangles, a
+//! worst case far denser than any tower).
 //!
 //! Side by side: the parallel batch `Scene::cast` against the same rays cast one
 //! by one on one thread (the rayon speed-up), and a camera render with and
@@ -13,15 +15,14 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use nalgebra::{Matrix3, Point3, Vector3};
 use scene_raycast::{render, Lighting, Scene};
 
-/// Members x 2 x segments triangles: 6250 x 16 = 100,000.
+/// Thicket: members x 2 x segments triangles = 6250 x 16 = 100,000.
 const MEMBERS: u32 = 6250;
 const SEGMENTS: u32 = 8;
 /// One Mid-360 frame.
 const LIDAR_RAYS: usize = 20_000;
 const IMAGE: (usize, usize) = (320, 240);
 
-fn scene() -> Scene {
-    let soup = common::tower_like(MEMBERS, SEGMENTS);
+fn scene(soup: &common::Soup) -> Scene {
     match Scene::new(&soup.vertices, &soup.triangles, &soup.ids) {
         Ok(s) => s,
         Err(e) => panic!("bench scene refused: {e}"),
@@ -57,9 +58,17 @@ fn camera_pose() -> (Matrix3<f64>, Point3<f64>) {
 }
 
 fn bench(c: &mut Criterion) {
-    let scene = scene();
+    for (name, soup) in [
+        ("tower", common::lattice_tower()),
+        ("thicket", common::tower_like(MEMBERS, SEGMENTS)),
+    ] {
+        bench_scene(c, name, &scene(&soup));
+    }
+}
+
+fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
     let (origins, dirs) = lidar_rays();
-    let mut group = c.benchmark_group("lidar_frame");
+    let mut group = c.benchmark_group(format!("{name}/lidar_frame"));
     group.throughput(Throughput::Elements(LIDAR_RAYS as u64));
     group.sample_size(20);
     group.bench_function(BenchmarkId::new("parallel", scene.n_triangles()), |b| {
@@ -79,13 +88,13 @@ fn bench(c: &mut Criterion) {
     let (w, h) = IMAGE;
     let rays = camera_rays(w, h);
     let (rot, pos) = camera_pose();
-    let mut group = c.benchmark_group("camera_image");
+    let mut group = c.benchmark_group(format!("{name}/camera_image"));
     group.throughput(Throughput::Elements((w * h) as u64));
     group.sample_size(10);
     for shadows in [false, true] {
         let lighting = Lighting { shadows, noise_sigma: 2.0, ..Lighting::default() };
         group.bench_function(BenchmarkId::new(if shadows { "shadows" } else { "no_shadows" }, format!("{w}x{h}")), |b| {
-            b.iter(|| render(&scene, &rot, &pos, &rays, w, h, &[[0.5; 3]; 101], &lighting))
+            b.iter(|| render(scene, &rot, &pos, &rays, w, h, &[[0.5; 3]; 101], &lighting))
         });
     }
     group.finish();
@@ -103,10 +112,10 @@ fn bench(c: &mut Criterion) {
         std::hint::black_box(origins.iter().zip(&dirs).filter_map(|(o, d)| scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)).count());
     });
     let lit = |s| Lighting { shadows: s, ..Lighting::default() };
-    let no_sh = time(&|| drop(render(&scene, &rot, &pos, &rays, w, h, &[], &lit(false))));
-    let sh = time(&|| drop(render(&scene, &rot, &pos, &rays, w, h, &[], &lit(true))));
+    let no_sh = time(&|| drop(render(scene, &rot, &pos, &rays, w, h, &[], &lit(false))));
+    let sh = time(&|| drop(render(scene, &rot, &pos, &rays, w, h, &[], &lit(true))));
     println!(
-        "\n{} triangles: LiDAR frame {:.2} ms parallel vs {:.2} ms one-by-one (x{:.2}); \
+        "\n{name}, {} triangles: LiDAR frame {:.2} ms parallel vs {:.2} ms one-by-one (x{:.2}); \
          {w}x{h} image {:.1} ms without shadows, {:.1} ms with (x{:.2}); \
          1280x960 extrapolated: {:.0} ms with shadows",
         scene.n_triangles(), par * 1e3, seq * 1e3, seq / par, no_sh * 1e3, sh * 1e3, sh / no_sh,

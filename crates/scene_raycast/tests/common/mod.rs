@@ -83,6 +83,11 @@ pub fn cylinder_z(cx: f64, cy: f64, r: f64, z0: f64, z1: f64, segments: u32, id:
 
 /// An open (uncapped) faceted tube from `p0` to `p1` of radius `r`.
 pub fn tube(p0: [f64; 3], p1: [f64; 3], r: f64, segments: u32, id: i32) -> Soup {
+    frustum(p0, p1, r, r, segments, id)
+}
+
+/// An open faceted frustum from `p0` (radius `r0`) to `p1` (radius `r1`).
+pub fn frustum(p0: [f64; 3], p1: [f64; 3], r0: f64, r1: f64, segments: u32, id: i32) -> Soup {
     let (a, b) = (nalgebra::Vector3::from(p0), nalgebra::Vector3::from(p1));
     let axis = (b - a).normalize();
     // For a z axis the ring starts on +x and turns toward +y (the analytic tests rely on it).
@@ -90,7 +95,7 @@ pub fn tube(p0: [f64; 3], p1: [f64; 3], r: f64, segments: u32, id: i32) -> Soup 
     let u = helper.cross(&axis).normalize();
     let v = axis.cross(&u);
     let mut vertices = Vec::new();
-    for end in [a, b] {
+    for (end, r) in [(a, r0), (b, r1)] {
         for k in 0..segments {
             let ang = 2.0 * PI * f64::from(k) / f64::from(segments);
             let p = end + r * (ang.cos() * u + ang.sin() * v);
@@ -106,6 +111,56 @@ pub fn tube(p0: [f64; 3], p1: [f64; 3], r: f64, segments: u32, id: i32) -> Soup 
     }
     let count = triangles.len();
     Soup { vertices, triangles, ids: vec![id; count] }
+}
+
+/// A lattice tower like the simulator's (about 75k triangles): 4 tapered legs
+/// in 2 m panels with X-bracing on every face, three cross-arm levels, 12 insulators
+/// as stacks of 20 sheds (48 facets) and 12 conductors 60 m long, over a ground plane.
+pub fn lattice_tower() -> Soup {
+    let mut soup = plane_z(0.0, 200.0, 0);
+    let half = |z: f64| 5.0 - 3.5 * z / 30.0;
+    let corner = |k: usize, z: f64| {
+        let (sx, sy) = ([1.0, -1.0, -1.0, 1.0][k], [1.0, 1.0, -1.0, -1.0][k]);
+        [sx * half(z), sy * half(z), z]
+    };
+    let member = |soup: &mut Soup, a: [f64; 3], b: [f64; 3]| soup.add(tube(a, b, 0.07, 4, 500));
+    for panel in 0..15 {
+        let (z0, z1) = (2.0 * f64::from(panel), 2.0 * f64::from(panel + 1));
+        for k in 0..4 {
+            let k2 = (k + 1) % 4;
+            member(&mut soup, corner(k, z0), corner(k, z1));
+            member(&mut soup, corner(k, z1), corner(k2, z1));
+            member(&mut soup, corner(k, z0), corner(k2, z1));
+            member(&mut soup, corner(k2, z0), corner(k, z1));
+        }
+    }
+    let mut insulator = 1;
+    for z in [18.0, 22.0, 26.0] {
+        for side in [-1.0, 1.0] {
+            let root = half(z);
+            let tip = [side * (root + 5.0), 0.0, z];
+            member(&mut soup, [side * root, 1.0, z], tip);
+            member(&mut soup, [side * root, -1.0, z], tip);
+            member(&mut soup, [side * root, 0.0, z - 2.0], tip);
+            for dy in [-0.3, 0.3] {
+                // A suspension string hanging 2 m under the arm tip, then its conductor.
+                let top = [tip[0], dy, z];
+                for shed in 0..20 {
+                    let zs = z - 0.1 * f64::from(shed) - 0.05;
+                    soup.add(frustum([top[0], dy, zs], [top[0], dy, zs - 0.03], 0.06, 0.13, 48, insulator));
+                }
+                soup.add(tube(top, [top[0], dy, z - 2.0], 0.05, 48, insulator));
+                insulator += 1;
+                let end = [top[0], dy, z - 2.0];
+                for seg in 0..60 {
+                    let (y0, y1) = (f64::from(seg) - 0.0, f64::from(seg + 1));
+                    let sag = |y: f64| 0.004 * y * (60.0 - y);
+                    soup.add(tube([end[0], dy + y0, end[2] - sag(y0)], [end[0], dy + y1, end[2] - sag(y1)], 0.015, 8, 1000 + insulator));
+                }
+            }
+        }
+    }
+    soup
 }
 
 /// A lattice-tower-like scene of about `n_members * 2 * segments` triangles: a
