@@ -227,15 +227,26 @@ class PoseTrack:
         return p[seg] + (p[seg + 1] - p[seg]) * s[:, None]
 
     def rotate(self, t: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """R(t_i) @ v_i for every row: (N,) times, (N, 3) vectors -> (N, 3)."""
+        """R(t_i) @ v_i for every row: (N,) times, (N, 3) vectors -> (N, 3).
+
+        Within a segment the relative rotation keeps one axis, so Rodrigues'
+        formula needs only matrix products with that segment's constant matrices.
+        """
         seg, s = self._segments(t)
-        local = _rotate_by_vector(self._omega[seg] * s[:, None], v)
-        if len(self._R0) == 1:
-            return local @ self._R0[0].T
-        out = np.empty_like(local)
+        out = np.empty_like(v, dtype=np.float64)
         for k in np.unique(seg):
-            rows = seg == k
-            out[rows] = local[rows] @ self._R0[k].T
+            rows = slice(None) if len(self._R0) == 1 else seg == k
+            angle_k = float(np.linalg.norm(self._omega[k]))
+            vk = v[rows]
+            if angle_k < 1e-12:
+                out[rows] = vk @ self._R0[k].T
+                continue
+            axis = self._omega[k] / angle_k
+            K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+            angle = angle_k * s[rows][:, None]
+            cos, sin = np.cos(angle), np.sin(angle)
+            local = vk * cos + (vk @ K.T) * sin + np.outer(vk @ axis, axis) * (1.0 - cos)
+            out[rows] = local @ self._R0[k].T
         return out
 
     def pose(self, time: float) -> np.ndarray:
@@ -258,16 +269,6 @@ def _pose_track(trajectory: Trajectory, t_start: float, t_end: float) -> PoseTra
         ) from None
     knots_T = np.stack([check_pose("trajectory[0]", start), check_pose("trajectory[1]", end)])
     return PoseTrack(np.array([t_start, t_end]), knots_T)
-
-
-def _rotate_by_vector(w: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotates each row of ``v`` by the rotation vector in the same row of ``w`` (Rodrigues)."""
-    angle = np.linalg.norm(w, axis=1)
-    safe = np.where(angle > 1e-12, angle, 1.0)
-    k = w / safe[:, None]
-    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    k_dot_v = np.einsum("ij,ij->i", k, v)[:, None]
-    return v * cos + np.cross(k, v) * sin + k * k_dot_v * (1.0 - cos)
 
 
 def interpolate_poses(knots_t: np.ndarray, knots_T: np.ndarray, t: np.ndarray) -> np.ndarray:
