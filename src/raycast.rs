@@ -21,7 +21,9 @@ fn value_error(err: RaycastError) -> PyErr {
 
 /// A (N, 3) float64 or float32 array (validated by `pyutils::extract_cloud`) as rows (copied).
 fn rows3(name: &'static str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[f64; 3]>> {
-    fn collect<T: Copy + Into<f64> + numpy::Element>(arr: &PyReadonlyArray2<'_, T>) -> Vec<[f64; 3]> {
+    fn collect<T: Copy + Into<f64> + numpy::Element>(
+        arr: &PyReadonlyArray2<'_, T>,
+    ) -> Vec<[f64; 3]> {
         let view = arr.as_array();
         view.rows()
             .into_iter()
@@ -309,11 +311,17 @@ impl RaycastScene {
                 )
             })
             .map_err(value_error)?;
-        let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(format!("image: {e}"));
+        let shape_error =
+            |e: numpy::ndarray::ShapeError| PyValueError::new_err(format!("image: {e}"));
         let rgb = Array3::from_shape_vec((height, width, 3), image.rgb).map_err(shape_error)?;
-        let ids = Array2::from_shape_vec((height, width), image.instance_id).map_err(shape_error)?;
+        let ids =
+            Array2::from_shape_vec((height, width), image.instance_id).map_err(shape_error)?;
         let depth = Array2::from_shape_vec((height, width), image.depth).map_err(shape_error)?;
-        Ok((rgb.into_pyarray(py), ids.into_pyarray(py), depth.into_pyarray(py)))
+        Ok((
+            rgb.into_pyarray(py),
+            ids.into_pyarray(py),
+            depth.into_pyarray(py),
+        ))
     }
 
     fn __repr__(&self) -> String {

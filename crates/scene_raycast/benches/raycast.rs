@@ -46,7 +46,15 @@ fn lidar_rays() -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
 fn camera_rays(w: usize, h: usize) -> Vec<[f64; 3]> {
     let f = 0.55 * w as f64;
     (0..h)
-        .flat_map(|r| (0..w).map(move |c| [(c as f64 - w as f64 / 2.0) / f, (r as f64 - h as f64 / 2.0) / f, 1.0]))
+        .flat_map(|r| {
+            (0..w).map(move |c| {
+                [
+                    (c as f64 - w as f64 / 2.0) / f,
+                    (r as f64 - h as f64 / 2.0) / f,
+                    1.0,
+                ]
+            })
+        })
         .collect()
 }
 
@@ -79,7 +87,9 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
             origins
                 .iter()
                 .zip(&dirs)
-                .filter_map(|(o, d)| scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0))
+                .filter_map(|(o, d)| {
+                    scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)
+                })
                 .count()
         })
     });
@@ -92,10 +102,18 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
     group.throughput(Throughput::Elements((w * h) as u64));
     group.sample_size(10);
     for shadows in [false, true] {
-        let lighting = Lighting { shadows, noise_sigma: 2.0, ..Lighting::default() };
-        group.bench_function(BenchmarkId::new(if shadows { "shadows" } else { "no_shadows" }, format!("{w}x{h}")), |b| {
-            b.iter(|| render(scene, &rot, &pos, &rays, w, h, &[[0.5; 3]; 101], &lighting))
-        });
+        let lighting = Lighting {
+            shadows,
+            noise_sigma: 2.0,
+            ..Lighting::default()
+        };
+        group.bench_function(
+            BenchmarkId::new(
+                if shadows { "shadows" } else { "no_shadows" },
+                format!("{w}x{h}"),
+            ),
+            |b| b.iter(|| render(scene, &rot, &pos, &rays, w, h, &[[0.5; 3]; 101], &lighting)),
+        );
     }
     group.finish();
 
@@ -109,16 +127,33 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
     };
     let par = time(&|| drop(std::hint::black_box(scene.cast(&origins, &dirs, 40.0))));
     let seq = time(&|| {
-        std::hint::black_box(origins.iter().zip(&dirs).filter_map(|(o, d)| scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)).count());
+        std::hint::black_box(
+            origins
+                .iter()
+                .zip(&dirs)
+                .filter_map(|(o, d)| {
+                    scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)
+                })
+                .count(),
+        );
     });
-    let lit = |s| Lighting { shadows: s, ..Lighting::default() };
+    let lit = |s| Lighting {
+        shadows: s,
+        ..Lighting::default()
+    };
     let no_sh = time(&|| drop(render(scene, &rot, &pos, &rays, w, h, &[], &lit(false))));
     let sh = time(&|| drop(render(scene, &rot, &pos, &rays, w, h, &[], &lit(true))));
     println!(
         "\n{name}, {} triangles: LiDAR frame {:.2} ms parallel vs {:.2} ms one-by-one (x{:.2}); \
          {w}x{h} image {:.1} ms without shadows, {:.1} ms with (x{:.2}); \
          1280x960 extrapolated: {:.0} ms with shadows",
-        scene.n_triangles(), par * 1e3, seq * 1e3, seq / par, no_sh * 1e3, sh * 1e3, sh / no_sh,
+        scene.n_triangles(),
+        par * 1e3,
+        seq * 1e3,
+        seq / par,
+        no_sh * 1e3,
+        sh * 1e3,
+        sh / no_sh,
         sh * 1e3 * (1280.0 * 960.0) / (w * h) as f64
     );
 }

@@ -155,11 +155,13 @@ pub fn render(
             value: (width.min(height)) as f64,
         });
     }
-    let n_pixels = width.checked_mul(height).ok_or(RaycastError::BadParameter {
-        name: "width/height",
-        reason: "image too large",
-        value: width as f64,
-    })?;
+    let n_pixels = width
+        .checked_mul(height)
+        .ok_or(RaycastError::BadParameter {
+            name: "width/height",
+            reason: "image too large",
+            value: width as f64,
+        })?;
     if rays_c.len() != n_pixels {
         return Err(RaycastError::LengthMismatch {
             name: "rays_c",
@@ -284,9 +286,8 @@ fn shade(
     }
     // Sky: horizon colour blending into the zenith colour with elevation.
     let up = dir.z.clamp(0.0, 1.0).sqrt();
-    let sky = std::array::from_fn(|k| {
-        lighting.sky_horizon[k] * (1.0 - up) + lighting.sky_zenith[k] * up
-    });
+    let sky =
+        std::array::from_fn(|k| lighting.sky_horizon[k] * (1.0 - up) + lighting.sky_zenith[k] * up);
     (sky, -1, f64::INFINITY)
 }
 
@@ -330,7 +331,16 @@ mod tests {
             sky_horizon: [0.9, 0.9, 0.9],
             ..Lighting::default()
         };
-        let img = render(&scene, &down(), &Point3::new(0.0, 0.0, 10.0), &[[0.0, 0.0, 1.0]], 1, 1, &[[0.5, 0.5, 0.5]], &lighting)?;
+        let img = render(
+            &scene,
+            &down(),
+            &Point3::new(0.0, 0.0, 10.0),
+            &[[0.0, 0.0, 1.0]],
+            1,
+            1,
+            &[[0.5, 0.5, 0.5]],
+            &lighting,
+        )?;
         let lit = 0.5 * (0.2 + 0.8);
         let tr = (-0.05f64 * 10.0).exp();
         let expected = encode(lit * tr + 0.9 * (1.0 - tr));
@@ -351,7 +361,16 @@ mod tests {
         // Horizontal-ish rays from 50 m up: downward beyond the 100 m floor -> far ground;
         // upward -> sky between horizon and zenith.
         let rays = [[1.0, 0.0, -0.2], [1.0, 0.0, 0.5]]; // C = W here
-        let img = render(&scene, &Matrix3::identity(), &Point3::new(0.0, 0.0, 50.0), &rays, 2, 1, &[], &lighting)?;
+        let img = render(
+            &scene,
+            &Matrix3::identity(),
+            &Point3::new(0.0, 0.0, 50.0),
+            &rays,
+            2,
+            1,
+            &[],
+            &lighting,
+        )?;
         assert_eq!(img.instance_id, vec![-1, -1]);
         let g = lighting.ground_color[0] * (lighting.ambient[0] + lighting.sun_color[0]);
         assert_eq!(img.rgb[0], encode(g));
@@ -366,15 +385,24 @@ mod tests {
         let scene = floor()?;
         let l = Lighting::default();
         let p = Point3::new(0.0, 0.0, 5.0);
-        let r = |w, h, rays: &[[f64; 3]], rot: &Matrix3<f64>, l: &Lighting| render(&scene, rot, &p, rays, w, h, &[], l);
-        let name = |e: Result<Image, RaycastError>| e.err().map(|e| e.to_string()).unwrap_or_default();
+        let r = |w, h, rays: &[[f64; 3]], rot: &Matrix3<f64>, l: &Lighting| {
+            render(&scene, rot, &p, rays, w, h, &[], l)
+        };
+        let name =
+            |e: Result<Image, RaycastError>| e.err().map(|e| e.to_string()).unwrap_or_default();
         assert!(name(r(0, 1, &[], &down(), &l)).starts_with("width/height"));
         assert!(name(r(2, 1, &[[0.0, 0.0, 1.0]], &down(), &l)).starts_with("rays_c"));
         assert!(name(r(1, 1, &[[0.0, 0.0, 0.0]], &down(), &l)).starts_with("rays_c"));
         assert!(name(r(1, 1, &[[0.0, 0.0, 1.0]], &(down() * 2.0), &l)).starts_with("T_w_c"));
-        let bad = Lighting { haze_density: -1.0, ..Lighting::default() };
+        let bad = Lighting {
+            haze_density: -1.0,
+            ..Lighting::default()
+        };
         assert!(name(r(1, 1, &[[0.0, 0.0, 1.0]], &down(), &bad)).starts_with("haze_density"));
-        let bad = Lighting { sun_direction: Vector3::zeros(), ..Lighting::default() };
+        let bad = Lighting {
+            sun_direction: Vector3::zeros(),
+            ..Lighting::default()
+        };
         assert!(name(r(1, 1, &[[0.0, 0.0, 1.0]], &down(), &bad)).starts_with("sun_direction"));
         Ok(())
     }

@@ -12,8 +12,8 @@ use nalgebra::{Point3, Vector3};
 use parry3d::bounding_volume::Aabb;
 use parry3d::partitioning::{Bvh, BvhBuildStrategy};
 use parry3d::query::Ray;
-use std::cell::Cell;
 use rayon::prelude::*;
+use std::cell::Cell;
 
 use crate::error::RaycastError;
 
@@ -176,7 +176,10 @@ impl Scene {
             normals.push(cross / (2.0 * area));
         }
         let (lo, hi) = points.iter().fold(
-            (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+            (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            ),
             |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
         );
         let center = 0.5 * (lo + hi);
@@ -315,8 +318,14 @@ fn leaf_boxes(
     center: &Vector3<f64>,
 ) -> (Vec<u32>, Vec<Aabb>) {
     let boxed = |c: &[Point3<f64>; 3]| {
-        let lo = c.iter().fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(&p.coords)) - center;
-        let hi = c.iter().fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(&p.coords)) - center;
+        let lo = c
+            .iter()
+            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(&p.coords))
+            - center;
+        let hi = c
+            .iter()
+            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(&p.coords))
+            - center;
         let pad = |v: &Vector3<f64>| v.map(|x| AABB_MARGIN + 1e-6 * x.abs());
         Aabb::new(
             Point3::from((lo - pad(&lo)).map(|x| x as f32)),

@@ -89,8 +89,17 @@ fn plane_hit_distances_match_the_ray_plane_formula() {
     let mut dirs = Vec::new();
     let mut expected = Vec::new();
     for _ in 0..2000 {
-        let o = Vector3::new(rng.random_range(-50.0..50.0), rng.random_range(-50.0..50.0), rng.random_range(2.0..40.0));
-        let d = Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), -rng.random_range(0.2..1.0)).normalize();
+        let o = Vector3::new(
+            rng.random_range(-50.0..50.0),
+            rng.random_range(-50.0..50.0),
+            rng.random_range(2.0..40.0),
+        );
+        let d = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            -rng.random_range(0.2..1.0),
+        )
+        .normalize();
         origins.push([o.x, o.y, o.z]);
         dirs.push([d.x, d.y, d.z]);
         expected.push((1.5 - o.z) / d.z);
@@ -98,7 +107,11 @@ fn plane_hit_distances_match_the_ray_plane_formula() {
     let hits = s.cast(&origins, &dirs, f64::INFINITY).unwrap_or_default();
     assert_eq!(hits.len(), expected.len());
     for (i, want) in expected.iter().enumerate() {
-        assert!((hits.distance[i] - want).abs() < TOL, "ray {i}: {} vs {want}", hits.distance[i]);
+        assert!(
+            (hits.distance[i] - want).abs() < TOL,
+            "ray {i}: {} vs {want}",
+            hits.distance[i]
+        );
         assert_eq!(hits.instance_id[i], 7);
         assert_eq!(hits.normal[i], [0.0, 0.0, 1.0]);
     }
@@ -107,8 +120,18 @@ fn plane_hit_distances_match_the_ray_plane_formula() {
 #[test]
 fn rays_away_from_the_plane_or_beyond_max_range_miss() {
     let s = scene(&plane_z(0.0, 100.0, 3));
-    let origins = [[0.0, 0.0, 10.0], [0.0, 0.0, 10.0], [0.0, 0.0, 10.0], [0.0, 0.0, 10.0]];
-    let dirs = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.0, -2.0]];
+    let origins = [
+        [0.0, 0.0, 10.0],
+        [0.0, 0.0, 10.0],
+        [0.0, 0.0, 10.0],
+        [0.0, 0.0, 10.0],
+    ];
+    let dirs = [
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 0.0, -1.0],
+        [0.0, 0.0, -2.0],
+    ];
     let hits = s.cast(&origins, &dirs, 9.999).unwrap_or_default();
     assert_eq!(hits.instance_id, vec![-1; 4]);
     assert!(hits.distance.iter().all(|d| d.is_infinite()));
@@ -127,7 +150,11 @@ fn box_hit_distances_match_cyrus_beck() {
     let mut n_hits = 0;
     for _ in 0..3000 {
         let o = 20.0 * unit_sphere(&mut rng) + Vector3::new(0.25, 0.0, 1.75);
-        let target = Vector3::new(rng.random_range(-1.5..2.0), rng.random_range(-2.5..2.5), rng.random_range(0.0..3.5));
+        let target = Vector3::new(
+            rng.random_range(-1.5..2.0),
+            rng.random_range(-2.5..2.5),
+            rng.random_range(0.0..3.5),
+        );
         let d = (target - o).normalize();
         let expected = convex_entry(&planes, &o, &d);
         let hit = s.cast_one(&Point3::from(o), &d, f64::INFINITY);
@@ -143,7 +170,10 @@ fn box_hit_distances_match_cyrus_beck() {
             // A ray that grazes an edge within float precision may go either way.
             (Some(t), None) | (None, Some(scene_raycast::Hit { distance: t, .. })) => {
                 let p = o + d * t;
-                let near_edge = (0..3).filter(|&k| (p[k] - lo[k]).abs() < 1e-5 || (p[k] - hi[k]).abs() < 1e-5).count() >= 2;
+                let near_edge = (0..3)
+                    .filter(|&k| (p[k] - lo[k]).abs() < 1e-5 || (p[k] - hi[k]).abs() < 1e-5)
+                    .count()
+                    >= 2;
                 assert!(near_edge, "disagreement away from an edge at {p:?}");
             }
         }
@@ -160,7 +190,11 @@ fn faceted_cylinder_hit_distances_match_the_exact_prism() {
     let mut n_hits = 0;
     for _ in 0..3000 {
         let o = 15.0 * unit_sphere(&mut rng) + Vector3::new(0.0, 0.0, 1.5);
-        let target = Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.5..4.5));
+        let target = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.5..4.5),
+        );
         let d = (target - o).normalize();
         let expected = convex_entry(&planes, &o, &d);
         let hit = s.cast_one(&Point3::from(o), &d, f64::INFINITY);
@@ -171,8 +205,14 @@ fn faceted_cylinder_hit_distances_match_the_exact_prism() {
             // Only a ray through a silhouette edge (within float precision) may disagree.
             let t = expected.or(hit.map(|h| h.distance)).unwrap_or(0.0);
             let p = o + d * t;
-            let slack = planes.iter().filter(|(n, off)| (n.dot(&p) - off).abs() < 1e-5).count();
-            assert!(expected.is_none() && hit.is_none() || slack >= 2, "disagreement at {p:?}");
+            let slack = planes
+                .iter()
+                .filter(|(n, off)| (n.dot(&p) - off).abs() < 1e-5)
+                .count();
+            assert!(
+                expected.is_none() && hit.is_none() || slack >= 2,
+                "disagreement at {p:?}"
+            );
         }
     }
     assert!(n_hits > 1000, "too few hits: {n_hits}");
@@ -191,8 +231,15 @@ fn finely_tessellated_cylinder_matches_the_true_cylinder_along_radial_rays() {
         let radial = Vector3::new(a.cos(), a.sin(), 0.0);
         let o = Vector3::new(2.0, -1.0, z) + radial * dist0;
         let hit = s.cast_one(&Point3::from(o), &(-radial), 100.0);
-        let Some(h) = hit else { panic!("radial ray missed the cylinder") };
-        assert!((h.distance - (dist0 - r)).abs() < TOL, "{} vs {}", h.distance, dist0 - r);
+        let Some(h) = hit else {
+            panic!("radial ray missed the cylinder")
+        };
+        assert!(
+            (h.distance - (dist0 - r)).abs() < TOL,
+            "{} vs {}",
+            h.distance,
+            dist0 - r
+        );
     }
 }
 
@@ -203,7 +250,11 @@ fn nearest_of_several_instances_wins() {
     soup.add(aabb([-1.0, -1.0, 5.0], [1.0, 1.0, 6.0], 2));
     let s = scene(&soup);
     let hits = s
-        .cast(&[[0.0, 0.0, 10.0], [5.0, 5.0, 10.0], [0.0, 0.0, 3.0]], &[[0.0, 0.0, -1.0]; 3], 50.0)
+        .cast(
+            &[[0.0, 0.0, 10.0], [5.0, 5.0, 10.0], [0.0, 0.0, 3.0]],
+            &[[0.0, 0.0, -1.0]; 3],
+            50.0,
+        )
         .unwrap_or_default();
     assert_eq!(hits.instance_id, vec![2, 0, 1]);
     assert!((hits.distance[0] - 4.0).abs() < TOL);
@@ -215,14 +266,41 @@ fn nearest_of_several_instances_wins() {
 fn bad_rays_are_refused_with_the_argument_named() {
     let s = scene(&plane_z(0.0, 1.0, 0));
     let err = s.cast(&[[0.0; 3]], &[[0.0; 3]], 1.0).err();
-    assert_eq!(err, Some(RaycastError::ZeroDirection { name: "directions", index: 0 }));
-    let err = s.cast(&[[f64::NAN, 0.0, 0.0]], &[[0.0, 0.0, 1.0]], 1.0).err();
-    assert_eq!(err, Some(RaycastError::NonFiniteRay { name: "origins", index: 0 }));
+    assert_eq!(
+        err,
+        Some(RaycastError::ZeroDirection {
+            name: "directions",
+            index: 0
+        })
+    );
+    let err = s
+        .cast(&[[f64::NAN, 0.0, 0.0]], &[[0.0, 0.0, 1.0]], 1.0)
+        .err();
+    assert_eq!(
+        err,
+        Some(RaycastError::NonFiniteRay {
+            name: "origins",
+            index: 0
+        })
+    );
     let err = s.cast(&[[0.0; 3]; 2], &[[0.0, 0.0, 1.0]], 1.0).err();
-    assert!(matches!(err, Some(RaycastError::LengthMismatch { name: "directions", expected: 2, got: 1 })));
+    assert!(matches!(
+        err,
+        Some(RaycastError::LengthMismatch {
+            name: "directions",
+            expected: 2,
+            got: 1
+        })
+    ));
     for bad in [0.0, -1.0, f64::NAN] {
         let err = s.cast(&[[0.0; 3]], &[[0.0, 0.0, 1.0]], bad).err();
-        assert!(matches!(err, Some(RaycastError::BadParameter { name: "max_range", .. })));
+        assert!(matches!(
+            err,
+            Some(RaycastError::BadParameter {
+                name: "max_range",
+                ..
+            })
+        ));
     }
     assert!(s.cast(&[], &[], 1.0).map(|h| h.is_empty()).unwrap_or(false));
 }
@@ -249,7 +327,10 @@ fn long_thin_triangles_boxed_piecewise_are_hit_everywhere() {
             // Strictly inside: y < 0.05 x / 10.
             let y = rng.random_range(0.0..1.0) * 0.005 * x * 0.999;
             let hit = s.cast_one(&Point3::new(x, y, 5.0), &-Vector3::z(), 10.0);
-            assert!(hit.is_some_and(|h| (h.distance - 4.0).abs() < TOL && h.triangle == 0), "missed at x={x}");
+            assert!(
+                hit.is_some_and(|h| (h.distance - 4.0).abs() < TOL && h.triangle == 0),
+                "missed at x={x}"
+            );
         }
     }
 }

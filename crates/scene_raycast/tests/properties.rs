@@ -9,7 +9,12 @@ use proptest::prelude::*;
 use scene_raycast::{RaycastError, Scene};
 
 /// (distance, barycentric margin) of the nearest hit, brute force.
-fn brute_force(v: &[[f64; 3]], tris: &[[u32; 3]], o: Vector3<f64>, d: Vector3<f64>) -> Option<(f64, f64)> {
+fn brute_force(
+    v: &[[f64; 3]],
+    tris: &[[u32; 3]],
+    o: Vector3<f64>,
+    d: Vector3<f64>,
+) -> Option<(f64, f64)> {
     let mut best: Option<(f64, f64)> = None;
     for t in tris {
         let [a, b, c] = t.map(|i| Vector3::from(v[i as usize]));
@@ -33,7 +38,12 @@ fn brute_force(v: &[[f64; 3]], tris: &[[u32; 3]], o: Vector3<f64>, d: Vector3<f6
 }
 
 /// Smallest barycentric coordinate of the ray's crossing of the one triangle, if it is ahead.
-fn brute_force_margin(v: &[[f64; 3]], tris: &[[u32; 3]], o: Vector3<f64>, d: Vector3<f64>) -> Option<f64> {
+fn brute_force_margin(
+    v: &[[f64; 3]],
+    tris: &[[u32; 3]],
+    o: Vector3<f64>,
+    d: Vector3<f64>,
+) -> Option<f64> {
     let [a, b, c] = tris[0].map(|i| Vector3::from(v[i as usize]));
     let (e1, e2) = (b - a, c - a);
     let p = d.cross(&e2);

@@ -91,7 +91,11 @@ pub fn frustum(p0: [f64; 3], p1: [f64; 3], r0: f64, r1: f64, segments: u32, id: 
     let (a, b) = (nalgebra::Vector3::from(p0), nalgebra::Vector3::from(p1));
     let axis = (b - a).normalize();
     // For a z axis the ring starts on +x and turns toward +y (the analytic tests rely on it).
-    let helper = if axis.z.abs() > 0.9 { nalgebra::Vector3::y() } else { nalgebra::Vector3::z() };
+    let helper = if axis.z.abs() > 0.9 {
+        nalgebra::Vector3::y()
+    } else {
+        nalgebra::Vector3::z()
+    };
     let u = helper.cross(&axis).normalize();
     let v = axis.cross(&u);
     let mut vertices = Vec::new();
@@ -110,7 +114,11 @@ pub fn frustum(p0: [f64; 3], p1: [f64; 3], r0: f64, r1: f64, segments: u32, id: 
         triangles.push([i, n + j, n + i]);
     }
     let count = triangles.len();
-    Soup { vertices, triangles, ids: vec![id; count] }
+    Soup {
+        vertices,
+        triangles,
+        ids: vec![id; count],
+    }
 }
 
 /// A lattice tower like the simulator's (about 75k triangles): 4 tapered legs
@@ -147,7 +155,14 @@ pub fn lattice_tower() -> Soup {
                 let top = [tip[0], dy, z];
                 for shed in 0..20 {
                     let zs = z - 0.1 * f64::from(shed) - 0.05;
-                    soup.add(frustum([top[0], dy, zs], [top[0], dy, zs - 0.03], 0.06, 0.13, 48, insulator));
+                    soup.add(frustum(
+                        [top[0], dy, zs],
+                        [top[0], dy, zs - 0.03],
+                        0.06,
+                        0.13,
+                        48,
+                        insulator,
+                    ));
                 }
                 soup.add(tube(top, [top[0], dy, z - 2.0], 0.05, 48, insulator));
                 insulator += 1;
@@ -155,7 +170,13 @@ pub fn lattice_tower() -> Soup {
                 for seg in 0..60 {
                     let (y0, y1) = (f64::from(seg) - 0.0, f64::from(seg + 1));
                     let sag = |y: f64| 0.004 * y * (60.0 - y);
-                    soup.add(tube([end[0], dy + y0, end[2] - sag(y0)], [end[0], dy + y1, end[2] - sag(y1)], 0.015, 8, 1000 + insulator));
+                    soup.add(tube(
+                        [end[0], dy + y0, end[2] - sag(y0)],
+                        [end[0], dy + y1, end[2] - sag(y1)],
+                        0.015,
+                        8,
+                        1000 + insulator,
+                    ));
                 }
             }
         }
@@ -180,8 +201,18 @@ pub fn tower_like(n_members: u32, segments: u32) -> Soup {
         let p0 = [-5.0 + 10.0 * next(), -5.0 + 10.0 * next(), 30.0 * next()];
         let len = 2.0 + 6.0 * next();
         let (az, el) = (2.0 * PI * next(), (next() - 0.5) * PI);
-        let p1 = [p0[0] + len * el.cos() * az.cos(), p0[1] + len * el.cos() * az.sin(), p0[2] + len * el.sin()];
-        soup.add(tube(p0, p1, 0.03 + 0.05 * next(), segments, 1 + (m % 100) as i32));
+        let p1 = [
+            p0[0] + len * el.cos() * az.cos(),
+            p0[1] + len * el.cos() * az.sin(),
+            p0[2] + len * el.sin(),
+        ];
+        soup.add(tube(
+            p0,
+            p1,
+            0.03 + 0.05 * next(),
+            segments,
+            1 + (m % 100) as i32,
+        ));
     }
     soup
 }
@@ -194,7 +225,15 @@ pub fn lattice(n_members: u32, segments: u32) -> Soup {
     for m in 0..n_members {
         let x = -5.0 + 10.0 * f64::from(m % side) / f64::from(side);
         let y = -5.0 + 10.0 * f64::from(m / side) / f64::from(side);
-        soup.add(cylinder_z(x, y, 0.04, 0.0, 25.0, segments, 1 + (m % 50) as i32));
+        soup.add(cylinder_z(
+            x,
+            y,
+            0.04,
+            0.0,
+            25.0,
+            segments,
+            1 + (m % 50) as i32,
+        ));
     }
     soup
 }
