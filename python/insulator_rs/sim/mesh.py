@@ -81,9 +81,12 @@ def _as_array(name: str, value: ArrayLike, dtype: type, ndim: int, last: int | N
     return np.ascontiguousarray(arr, dtype=dtype)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh in W with one instance id per triangle.
+
+    Meshes compare (and hash) by identity: element-wise array equality has no
+    single truth value, and the cached BVH belongs to one object.
 
     ``vertices`` (V, 3) float64 in metres; ``triangles`` (T, 3) uint32 vertex
     indices; ``instance_ids`` (T,) int32 (>= 0); ``instances`` maps every id
