@@ -129,16 +129,25 @@ fn bench_dbscan(c: &mut Criterion) {
 
 fn bench_localize(c: &mut Criterion) {
     let mut rng = Pcg64::seed_from_u64(3);
-    // A box-culled insulator at ~9 m: 80 % insulator, 15 % lattice member behind one end, 5 % noise.
-    let n_ins = LOCALIZE_POINTS * 80 / 100;
-    let n_lat = LOCALIZE_POINTS * 15 / 100;
+    // A box-culled, 3-frame cloud at ~9 m: the insulator (25 %), three lattice members behind
+    // it (3 x 20 %), a conductor leaving it (7.5 %) and scattered returns (the rest).
+    let n_ins = LOCALIZE_POINTS / 4;
+    let n_member = LOCALIZE_POINTS / 5;
+    let n_conductor = LOCALIZE_POINTS * 3 / 40;
     let mut pts = insulator([9.0, 0.5, 1.0], [0.1, 1.0, 0.2], n_ins, &mut rng);
-    pts.extend((0..n_lat).map(|_| {
-        let t = rng.random_range(-1.0..1.0);
-        [9.4 + 0.2 * t, 1.6, 1.2 + t + rng.random_range(-0.03..0.03)]
-    }));
+    let segment = |a: [f64; 3], b: [f64; 3], n: usize, rng: &mut Pcg64, pts: &mut Vec<[f64; 3]>| {
+        for _ in 0..n {
+            let t: f64 = rng.random_range(0.0..1.0);
+            let e = [rng.random_range(-0.04..0.04), rng.random_range(-0.04..0.04), rng.random_range(-0.04..0.04)];
+            pts.push([a[0] + t * (b[0] - a[0]) + e[0], a[1] + t * (b[1] - a[1]) + e[1], a[2] + t * (b[2] - a[2]) + e[2]]);
+        }
+    };
+    segment([9.6, 1.6, -0.5], [9.8, 1.4, 2.5], n_member, &mut rng, &mut pts);
+    segment([9.6, 1.6, 2.3], [10.2, -1.5, 2.4], n_member, &mut rng, &mut pts);
+    segment([10.4, -1.2, -0.5], [10.1, 1.5, 2.3], n_member, &mut rng, &mut pts);
+    segment([8.9, -0.5, 0.8], [8.8, -2.5, 0.2], n_conductor, &mut rng, &mut pts);
     while pts.len() < LOCALIZE_POINTS {
-        pts.push([rng.random_range(8.0..11.0), rng.random_range(-1.0..2.0), rng.random_range(0.0..2.0)]);
+        pts.push([rng.random_range(8.0..11.0), rng.random_range(-2.5..2.0), rng.random_range(-0.5..2.5)]);
     }
     let params = LocalizeParams::default();
     let mut g = c.benchmark_group("localize_2000");

@@ -279,6 +279,18 @@ mod tests {
     }
 
     #[test]
+    fn larger_cloud_matches_brute_force_and_requery() {
+        // 1600 points; the small budget overflows part-way through pass 1.
+        let mut pts = Vec::new();
+        for k in 0..1600 {
+            let t = f64::from(k);
+            pts.push([(t * 0.37).sin() * 3.0, (t * 0.11).cos() * 3.0, (t * 0.013) % 2.0]);
+        }
+        assert_equivalent(&pts, 0.25, 6);
+        assert_eq!(dbscan_with_budget(&pts, 0.25, 6, NEIGHBOUR_BUDGET), dbscan_with_budget(&pts, 0.25, 6, 5000));
+    }
+
+    #[test]
     fn duplicates_count_towards_core_and_signed_zero_is_equal() {
         // Three copies of one point make it core for min_points = 3; -0.0 equals 0.0.
         let pts = vec![[0.0, 0.0, 0.0], [-0.0, 0.0, -0.0], [0.0, 0.0, 0.0], [0.25, 0.0, 0.0], [9.0, 9.0, 9.0]];
