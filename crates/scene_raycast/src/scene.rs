@@ -10,8 +10,7 @@
 
 use nalgebra::{Point3, Vector3};
 use parry3d::bounding_volume::Aabb;
-use parry3d::partitioning::{Bvh, BvhBuildStrategy};
-use parry3d::query::Ray;
+use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhNode};
 use rayon::prelude::*;
 use std::cell::Cell;
 
@@ -221,10 +220,7 @@ impl Scene {
         max_range: f64,
     ) -> Option<Hit> {
         let local = origin.coords - self.center;
-        let ray = Ray::new(
-            Point3::from(local.map(|c| c as f32)),
-            direction.map(|c| c as f32),
-        );
+        let slab = Slab::new(&local, direction);
         // A little slack so that f32 rounding cannot lose a hit right at max_range.
         let bvh_max = if max_range.is_finite() {
             (max_range * (1.0 + 1e-5) + 1e-3) as f32
@@ -233,14 +229,21 @@ impl Scene {
         };
         // The BVH compares f32 distances; the f64 answer is kept beside it.
         let best: Cell<Option<(f64, u32)>> = Cell::new(None);
-        self.bvh.cast_ray(&ray, bvh_max, |leaf, _| {
-            let tri = *self.leaf_triangle.get(leaf as usize)?;
-            let t = self.intersect(tri, origin, direction)?;
-            if t <= max_range && best.get().is_none_or(|(b, _)| t < b) {
-                best.set(Some((t, tri)));
-            }
-            Some(t as f32)
-        });
+        // Best-first search of parry's BVH, with a slab test on the precomputed
+        // inverse direction (parry's own `Bvh::cast_ray` runs its general AABB ray
+        // cast at every node).
+        self.bvh.find_best(
+            bvh_max,
+            |node, best| slab.entry(node, best),
+            |leaf, _| {
+                let tri = *self.leaf_triangle.get(leaf as usize)?;
+                let t = self.intersect(tri, origin, direction)?;
+                if t <= max_range && best.get().is_none_or(|(b, _)| t < b) {
+                    best.set(Some((t, tri)));
+                }
+                Some(t as f32)
+            },
+        );
         let (distance, tri) = best.get()?;
         let t = tri as usize;
         Some(Hit {
@@ -366,6 +369,49 @@ fn needs_split(c: &[Point3<f64>; 3]) -> bool {
     let twice_area = (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
     let height = twice_area / longest;
     longest > BVH_SPLIT_EDGE && longest > BVH_SPLIT_ASPECT * height
+}
+
+/// A ray in the BVH's f32 frame, ready for slab tests against node boxes.
+struct Slab {
+    origin: Vector3<f32>,
+    inv_dir: Vector3<f32>,
+}
+
+impl Slab {
+    fn new(local_origin: &Vector3<f64>, direction: &Vector3<f64>) -> Self {
+        Self {
+            origin: local_origin.map(|c| c as f32),
+            // Infinite for a ray parallel to an axis (handled in `entry`).
+            inv_dir: direction.map(|c| 1.0 / c as f32),
+        }
+    }
+
+    /// Distance at which the ray enters `node`'s box (0 from inside), or
+    /// `f32::MAX` when it misses it or enters beyond `best`.
+    #[inline]
+    fn entry(&self, node: &BvhNode, best: f32) -> f32 {
+        let (mins, maxs) = (node.mins(), node.maxs());
+        let mut t_in = 0.0f32;
+        let mut t_out = best;
+        for k in 0..3 {
+            if self.inv_dir[k].is_infinite() {
+                // Parallel to this slab: inside it for ever, or never.
+                if self.origin[k] < mins[k] || self.origin[k] > maxs[k] {
+                    return f32::MAX;
+                }
+                continue;
+            }
+            let t1 = (mins[k] - self.origin[k]) * self.inv_dir[k];
+            let t2 = (maxs[k] - self.origin[k]) * self.inv_dir[k];
+            t_in = t_in.max(t1.min(t2));
+            t_out = t_out.min(t1.max(t2));
+        }
+        if t_in <= t_out {
+            t_in
+        } else {
+            f32::MAX
+        }
+    }
 }
 
 /// `max_range` must be > 0 (infinity allowed), never NaN.
