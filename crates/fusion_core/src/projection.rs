@@ -2,7 +2,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, NEAR_LIMIT};
 use crate::points::PointCloud;
 
 /// Per-point projection result.
@@ -32,9 +32,13 @@ impl<'a> Projector<'a> {
     pub(crate) fn pixel(&self, p: [f64; 3]) -> Option<[f64; 2]> {
         let r = &self.rotation;
         let t = &self.translation;
+        // Depth first: most of a 360-degree frame is behind the camera and stops here.
+        let z = r[(2, 0)] * p[0] + r[(2, 1)] * p[1] + r[(2, 2)] * p[2] + t[2];
+        if z.is_nan() || z <= NEAR_LIMIT {
+            return None;
+        }
         let x = r[(0, 0)] * p[0] + r[(0, 1)] * p[1] + r[(0, 2)] * p[2] + t[0];
         let y = r[(1, 0)] * p[0] + r[(1, 1)] * p[1] + r[(1, 2)] * p[2] + t[1];
-        let z = r[(2, 0)] * p[0] + r[(2, 1)] * p[1] + r[(2, 2)] * p[2] + t[2];
         self.cam.project_xyz(x, y, z)
     }
 
