@@ -35,14 +35,14 @@ _ = CAMERA.rays_c  # per-camera ray table, computed once
 
 
 @pytest.mark.benchmark(group="Mid-360 frame, 20k shots, tower A")
-def bench_lidar_scan(benchmark: Any) -> None:
+def test_lidar_scan(benchmark: Any) -> None:
     benchmark.extra_info.update(impl="insulator_rs", target="< 20 ms")
     frame = benchmark(LIDAR.scan, MESH, (START, END), 0.0, seed=0)
     assert len(frame) > 100
 
 
 @pytest.mark.benchmark(group="Mid-360 frame, 20k shots, tower A")
-def bench_lidar_cast_only(benchmark: Any) -> None:
+def test_lidar_cast_only(benchmark: Any) -> None:
     benchmark.extra_info.update(impl="RaycastScene.cast alone")
     t, dirs_l = LIDAR.shots(0.0)
     origins = np.tile(START[:3, 3] + START[:3, :3] @ LIDAR.T_b_l[:3, 3], (len(t), 1))
@@ -52,7 +52,7 @@ def bench_lidar_cast_only(benchmark: Any) -> None:
 
 
 @pytest.mark.benchmark(group="camera image 1280x960, tower A")
-def bench_camera_shadows(benchmark: Any) -> None:
+def test_camera_shadows(benchmark: Any) -> None:
     benchmark.extra_info.update(impl="insulator_rs", target="< 1 s")
     frame = benchmark.pedantic(CAMERA.render, args=(MESH, START), kwargs={"lighting": Lighting()},
                                rounds=3, iterations=1)
@@ -60,7 +60,7 @@ def bench_camera_shadows(benchmark: Any) -> None:
 
 
 @pytest.mark.benchmark(group="camera image 1280x960, tower A")
-def bench_camera_no_shadows(benchmark: Any) -> None:
+def test_camera_no_shadows(benchmark: Any) -> None:
     benchmark.extra_info.update(impl="no shadow rays")
     frame = benchmark.pedantic(CAMERA.render, args=(MESH, START),
                                kwargs={"lighting": Lighting(shadows=False)}, rounds=3, iterations=1)
