@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from insulator_rs.mission.exploration import crossing_route, exploration_path
 from insulator_rs.mission.geodesy import line_frame
 from insulator_rs.mission.minsnap import plan_min_snap_safe
-from insulator_rs.mission.pmm import plan_pmm
+from insulator_rs.mission.pmm import plan_pmm_safe
 from insulator_rs.mission.safety import safety_volumes
 from insulator_rs.mission.waypoints import inspection_waypoints
 
@@ -46,11 +46,12 @@ def test_planned_trajectories_stay_out_of_the_safety_volumes(tower):
     line = line_frame(neighbours)
     vol = safety_volumes(line, max_width=width, max_height=height, margin=margin)
     rng = np.random.default_rng(seed)
-    takeoff = line.to_world(np.array([rng.uniform(-5, 5), side * (width / 2 + standoff), 0.0]))
+    # beyond the passes: a bent line's corridor may reach past the standoff near the tower
+    takeoff = line.to_world(np.array([rng.uniform(-5, 5), side * (width / 2 + standoff + 6.0), 0.0]))
     path = exploration_path(line, vol, takeoff=takeoff, max_width=width, max_height=height,
                             standoff=standoff, pass_spacing=spacing, crossing_clearance=3.0)
     pts = np.array([w.position for w in path])
-    assert vol.polyline_clear(pts)
+    assert vol.polyline_clear(pts, inflate=1.0)
     vm, am = np.array([3.0, 3.0, 2.0]), np.array([12.0, 12.0, 6.0])
     vmax_norm = float(np.linalg.norm(vm))
 
@@ -58,7 +59,7 @@ def test_planned_trajectories_stay_out_of_the_safety_volumes(tower):
     _, pos, _ = snap.sample(DT)
     assert samples_clear(vol, pos, vmax_norm)
 
-    pmm = plan_pmm(pts, vm, am)
+    pmm = plan_pmm_safe(pts, vm, am, vol, dt=DT)
     _, pos, _, _ = pmm.sample(DT)
     assert samples_clear(vol, pos, vmax_norm)
 
@@ -76,5 +77,5 @@ def test_planned_trajectories_stay_out_of_the_safety_volumes(tower):
         route = np.array([a.position, *crossing_route(line, vol, a.position, b.position, 3.0),
                           b.position])
         assert vol.polyline_clear(route)
-        _, pos, _, _ = plan_pmm(route, vm, am).sample(DT)
+        _, pos, _, _ = plan_pmm_safe(route, vm, am, vol, dt=DT).sample(DT)
         assert samples_clear(vol, pos, vmax_norm)

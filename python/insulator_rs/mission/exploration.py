@@ -20,6 +20,13 @@ from insulator_rs.mission.safety import SafetyVolumes
 
 # Lowest exploration pass above the base (m): keeps the vehicle clear of the ground.
 MIN_PASS_HEIGHT = 3.0
+# m: the take-off point and the whole path keep at least this distance from the safety
+# volumes, so that smooth trajectories through the path can be made safe by refinement.
+PATH_CLEARANCE = 1.0
+# m: when a bent line turns a conductor corridor towards the passes, they move out in steps
+# of this much, up to MAX_WIDENING.
+WIDENING_STEP = 0.5
+MAX_WIDENING = 30.0
 
 
 @dataclass(frozen=True)
@@ -71,14 +78,31 @@ def exploration_path(line: LineFrame, volumes: SafetyVolumes, *, takeoff: np.nda
 
     ``along_extent`` (m) is the half-length of each pass along the line (default:
     half the maximum width plus the standoff's quarter, so the passes see the
-    tower's ends obliquely). Raises ValueError if the take-off point or any leg
-    of the path is inside a safety volume.
+    tower's ends obliquely). Where the line bends at the tower a corridor can
+    turn towards the passes: they then move out until the whole path keeps
+    PATH_CLEARANCE from the volumes. Raises ValueError if the take-off point is
+    within PATH_CLEARANCE of a safety volume or no such path exists.
     """
     takeoff = np.asarray(takeoff, dtype=np.float64).reshape(3)
-    if not volumes.points_clear(takeoff[None])[0]:
-        raise ValueError("takeoff: the take-off point is inside a safety volume")
+    if not volumes.points_clear(takeoff[None], inflate=PATH_CLEARANCE)[0]:
+        raise ValueError(f"takeoff: the take-off point is inside or within {PATH_CLEARANCE} m "
+                         f"of a safety volume")
+    widening = 0.0
+    while widening <= MAX_WIDENING:
+        path = _path_at(line, volumes, takeoff, max_width / 2 + standoff + widening, max_width,
+                        max_height, standoff, pass_spacing, crossing_clearance, along_extent)
+        if volumes.polyline_clear(np.array([w.position for w in path]), inflate=PATH_CLEARANCE):
+            return path
+        widening += WIDENING_STEP
+    raise ValueError("standoff: no exploration path keeps clear of the safety volumes "
+                     "(raise the standoff or lower the safety margin)")
+
+
+def _path_at(line: LineFrame, volumes: SafetyVolumes, takeoff: np.ndarray, lateral: float,
+             max_width: float, max_height: float, standoff: float, pass_spacing: float,
+             crossing_clearance: float, along_extent: float | None) -> list[PathWaypoint]:
+    """The exploration path with its passes ``lateral`` m from the line plane."""
     half_len = max_width / 2 + standoff / 4 if along_extent is None else along_extent
-    lateral = max_width / 2 + standoff
     heights = pass_heights(max_height, pass_spacing)
     first = line.side(takeoff)
     a_take = float(takeoff @ line.along)
@@ -110,10 +134,5 @@ def exploration_path(line: LineFrame, volumes: SafetyVolumes, *, takeoff: np.nda
     path.append(PathWaypoint(np.array([takeoff[0], takeoff[1], z_cross]), "cross", 0,
                              facing_yaw(line, first)))
     path.append(PathWaypoint(takeoff, "land", first, facing_yaw(line, first)))
-    path = [w for i, w in enumerate(path)
+    return [w for i, w in enumerate(path)
             if i == 0 or np.linalg.norm(w.position - path[i - 1].position) > 1e-6]
-    pts = np.array([w.position for w in path])
-    if not volumes.polyline_clear(pts):
-        raise ValueError("standoff: the exploration path enters a safety volume "
-                         "(raise the standoff or lower the safety margin)")
-    return path

@@ -9,7 +9,8 @@ proportional to what the vehicle can do), then all times are scaled by one
 factor so that the per-axis velocity and acceleration limits hold exactly (the
 extremes are found from the roots of the derivative polynomials, not from
 samples). :func:`plan_min_snap_safe` re-plans with extra waypoints at the
-middle of any segment whose curve enters a safety volume (Richter's remedy).
+middle of any segment whose curve enters a safety volume (Richter's remedy,
+:mod:`.refinement`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from math import factorial
 import numpy as np
 
 from insulator_rs.mission.pmm import rest_to_rest_times
+from insulator_rs.mission.refinement import refine_until_clear
 from insulator_rs.mission.safety import SafetyVolumes
 
 DEGREE = 7
@@ -198,14 +200,6 @@ def plan_min_snap(waypoints: np.ndarray, v_max: np.ndarray | float,
     raise ValueError("v_start: no time scaling keeps the limits with this start velocity")
 
 
-def _segment_deviation(pos: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance (m) of each point pos[i] from the straight segment a[i] -> b[i]."""
-    d = b - a
-    den = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-    t = np.clip(np.einsum("ij,ij->i", pos - a, d) / den, 0.0, 1.0)
-    return np.linalg.norm(pos - (a + t[:, None] * d), axis=1)
-
-
 def plan_min_snap_safe(waypoints: np.ndarray, v_max: np.ndarray | float, a_max: np.ndarray | float,
                        volumes: SafetyVolumes, *, dt: float = 0.05, max_refinements: int = 8,
                        v_start: np.ndarray | None = None,
@@ -216,27 +210,13 @@ def plan_min_snap_safe(waypoints: np.ndarray, v_max: np.ndarray | float, a_max: 
     :meth:`SafetyVolumes.samples_clear`) is clear. The straight polyline through the
     waypoints must itself be clear (ValueError otherwise). Only safety is required: if the
     deviation bound still fails after ``max_refinements`` the safe trajectory is returned."""
-    p = np.asarray(waypoints, dtype=np.float64)
-    if not volumes.polyline_clear(p):
-        raise ValueError("waypoints: the straight path through them enters a safety volume")
     vm = np.broadcast_to(np.asarray(v_max, dtype=np.float64), (3,))
-    max_step = float(np.linalg.norm(vm)) * dt
-    for refinement in range(max_refinements + 1):
-        traj = plan_min_snap(p, vm, a_max, v_start=v_start)
-        times, pos, _ = traj.sample(dt)
-        starts = np.concatenate([[0.0], np.cumsum(traj.durations)])
-        seg = np.clip(np.searchsorted(starts, times, side="right") - 1, 0, len(traj.durations) - 1)
-        unsafe = ~volumes.points_clear(pos, inflate=max_step / 2)
-        bad_samples = unsafe.copy()
-        if max_deviation is not None:
-            bad_samples |= _segment_deviation(pos, p[seg], p[seg + 1]) > max_deviation
-        if not np.any(bad_samples) or (not np.any(unsafe) and refinement == max_refinements):
-            return traj
-        bad_segments = np.unique(seg[bad_samples])
-        new = [p[0]]
-        for i in range(len(p) - 1):
-            if i in bad_segments:
-                new.append((p[i] + p[i + 1]) / 2)
-            new.append(p[i + 1])
-        p = np.array(new)
-    raise ValueError(f"waypoints: no safe min-snap trajectory after {max_refinements} refinements")
+
+    def positions(traj: MinSnapTrajectory, step: float) -> tuple[np.ndarray, np.ndarray]:
+        times, pos, _ = traj.sample(step)
+        return times, pos
+
+    return refine_until_clear(np.asarray(waypoints, dtype=np.float64),
+                              lambda p: plan_min_snap(p, vm, a_max, v_start=v_start), positions,
+                              volumes, max_speed=float(np.linalg.norm(vm)), dt=dt,
+                              max_refinements=max_refinements, max_deviation=max_deviation)

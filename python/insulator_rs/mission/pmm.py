@@ -19,6 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from insulator_rs.mission.refinement import refine_until_clear
+from insulator_rs.mission.safety import SafetyVolumes
+
 # Numerical slack (s, m/s) when accepting a phase of a closed-form profile.
 _EPS = 1e-9
 
@@ -309,3 +312,21 @@ def rest_to_rest_times(a: np.ndarray, b: np.ndarray, v_max: np.ndarray | float,
     d = np.asarray(b, dtype=np.float64) - np.asarray(a, dtype=np.float64)
     z = np.zeros_like(d)
     return np.max(axis_min_time(d, z, z, vm, am), axis=-1)
+
+
+def plan_pmm_safe(waypoints: np.ndarray, v_max: np.ndarray | float, a_max: np.ndarray | float,
+                  volumes: SafetyVolumes, *, dt: float = 0.05, max_refinements: int = 8,
+                  v_start: np.ndarray | None = None) -> PMMTrajectory:
+    """:func:`plan_pmm` whose curve (the synchronised axes do not move in straight lines)
+    is re-planned with midpoints until it stays out of the safety volumes
+    (:func:`~.refinement.refine_until_clear`)."""
+    vm, am = _check_limits(np.asarray(v_max), np.asarray(a_max))
+
+    def positions(traj: PMMTrajectory, step: float) -> tuple[np.ndarray, np.ndarray]:
+        times, pos, _, _ = traj.sample(step)
+        return times, pos
+
+    return refine_until_clear(np.asarray(waypoints, dtype=np.float64),
+                              lambda p: plan_pmm(p, vm, am, v_start=v_start), positions, volumes,
+                              max_speed=float(np.linalg.norm(vm)), dt=dt,
+                              max_refinements=max_refinements)
