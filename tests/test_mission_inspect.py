@@ -90,3 +90,12 @@ def test_bad_arguments_are_named(tmp_path):
         main(["inspect", "--detect-period", "0", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="--v-max"):
         main(["inspect", "--v-max", "-1", "--out", str(tmp_path)])
+
+
+def test_bad_mission_file_is_refused_before_flying(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((MISSIONS / "tower_a.toml").read_text().replace("max_width = 10.0", "max_width = -3"))
+    out = tmp_path / "report"
+    rc = main(["inspect", "--mission", str(bad), "--out", str(out)])
+    assert rc == 2 and not out.exists()
+    assert "bad.toml: tower.max_width: must be > 0" in capsys.readouterr().err

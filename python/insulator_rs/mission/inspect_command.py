@@ -488,13 +488,18 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("--v-max", args.v_max), ("--a-max", args.a_max)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{flag}: must be > 0, got {value}")
-    tower = load_tower(args.scene)
-    mission_path = args.mission
-    if mission_path is None:
-        mission_path = MISSIONS_DIR / f"{tower.spec.name}.toml"
-        if not mission_path.is_file():
-            raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
-    mission = load_mission(mission_path)
+    try:
+        tower = load_tower(args.scene)
+        mission_path = args.mission
+        if mission_path is None:
+            mission_path = MISSIONS_DIR / f"{tower.spec.name}.toml"
+            if not mission_path.is_file():
+                raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
+        mission = load_mission(mission_path)
+        MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
+    except (ConfigError, ValueError) as exc:
+        print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
+        return 2
     if args.v_max is not None or args.a_max is not None:
         v = mission.vehicle
         mission = replace(mission, vehicle=replace(
