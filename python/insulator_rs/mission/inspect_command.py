@@ -1,8 +1,20 @@
 """``insulator-rs inspect``: a whole single-flight inspection in the built-in simulator.
 
-The simulated world is a scene of :mod:`insulator_rs.sim` (tower A by default),
-the vehicle the in-process kinematic multirotor flown through the
-:class:`~insulator_rs.vehicle.Vehicle` protocol. The run follows the paper's
+The simulated world is a scene of :mod:`insulator_rs.sim` (tower A by default).
+The vehicle is flown through the :class:`~insulator_rs.vehicle.Vehicle`
+protocol, one of two implementations: ``--vehicle sim`` (default) the
+in-process kinematic multirotor, ``--vehicle mavlink`` the MAVLink offboard
+client, by default against the simulated PX4 it starts on loopback (real UDP),
+or with ``--connection`` against a real PX4 or its SITL. The simulated sensors
+render from the airframe's true pose (the simulator's, not the odometry);
+against an outside autopilot there is no simulator to ask, so that needs
+``--sim-sensors`` (a SITL setup: the sensors render the scene at the pose the
+autopilot reports; real camera/LiDAR drivers are out of scope).
+
+A failsafe of the vehicle (link lost, the pilot took over, battery, position
+lost) aborts the mission: the report says why (status ``aborted: <reason>``)
+and keeps everything found so far; once the pilot has taken over, nothing more
+is sent to the vehicle. The run follows the paper's
 online algorithm: take off, fly the exploration path (minimum-snap
 trajectories, safety-checked), and on every detection event render the
 detection camera, turn its ground-truth boxes into detections with the
@@ -28,7 +40,7 @@ from typing import Any
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.exceptions import ConfigError
+from insulator_rs.exceptions import ConfigError, VehicleError
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
 from insulator_rs.mission.geometry import MissionGeometry
@@ -41,7 +53,7 @@ from insulator_rs.mission.two_flight import route
 from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.sim.camera_render import Camera, Lighting, default_camera_model, default_T_b_c
 from insulator_rs.sim.detector_standin import DetectorStandin
-from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits
+from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits, VehicleFailsafe
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.towers import Tower, load_tower
 from insulator_rs.vehicle import Vehicle, VehicleState
@@ -59,6 +71,9 @@ HOLD_TIMEOUT = 10.0  # s in HOLD before the mission aborts
 STATUS_PERIOD = 15.0  # s of flight between progress lines
 SUMMARY_PERIOD = 5.0  # s of flight between summary rewrites
 LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
+TAKEOFF_TIMEOUT = 60.0  # s of vehicle time for the climb to the first pass height
+LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
+MAX_MAVLINK_TIME_SCALE = 4.0  # the client's timeouts and the 20 Hz stream hold up to this speed-up
 # The vehicle's own limits get this much headroom over the planning limits so the
 # position loop can track the trajectory.
 LIMIT_HEADROOM = 1.5
@@ -93,12 +108,45 @@ def _angle_wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
+def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
+    """The simulated airframe at the mission's take-off point, limits with headroom over the plan's."""
+    geom = MissionGeometry.from_mission(mission)
+    lim = mission.vehicle
+    return KinematicVehicle(
+        start_position=geom.takeoff, start_yaw=geom.path[0].yaw, seed=seed,
+        limits=MotionLimits(max_horizontal_speed=lim.v_max_horizontal * LIMIT_HEADROOM,
+                            max_vertical_speed=lim.v_max_vertical * LIMIT_HEADROOM,
+                            max_horizontal_acceleration=lim.a_max_horizontal * LIMIT_HEADROOM,
+                            max_vertical_acceleration=lim.a_max_vertical * LIMIT_HEADROOM))
+
+
+def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time_scale: float,
+                    signing_key: Path | None) -> Vehicle:
+    """The MAVLink offboard client: to the simulated PX4 (started here on loopback, flying
+    :func:`kinematic_vehicle`) when ``connection`` is None, else to that autopilot with W's
+    origin put at the tower base."""
+    from insulator_rs.mavlink import connect_vehicle
+
+    tower = mission.tower
+    sim_options = None
+    if connection is None:
+        sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt)}
+    vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
+    if connection is not None:
+        try:
+            vehicle.set_world_origin(tower.lat, tower.lon, tower.alt)
+        except BaseException:
+            vehicle.close()
+            raise
+    return vehicle
+
+
 class InspectionRun:
     """One simulated single-flight inspection (state, sensors, report)."""
 
     def __init__(self, mission: Mission, tower: Tower, out: Path, *, method: str, policy: str,
                  seed: int, detect_period: float, detect_scale: float, photo_scale: float,
-                 max_flight_time: float, quiet: bool = False) -> None:
+                 max_flight_time: float, quiet: bool = False, vehicle: Vehicle | None = None) -> None:
         self.mission = mission
         self.tower = tower
         self.geom = MissionGeometry.from_mission(mission)
@@ -109,12 +157,8 @@ class InspectionRun:
         self.max_flight_time = max_flight_time
         lim = mission.vehicle
         self.v_max, self.a_max = lim.v_max(), lim.a_max()
-        self.vehicle: Vehicle = KinematicVehicle(
-            start_position=self.geom.takeoff, start_yaw=self.geom.path[0].yaw, seed=seed,
-            limits=MotionLimits(max_horizontal_speed=lim.v_max_horizontal * LIMIT_HEADROOM,
-                                max_vertical_speed=lim.v_max_vertical * LIMIT_HEADROOM,
-                                max_horizontal_acceleration=lim.a_max_horizontal * LIMIT_HEADROOM,
-                                max_vertical_acceleration=lim.a_max_vertical * LIMIT_HEADROOM))
+        self.vehicle: Vehicle = vehicle if vehicle is not None else kinematic_vehicle(mission, seed)
+        self.failsafe: VehicleFailsafe | None = None  # the failsafe that stopped the mission
         base = default_camera_model()
         self.det_camera = Camera(_scaled_camera(base, detect_scale))
         self.photo_model = _scaled_camera(base, photo_scale)
@@ -133,6 +177,7 @@ class InspectionRun:
         self.photos: list[dict[str, Any]] = []
         self.waypoints: list[InspectionWaypoint] = []
         self.status = "running"
+        self.abort_reason: str | None = None
         self.t_start = 0.0
         self.events = 0
         self.localizations = 0
@@ -171,11 +216,24 @@ class InspectionRun:
         self._printed_transitions = len(self.sm.transitions)
 
     # -- sensing -------------------------------------------------------------------------
+    def _sensor_T_w_b(self, st: VehicleState) -> np.ndarray:
+        """Where the simulated sensors are (T_w_b): the simulator's true airframe pose, not the
+        odometry the mission flies on. Against an outside autopilot (``--sim-sensors``) the
+        reported pose is all there is."""
+        simulator = getattr(self.vehicle, "simulator", None)
+        if simulator is not None:
+            position, yaw, _ = simulator.true_pose()
+            return _T_w_b(position, yaw)
+        if isinstance(self.vehicle, KinematicVehicle):
+            return _T_w_b(self.vehicle.model.position, self.vehicle.model.yaw)
+        return _T_w_b(st.position, st.yaw)
+
     def detection_event(self, st: VehicleState) -> None:
         """Render the detection camera, detect, cast a LiDAR frame, localize, tell the state machine."""
         self.events += 1
-        T_w_b = _T_w_b(st.position, st.yaw)
-        frame = self.det_camera.render(self.tower.mesh, T_w_b, lighting=Lighting(shadows=False),
+        T_w_b = _T_w_b(st.position, st.yaw)  # the estimate: what onboard perception knows
+        T_true = self._sensor_T_w_b(st)
+        frame = self.det_camera.render(self.tower.mesh, T_true, lighting=Lighting(shadows=False),
                                        seed=self.seed + self.events, time=st.time)
         if not frame.boxes:
             return
@@ -184,7 +242,7 @@ class InspectionRun:
                                    (self.det_camera.model.width, self.det_camera.model.height), ids)
         if len(det) == 0:
             return
-        scan = self.lidar.scan(self.tower.mesh, (T_w_b, T_w_b), st.time, seed=self.seed + self.events)
+        scan = self.lidar.scan(self.tower.mesh, (T_true, T_true), st.time, seed=self.seed + self.events)
         for loc in self.perception.event(det.boxes, scan.points_l, T_w_b):
             self.localizations += 1
             outcome = self.sm.localized(loc.center, loc.axis, st.position, st.time)
@@ -208,9 +266,17 @@ class InspectionRun:
 
     # -- flying --------------------------------------------------------------------------
     def tick(self, position: np.ndarray, velocity: np.ndarray | None, yaw: float) -> VehicleState:
-        """Stream one setpoint, let one control period pass, log, sense, watch health."""
-        self.vehicle.send_setpoint(position, velocity, yaw)
-        st = self.vehicle.advance(CONTROL_PERIOD)
+        """Stream one setpoint, let one control period pass, log, sense, watch health.
+
+        A failsafe aborts the mission (see :meth:`on_failsafe`); nothing is sent after it."""
+        if self.failsafe is not None:
+            return self.vehicle.state()
+        try:
+            self.vehicle.send_setpoint(position, velocity, yaw)
+            st = self.vehicle.advance(CONTROL_PERIOD)
+        except VehicleFailsafe as exc:
+            self.on_failsafe(exc)
+            st = self.vehicle.state()
         t = st.time - self.t_start
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT) and st.time >= self._next_detect:
@@ -226,9 +292,18 @@ class InspectionRun:
             self.report.flush()
             self.write_summary()
         if t > self.max_flight_time and self.sm.state != State.ABORT:
+            self.abort_reason = f"flight time limit of {self.max_flight_time:.0f} s"
             self.sm.abort(f"flight time limit of {self.max_flight_time:.0f} s", st.time)
         self._print_transitions()
         return st
+
+    def on_failsafe(self, exc: VehicleFailsafe) -> None:
+        """The vehicle's failsafe fired: the autopilot now flies it (hold, land, return, or the
+        pilot has the sticks), so the mission aborts and stops commanding."""
+        self.failsafe = exc
+        self.abort_reason = f"vehicle failsafe: {exc.reason} ({exc.action})"
+        self.sm.abort(self.abort_reason, self.vehicle.state().time)
+        self.write_summary()
 
     def polyline(self, start: np.ndarray, items: list[PlanItem]) -> np.ndarray:
         pts = [start]
@@ -263,12 +338,15 @@ class InspectionRun:
             item_times.append(knots[min(j, len(knots) - 1)])
         k = 0
         t = 0.0
+        t0 = st.time
         plan_ids = [id(it) for it in self.sm.plan]
         while t < traj.total_time - 1e-9:
-            t = min(t + CONTROL_PERIOD, traj.total_time)
+            # by vehicle time, not ticks: through MAVLink a period ends on a telemetry sample, and
+            # rendering takes wall time while the vehicle flies on
+            t = min(max(st.time - t0, t) + CONTROL_PERIOD, traj.total_time)
             pos = traj.evaluate(np.array([t]), 0)[0]
             vel = traj.evaluate(np.array([t]), 1)[0]
-            self.tick(pos, vel, items[min(k, len(items) - 1)].yaw)
+            st = self.tick(pos, vel, items[min(k, len(items) - 1)].yaw)
             if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
                 return False
             while k < len(items) - 1 and t >= item_times[k] - 1e-9:
@@ -299,6 +377,8 @@ class InspectionRun:
         here, yaw, t0 = st.position.copy(), st.yaw, st.time
         while self.sm.state == State.HOLD:
             st = self.tick(here, None, yaw)
+            if self.sm.state != State.HOLD:
+                break  # a failsafe aborted the mission
             if st.healthy and st.mode != "OFFBOARD":
                 try:
                     self.vehicle.start_offboard()
@@ -307,20 +387,23 @@ class InspectionRun:
             if st.healthy and st.mode == "OFFBOARD":
                 self.sm.resume(st.time)
             elif st.time - t0 > HOLD_TIMEOUT:
-                self.sm.abort(f"fault did not clear within {HOLD_TIMEOUT:.0f} s", st.time)
+                self.abort_reason = f"fault did not clear within {HOLD_TIMEOUT:.0f} s"
+                self.sm.abort(self.abort_reason, st.time)
 
     def take_photo(self, wp: InspectionWaypoint) -> None:
         """Settle on the waypoint with the camera aimed, trigger, render and save the photo."""
         t0 = self.vehicle.state().time
         while True:
             st = self.tick(wp.position, None, wp.yaw)
+            if self.sm.state == State.ABORT:
+                return
             settled = (abs(_angle_wrap(st.yaw - wp.yaw)) < PHOTO_YAW_TOLERANCE
                        and np.linalg.norm(st.velocity) < PHOTO_SPEED_TOLERANCE)
             if settled or st.time - t0 > PHOTO_SETTLE_TIMEOUT:
                 break
         self.vehicle.capture_image()
         cam = Camera(self.photo_model, _gimballed_T_b_c(wp.gimbal_pitch))
-        frame = cam.render(self.tower.mesh, _T_w_b(st.position, st.yaw), seed=self.seed + len(self.photos),
+        frame = cam.render(self.tower.mesh, self._sensor_T_w_b(st), seed=self.seed + len(self.photos),
                            time=st.time)
         n = sum(1 for p in self.photos if p["insulator_id"] == wp.insulator_id)
         name = f"insulator_{wp.insulator_id:02d}_{n + 1}.png"
@@ -345,8 +428,11 @@ class InspectionRun:
         self.vehicle.arm()
         self.t_start = st.time
         self.vehicle.takeoff(MIN_PASS_HEIGHT)
-        for _ in range(int(60 / CONTROL_PERIOD)):
-            st = self.tick(target, None, st.yaw)
+        yaw = st.yaw
+        while st.time - self.t_start < TAKEOFF_TIMEOUT:
+            st = self.tick(target, None, yaw)
+            if self.failsafe is not None:
+                return
             if st.mode != "TAKEOFF" and abs(st.position[2] - target[2]) < 0.4:
                 break
         self.vehicle.start_offboard()
@@ -354,14 +440,18 @@ class InspectionRun:
         self._print_transitions()
 
     def land(self) -> None:
-        st = self.vehicle.state()
+        if self.failsafe is not None:
+            return  # the autopilot flies its failsafe (or the pilot flies): command nothing
         self.vehicle.land()
-        for _ in range(int(120 / CONTROL_PERIOD)):
-            self.vehicle.send_setpoint(st.position, None, st.yaw)
-            st = self.vehicle.advance(CONTROL_PERIOD)
+        st = self.vehicle.state()
+        t0 = st.time
+        while not st.landed and st.time - t0 < LAND_TIMEOUT:
+            try:
+                st = self.vehicle.advance(CONTROL_PERIOD)
+            except VehicleFailsafe as exc:
+                self.on_failsafe(exc)
+                return
             self.report.log_pose(st.time - self.t_start, st.position, st.yaw, self.sm.state.value)
-            if st.landed:
-                break
 
     def fly(self) -> None:
         self.say(f"inspecting {self.tower.spec.name} ({len(self.tower.insulators)} insulators in the scene) "
@@ -389,8 +479,8 @@ class InspectionRun:
                     break
             self.fly_segment(items)
         if self.sm.state == State.ABORT:
-            self.status = "aborted"
             self.land()
+            self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
         else:
             self.status = "finished"
         self._print_transitions()
@@ -418,6 +508,9 @@ class InspectionRun:
             "method": self.method,
             "policy": self.policy,
             "state": self.sm.state.value,
+            "vehicle": type(self.vehicle).__name__,
+            "failsafe": None if self.failsafe is None else {"reason": self.failsafe.reason,
+                                                            "action": self.failsafe.action},
             "flight_time_s": st.time - self.t_start,
             "distance_m": float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
             "detection_events": self.events,
@@ -475,7 +568,49 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--a-max", type=float, default=None, help="override the mission's acceleration limits (m/s^2)")
     p.add_argument("--max-flight-time", type=float, default=1800.0, help="abort after this many s of flight")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--vehicle", choices=("sim", "mavlink"), default=None,
+                   help="sim: the in-process kinematic vehicle (default); mavlink: the MAVLink offboard "
+                        "client, to the simulated PX4 it starts on loopback unless --connection is given")
+    p.add_argument("--connection", default=None,
+                   help="MAVLink connection of a real PX4 or its SITL, e.g. udpin:0.0.0.0:14540 or "
+                        "/dev/ttyTHS1:921600 (implies --vehicle mavlink; needs --sim-sensors)")
+    p.add_argument("--sim-sensors", action="store_true",
+                   help="with --connection: the camera and LiDAR are simulated from the scene at the pose the "
+                        "autopilot reports (a SITL setup); real camera/LiDAR drivers are not supported")
+    p.add_argument("--time-scale", type=float, default=None,
+                   help=f"MAVLink only: speed-up of the simulated PX4 (default 1, at most "
+                        f"{MAX_MAVLINK_TIME_SCALE:g}; give the SITL's speed factor with --connection)")
+    p.add_argument("--signing-key", type=Path, default=None,
+                   help="MAVLink only: file with the 32-byte MAVLink 2 signing key (both ends sign)")
     p.set_defaults(func=run)
+
+
+def _vehicle_kind(args: argparse.Namespace) -> str:
+    """Check the vehicle options together; "sim" or "mavlink"."""
+    kind = args.vehicle or ("mavlink" if args.connection is not None else "sim")
+    if kind == "sim":
+        for flag, value in (("--connection", args.connection), ("--time-scale", args.time_scale),
+                            ("--signing-key", args.signing_key)):
+            if value is not None:
+                raise ValueError(f"{flag}: only applies to --vehicle mavlink")
+        if args.sim_sensors:
+            raise ValueError("--sim-sensors: only applies with --connection")
+        return kind
+    if args.time_scale is not None and not (math.isfinite(args.time_scale)
+                                            and 0 < args.time_scale <= MAX_MAVLINK_TIME_SCALE):
+        raise ValueError(f"--time-scale: must be in (0, {MAX_MAVLINK_TIME_SCALE:g}], got {args.time_scale}")
+    if args.connection is not None:
+        if not args.connection.strip():
+            raise ValueError("--connection: must not be empty")
+        if not args.sim_sensors:
+            raise ValueError("--connection: the camera and LiDAR of a real vehicle are not supported (no drivers); "
+                             "add --sim-sensors to fly a SITL autopilot with the sensors simulated from the scene")
+    elif args.sim_sensors:
+        raise ValueError("--sim-sensors: only applies with --connection (the built-in simulated PX4 "
+                         "always has simulated sensors)")
+    if args.signing_key is not None and not args.signing_key.is_file():
+        raise ValueError(f"--signing-key: no such file: {args.signing_key}")
+    return kind
 
 
 def run(args: argparse.Namespace) -> int:
@@ -488,6 +623,7 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("--v-max", args.v_max), ("--a-max", args.a_max)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{flag}: must be > 0, got {value}")
+    mavlink = _vehicle_kind(args) == "mavlink"
     try:
         tower = load_tower(args.scene)
         mission_path = args.mission
@@ -505,23 +641,34 @@ def run(args: argparse.Namespace) -> int:
         mission = replace(mission, vehicle=replace(
             v, v_max_horizontal=args.v_max or v.v_max_horizontal, v_max_vertical=args.v_max or v.v_max_vertical,
             a_max_horizontal=args.a_max or v.a_max_horizontal, a_max_vertical=args.a_max or v.a_max_vertical))
-    runner = InspectionRun(mission, tower, args.out, method=args.method, policy=args.policy, seed=args.seed,
-                           detect_period=args.detect_period, detect_scale=args.detect_scale,
-                           photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
-                           quiet=args.quiet)
-    code = 0
+    if mavlink:
+        try:
+            vehicle = mavlink_vehicle(mission, args.seed, connection=args.connection,
+                                      time_scale=args.time_scale or 1.0, signing_key=args.signing_key)
+        except VehicleError as exc:
+            print(f"insulator-rs inspect: error: MAVLink vehicle: {exc}", file=sys.stderr)
+            return 2
+    else:
+        vehicle = kinematic_vehicle(mission, args.seed)
     try:
-        runner.fly()
-    except KeyboardInterrupt:
-        runner.status = "interrupted"
-        code = 130
-    except Exception:
-        runner.status = "failed"
-        runner.finish_report()
-        raise
-    summary = runner.finish_report()
-    runner.vehicle.close()
-    if summary["status"] == "aborted":
+        runner = InspectionRun(mission, tower, args.out, method=args.method, policy=args.policy, seed=args.seed,
+                               detect_period=args.detect_period, detect_scale=args.detect_scale,
+                               photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
+                               quiet=args.quiet, vehicle=vehicle)
+        code = 0
+        try:
+            runner.fly()
+        except KeyboardInterrupt:
+            runner.status = "interrupted"
+            code = 130
+        except Exception:
+            runner.status = "failed"
+            runner.finish_report()
+            raise
+        summary = runner.finish_report()
+    finally:
+        vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
+    if summary["status"].startswith("aborted"):
         code = 1
     print(f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
           f"{summary['insulators_found']} insulators found ({summary['insulators_matched']} of "
