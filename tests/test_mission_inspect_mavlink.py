@@ -1,0 +1,148 @@
+"""``insulator-rs inspect`` through MAVLink: the same mission code flying the MAVLink client
+against the simulated PX4 it starts on loopback (real UDP, real threads), and the mission's
+handling of a vehicle failsafe on both vehicles (MAVLink and in-process).
+
+Each flight runs at ``--time-scale 4`` on the small scene of ``test_mission_inspect``; a
+flight through MAVLink is not deterministic (wall-clock scheduling), so the assertions are
+about what any correct flight must show, not exact figures.
+"""
+
+import json
+import time
+
+import pytest
+from test_mission_inspect import small_scene
+
+from insulator_rs.cli import main
+from insulator_rs.mission import inspect_command
+from insulator_rs.mission.inspect_command import InspectionRun
+from insulator_rs.sim.kinematics import KinematicVehicle
+
+MAVLINK = ["--vehicle", "mavlink", "--time-scale", "4"]
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+
+
+def _inspect(tmp_path, *extra):
+    scene, mission = small_scene(tmp_path)
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS, *extra])
+    return rc, out, json.loads((out / "summary.json").read_text())
+
+
+def _after_first_photo(monkeypatch, action):
+    """Run ``action(run)`` right after the first inspection photo is saved."""
+    original = InspectionRun.take_photo
+
+    def photo_then_fault(self, wp):
+        original(self, wp)
+        if len(self.photos) == 1:
+            action(self)
+
+    monkeypatch.setattr(InspectionRun, "take_photo", photo_then_fault)
+
+
+def _assert_found_so_far_kept(out, s):
+    assert s["insulators_found"] >= 1 and s["insulators_matched"] >= 1
+    assert len(s["photos"]) >= 1 and all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
+    assert s["state"] == "abort" and s["transitions"][-1]["to"] == "abort"
+    assert (out / "trajectory.png").is_file()
+
+
+@pytest.mark.slow
+def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
+    """The whole small-scene inspection through MAVLink: the report has what the in-process
+    flight's has (test_mission_inspect): both insulators found and photographed, finish."""
+    rc, out, s = _inspect(tmp_path, *MAVLINK)
+    assert rc == 0, s["status"]
+    assert s["status"] == "finished" and s["state"] == "finish" and s["vehicle"] == "MavlinkVehicle"
+    assert s["failsafe"] is None
+    assert s["insulators_in_scene"] == 2 and s["insulators_matched"] == 2
+    assert s["insulators_inspected"] >= 2
+    assert all(r["error_m"] < 0.6 for r in s["insulators"] if r["error_m"] < 1.5)
+    assert len(s["photos"]) == 2 * s["insulators_inspected"]
+    for p in s["photos"]:
+        assert (out / p["file"]).stat().st_size > 1000 and p["insulator_visible"]
+    assert sum(p["insulator_whole_in_frame"] for p in s["photos"]) >= 2
+    states = [t["to"] for t in s["transitions"]]
+    for st in ("explore", "inspect", "return", "cross", "finish"):
+        assert st in states
+    assert s["flight_time_s"] > 30 and (out / "trajectory.png").stat().st_size > 10_000
+    assert "finished" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_path, monkeypatch):
+    sims = []
+
+    def cut_link(run):
+        sims.append(run.vehicle.simulator)
+        run.vehicle.simulator.set_link_lost(True)
+
+    _after_first_photo(monkeypatch, cut_link)
+    rc, out, s = _inspect(tmp_path, *MAVLINK)
+    assert rc == 1
+    assert s["status"].startswith("aborted: vehicle failsafe: autopilot heartbeat lost"), s["status"]
+    assert "heartbeat lost" in s["failsafe"]["reason"]
+    _assert_found_so_far_kept(out, s)
+    # PX4's side: the setpoint stream stopped with the link, so it flew its own failsafe (hold)
+    assert sims[0].vehicle.mode.value == "HOLD" and "offboard setpoints lost" in sims[0].vehicle.fault
+
+
+@pytest.mark.slow
+def test_pilot_takeover_aborts_and_nothing_more_is_sent(tmp_path, monkeypatch):
+    seen = {}
+    original = inspect_command.InspectionRun.on_failsafe
+
+    def on_failsafe(self, exc):
+        original(self, exc)
+        time.sleep(0.2)  # let any datagram already on the wire arrive
+        seen["setpoints"] = self.vehicle.simulator.stats.setpoints
+        seen["commands"] = dict(self.vehicle.simulator.stats.commands)
+        seen["sim"] = self.vehicle.simulator
+
+    monkeypatch.setattr(inspect_command.InspectionRun, "on_failsafe", on_failsafe)
+    _after_first_photo(monkeypatch, lambda run: run.vehicle.simulator.pilot_mode_change("POSCTL"))
+    rc, out, s = _inspect(tmp_path, *MAVLINK)
+    assert rc == 1
+    assert s["failsafe"]["action"] == "offboard commanding stopped"
+    assert "OFFBOARD to POSCTL" in s["status"], s["status"]
+    _assert_found_so_far_kept(out, s)
+    sim = seen["sim"]
+    assert sim.stats.setpoints == seen["setpoints"] and sim.stats.commands == seen["commands"]
+    assert "MAV_CMD_NAV_LAND" not in sim.stats.commands
+    assert sim.vehicle.mode.value == "POSCTL"  # still the pilot's
+
+
+def test_in_process_failsafe_aborts_the_same_way(tmp_path, monkeypatch):
+    """The in-process KinematicVehicle raises VehicleFailsafe from advance() as the MAVLink
+    client does: position loss -> its LAND failsafe -> the mission aborts, keeps its findings,
+    and sends no land command of its own."""
+    vehicles = []
+
+    def lose_position(run):
+        assert isinstance(run.vehicle, KinematicVehicle)
+        vehicles.append(run.vehicle)
+        run.vehicle.inject_position_loss(True)
+
+    _after_first_photo(monkeypatch, lose_position)
+    rc, out, s = _inspect(tmp_path)
+    assert rc == 1 and s["vehicle"] == "KinematicVehicle"
+    assert s["status"] == "aborted: vehicle failsafe: position estimate lost (land)"
+    assert s["failsafe"] == {"reason": "position estimate lost", "action": "land"}
+    _assert_found_so_far_kept(out, s)
+    assert vehicles[0].mode.value == "LAND"
+
+
+def test_vehicle_options_are_checked(tmp_path, capsys):
+    base = ["inspect", "--out", str(tmp_path / "r")]
+    with pytest.raises(ValueError, match="--connection: the camera and LiDAR of a real vehicle"):
+        main([*base, "--connection", "udpin:127.0.0.1:14540"])
+    with pytest.raises(ValueError, match="--time-scale: must be in"):
+        main([*base, "--vehicle", "mavlink", "--time-scale", "10"])
+    with pytest.raises(ValueError, match="--time-scale: only applies to --vehicle mavlink"):
+        main([*base, "--time-scale", "2"])
+    with pytest.raises(ValueError, match="--sim-sensors: only applies with --connection"):
+        main([*base, "--vehicle", "mavlink", "--sim-sensors"])
+    with pytest.raises(ValueError, match="--signing-key: no such file"):
+        main([*base, "--vehicle", "mavlink", "--signing-key", str(tmp_path / "missing.key")])
+    assert not (tmp_path / "r").exists()
