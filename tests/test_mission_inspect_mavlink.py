@@ -146,3 +146,38 @@ def test_vehicle_options_are_checked(tmp_path, capsys):
     with pytest.raises(ValueError, match="--signing-key: no such file"):
         main([*base, "--vehicle", "mavlink", "--signing-key", str(tmp_path / "missing.key")])
     assert not (tmp_path / "r").exists()
+
+
+def test_a_given_connection_flies_in_the_towers_frame(tmp_path):
+    """``--connection`` to an autopilot this run did not start (here a SimulatedPx4 standing in
+    for a SITL, with its local frame 12 m east / 5 m south of the tower base): W's origin is put
+    at the tower from HOME_POSITION, so the logged poses are in the tower's frame.
+    Reference: pymap3d places the SITL's origin; tolerance 0.05 m (odometry has no noise)."""
+    import numpy as np
+    import pymap3d
+
+    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.mission.geometry import MissionGeometry
+
+    scene, mission_file = small_scene(tmp_path)
+    mission = load_mission(mission_file)
+    takeoff = MissionGeometry.from_mission(mission).takeoff
+    shift = np.array([12.0, -5.0, 0.0])  # the SITL's local origin, in W
+    t = mission.tower
+    origin = pymap3d.enu2geodetic(*shift, t.lat, t.lon, t.alt)
+    out = tmp_path / "report"
+    with SimulatedPx4(time_scale=4.0, origin=origin,
+                      vehicle=KinematicVehicle(start_position=takeoff - shift)) as sitl:
+        host, port = sitl.address
+        rc = main(["inspect", "--scene", str(scene), "--mission", str(mission_file), "--out", str(out), *ARGS,
+                   "--connection", f"udpout:{host}:{port}", "--sim-sensors", "--time-scale", "4",
+                   "--max-flight-time", "4"])
+        landed = sitl.with_vehicle(lambda v: v.landed)
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 1 and s["status"] == "aborted: flight time limit of 4 s" and s["vehicle"] == "MavlinkVehicle"
+    rows = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3))
+    assert np.linalg.norm(rows[0, :2] - takeoff[:2]) < 0.05  # a vertical take-off from the take-off point
+    assert rows[:, 2].max() > takeoff[2] + 2.0
+    # the time-limit abort is the mission's own: it lands the vehicle (unlike a failsafe)
+    assert sitl.stats.commands.get("MAV_CMD_NAV_LAND") == 1 and landed
