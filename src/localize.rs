@@ -98,7 +98,7 @@ impl PyLocalization {
 ),
 // The defaults spelled out for help(); tests/test_core_localize.py checks them against
 // localize_defaults() (the fusion_core constants), so they cannot drift.
-text_signature = "(points_b, method='dbscan+ransac', *, eps=0.3, min_points=5, tau=0.2, \
+text_signature = "(points_b, method='dbscan+ransac', *, eps=0.5, min_points=5, tau=0.2, \
 ransac_threshold=0.1, max_iterations=1000, confidence=0.99, seed=0)")]
 #[allow(clippy::too_many_arguments)]
 fn localize(

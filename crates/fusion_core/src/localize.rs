@@ -23,11 +23,20 @@ use crate::ransac::{line_distance, ransac_line_finite, RansacParams};
 // ~20 points a frame and ~60 after 3 frames, spaced ~0.1 m with non-repetitive gaps of up to
 // ~0.2 m. Range noise is ~2 cm (1 sigma).
 
-/// DBSCAN radius (m): bridges the ~0.1-0.2 m gaps between returns on the insulator, but is
-/// well under the usual >= 0.5 m clearance between the insulator and lattice members behind it.
-pub const DEFAULT_EPS: f64 = 0.3;
+/// DBSCAN radius (m). In the simulated study (`insulator-rs eval localization`,
+/// docs/results/localization/README.md) neighbouring Mid-360 returns on an insulator at
+/// 9-10 m are 0.16-0.21 m apart over 3 frames, and the strip is only ~1-2 returns wide, so
+/// a core point's 4 nearest neighbours lie up to ~2 spacings (0.32-0.42 m) along the axis:
+/// eps 0.3 split the insulator there and the nearest piece pulled the centre along the axis
+/// (DBSCAN+RANSAC 0.60 m at 10 m). 0.5 m (~2.5 spacings) keeps it whole (0.32 m); 0.6-0.7 m
+/// gains DBSCAN+RANSAC a few cm at 10 m but merges steel or conductor into the nearest
+/// cluster at 8 m (DBSCAN axis error 1.5 -> 6.5 -> 10 deg), and 0.5 m stays within the
+/// usual >= 0.5 m clearance between an insulator and the lattice members behind it.
+pub const DEFAULT_EPS: f64 = 0.5;
 /// DBSCAN core size (points, itself included): an insulator gives ~60 points, isolated
-/// returns from rain, birds or edge effects rarely gather 5 within 0.3 m.
+/// returns from rain, birds or edge effects rarely gather 5 within eps. The study's
+/// failures at this value are clouds of 4-21 points that hold almost no target returns
+/// (the insulator was hidden), where refusing is the right answer.
 pub const DEFAULT_MIN_POINTS: usize = 5;
 /// Line distance tau (m) for "points that belong to the insulator": the shed radius is
 /// 0.10-0.15 m and the fitted line runs through the visible half of the surface, so

@@ -221,7 +221,7 @@ fn no_insulator_on_empty_or_noise() {
     let p = LocalizeParams::default();
     let empty: Vec<V> = Vec::new();
     let mut rng = Pcg64::seed_from_u64(3);
-    // 40 points scattered over a 20 m cube: no 5 within 0.3 m.
+    // 40 points scattered over a 20 m cube: no 5 within the default eps (0.5 m).
     let noise: Vec<V> = (0..40).map(|_| [rng.random_range(0.0..20.0), rng.random_range(-10.0..10.0), rng.random_range(-10.0..10.0)]).collect();
     let nans = vec![[f64::NAN; 3]; 10];
     for m in Method::ALL {
