@@ -22,6 +22,11 @@ const DBSCAN_EPS: f64 = 0.3;
 const DBSCAN_MIN_POINTS: usize = 5;
 /// Sizes of the DBSCAN scaling series.
 const DBSCAN_SCALING: [usize; 4] = [1_000, 10_000, 50_000, 100_000];
+/// The large cases: a 1-million-point line-cluster cloud and points packed in a 0.3 m cube
+/// (every point a neighbour of every other; the kd-tree version took 2.2 s at 10k, 21 s at 30k).
+const DBSCAN_MILLION: usize = 1_000_000;
+const DBSCAN_CUBE: [usize; 2] = [10_000, 30_000];
+const DBSCAN_CUBE_SIDE: f64 = 0.3;
 /// Points in the box-culled, 3-frame accumulated cloud for localize (target < 1 ms).
 const LOCALIZE_POINTS: usize = 2_000;
 /// Share of noise points in the DBSCAN clouds.
@@ -122,6 +127,20 @@ fn bench_dbscan(c: &mut Criterion) {
         g.throughput(Throughput::Elements(n as u64));
         g.bench_with_input(BenchmarkId::from_parameter(n), &pts, |b, pts| {
             b.iter(|| dbscan(black_box(pts), DBSCAN_EPS, DBSCAN_MIN_POINTS).unwrap())
+        });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("dbscan_large");
+    g.sample_size(10);
+    let million = line_clusters(DBSCAN_MILLION, POINTS_PER_LINE, &mut rng);
+    g.throughput(Throughput::Elements(DBSCAN_MILLION as u64));
+    g.bench_function("lines_1000000", |b| b.iter(|| dbscan(black_box(&million), DBSCAN_EPS, DBSCAN_MIN_POINTS).unwrap()));
+    for n in DBSCAN_CUBE {
+        let cube: Vec<[f64; 3]> = (0..n).map(|_| [(); 3].map(|()| rng.random_range(0.0..DBSCAN_CUBE_SIDE))).collect();
+        g.throughput(Throughput::Elements(n as u64));
+        g.bench_with_input(BenchmarkId::new("cube", n), &cube, |b, cube| {
+            b.iter(|| dbscan(black_box(cube), DBSCAN_EPS, DBSCAN_MIN_POINTS).unwrap())
         });
     }
     g.finish();
