@@ -181,3 +181,22 @@ def test_a_given_connection_flies_in_the_towers_frame(tmp_path):
     assert rows[:, 2].max() > takeoff[2] + 2.0
     # the time-limit abort is the mission's own: it lands the vehicle (unlike a failsafe)
     assert sitl.stats.commands.get("MAV_CMD_NAV_LAND") == 1 and landed
+
+
+def test_signed_link(tmp_path, capsys):
+    """--signing-key: both ends sign (the simulated PX4 ignores unsigned commands), so a take-off
+    shows the signed exchange works; a malformed key file is refused before anything flies."""
+    import numpy as np
+
+    key = tmp_path / "mavlink.key"
+    key.write_text("ab" * 32 + "\n")
+    rc, out, s = _inspect(tmp_path, *MAVLINK, "--signing-key", str(key), "--max-flight-time", "2")
+    assert rc == 1 and s["status"] == "aborted: flight time limit of 2 s"
+    z = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, usecols=3)
+    assert z.max() > z[0] + 1.0
+    key.write_text("not a key")
+    scene, mission = small_scene(tmp_path)
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(tmp_path / "r2"),
+               *MAVLINK, "--signing-key", str(key)])
+    assert rc == 2 and not (tmp_path / "r2").exists()
+    assert "signing key file" in capsys.readouterr().err

@@ -431,8 +431,8 @@ class InspectionRun:
         yaw = st.yaw
         while st.time - self.t_start < TAKEOFF_TIMEOUT:
             st = self.tick(target, None, yaw)
-            if self.failsafe is not None:
-                return
+            if self.sm.state == State.ABORT:
+                return  # a failsafe or the flight time limit during the climb
             if st.mode != "TAKEOFF" and abs(st.position[2] - target[2]) < 0.4:
                 break
         self.vehicle.start_offboard()
@@ -645,7 +645,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             vehicle = mavlink_vehicle(mission, args.seed, connection=args.connection,
                                       time_scale=args.time_scale or 1.0, signing_key=args.signing_key)
-        except VehicleError as exc:
+        except (VehicleError, ConfigError) as exc:  # no autopilot answering, a bad key file
             print(f"insulator-rs inspect: error: MAVLink vehicle: {exc}", file=sys.stderr)
             return 2
     else:
