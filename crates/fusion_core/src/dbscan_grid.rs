@@ -64,6 +64,12 @@ struct Grid {
     keys: Vec<u64>,
     /// Cell `c` holds sorted points `starts[c]..starts[c + 1]`.
     starts: Vec<usize>,
+    /// Sorted distinct (x, y) column keys (`key >> 21`).
+    col_keys: Vec<u64>,
+    /// Column `k` holds cells `col_starts[k]..col_starts[k + 1]` (in increasing z).
+    col_starts: Vec<usize>,
+    /// Column of each cell.
+    cell_col: Vec<u32>,
 }
 
 impl Grid {
@@ -97,9 +103,20 @@ impl Grid {
             }
         }
         starts.push(keyed.len());
+        let mut col_keys = Vec::new();
+        let mut col_starts = Vec::new();
+        let mut cell_col = Vec::with_capacity(keys.len());
+        for (c, &k) in keys.iter().enumerate() {
+            if col_keys.last() != Some(&(k >> AXIS_BITS)) {
+                col_keys.push(k >> AXIS_BITS);
+                col_starts.push(c);
+            }
+            cell_col.push((col_keys.len() - 1) as u32);
+        }
+        col_starts.push(keys.len());
         let pts = keyed.iter().map(|&(_, i)| coords[i as usize]).collect();
         let order = keyed.iter().map(|&(_, i)| i).collect();
-        Some(Grid { pts, order, keys, starts })
+        Some(Grid { pts, order, keys, starts, col_keys, col_starts, cell_col })
     }
 
     fn n_cells(&self) -> usize {
@@ -108,11 +125,19 @@ impl Grid {
 }
 
 /// Visits, for cells in increasing order, the occupied cells within `reach` cells on every
-/// axis (the cell itself included). One cursor per (dx, dy) column only moves forward.
+/// axis (the cell itself included). The occupied neighbour (x, y) columns are found once per
+/// column with one forward-only cursor per (dx, dy); inside each of them a forward-only z
+/// cursor finds the cells of the z window, so empty columns cost nothing per cell.
 struct Sweep {
     reach: i64,
+    /// Column-key offsets of the (dx, dy) neighbour columns.
     offsets: Vec<i64>,
-    cursors: Vec<usize>,
+    /// Forward-only cursors into `Grid::col_keys`, one per offset.
+    col_cursors: Vec<usize>,
+    /// Column of the previous call, if any.
+    column: Option<usize>,
+    /// Occupied neighbour columns of `column`: (column key, z cursor into cells, column end).
+    near: Vec<(u64, usize, usize)>,
 }
 
 impl Sweep {
@@ -120,27 +145,42 @@ impl Sweep {
         let mut offsets = Vec::new();
         for dx in -reach..=reach {
             for dy in -reach..=reach {
-                offsets.push((dx << (2 * AXIS_BITS)) + (dy << AXIS_BITS));
+                offsets.push((dx << AXIS_BITS) + dy);
             }
         }
-        let cursors = vec![0; offsets.len()];
-        Sweep { reach, offsets, cursors }
+        let col_cursors = vec![0; offsets.len()];
+        Sweep { reach, offsets, col_cursors, column: None, near: Vec::new() }
     }
 
     /// Neighbour cells of `cell` into `out`; calls must come in increasing `cell` order.
     fn neighbours(&mut self, grid: &Grid, cell: usize, out: &mut Vec<usize>) {
         out.clear();
-        let key = grid.keys[cell] as i64;
-        let n = grid.n_cells();
-        for (off, cur) in self.offsets.iter().zip(self.cursors.iter_mut()) {
-            // PAD keeps these in range and inside the (dx, dy) column: no carries.
-            let lo = (key + off - self.reach) as u64;
-            let hi = (key + off + self.reach) as u64;
-            while *cur < n && grid.keys[*cur] < lo {
-                *cur += 1;
+        let col = grid.cell_col[cell] as usize;
+        if self.column != Some(col) {
+            self.column = Some(col);
+            self.near.clear();
+            let key = grid.col_keys[col] as i64;
+            let n = grid.col_keys.len();
+            for (off, cur) in self.offsets.iter().zip(self.col_cursors.iter_mut()) {
+                // PAD keeps x + dx and y + dy in range: no carries between the fields.
+                let want = (key + off) as u64;
+                while *cur < n && grid.col_keys[*cur] < want {
+                    *cur += 1;
+                }
+                if *cur < n && grid.col_keys[*cur] == want {
+                    self.near.push((want, grid.col_starts[*cur], grid.col_starts[*cur + 1]));
+                }
             }
-            let mut q = *cur;
-            while q < n && grid.keys[q] <= hi {
+        }
+        let z = (grid.keys[cell] & ((1 << AXIS_BITS) - 1)) as i64;
+        for (ck, zc, end) in &mut self.near {
+            let lo = (*ck << AXIS_BITS) | (z - self.reach) as u64;
+            let hi = (*ck << AXIS_BITS) | (z + self.reach) as u64;
+            while *zc < *end && grid.keys[*zc] < lo {
+                *zc += 1;
+            }
+            let mut q = *zc;
+            while q < *end && grid.keys[q] <= hi {
                 out.push(q);
                 q += 1;
             }
