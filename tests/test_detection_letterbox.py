@@ -3,7 +3,8 @@
 References: hand-worked cases from Ultralytics' formulas (``LetterBox.get_params``:
 ``round(side * r)``, padding ``round(d/2 -/+ 0.1)``), and, when the train extra
 is installed, ``ultralytics.data.augment.LetterBox`` itself (pixel-exact) and
-``ultralytics.utils.ops.scale_boxes`` (1e-4 px).
+``ultralytics.utils.ops.scale_boxes`` (1e-4 px) wherever that function inverts
+the letterbox that was applied (see the rect-mode note in the test).
 """
 
 from __future__ import annotations
@@ -115,5 +116,11 @@ def test_matches_ultralytics_letterbox(h: int, w: int, side: int, auto: bool) ->
     np.testing.assert_array_equal(ours, ref)
     hi, wi = geo.input_hw
     boxes = np.array([[1.5, 2.25, wi - 3.0, hi - 7.5], [wi / 2, 0, wi / 2 + 1, hi]], dtype=np.float32)
+    if min(hi / h, wi / w) != min(side / h, side / w):
+        # Known Ultralytics quirk: in rect mode scale_boxes re-derives the gain from the padded
+        # input, which can differ from the letterbox's own ratio when round(side * r) lands on
+        # a stride multiple (e.g. 251x501 -> 160x320 input). We keep the exact inverse instead.
+        np.testing.assert_allclose(geo.to_input(geo.to_original(boxes, clip=False)), boxes, atol=1e-3)
+        return
     ref_boxes = ops.scale_boxes((hi, wi), boxes.copy(), (h, w))
     np.testing.assert_allclose(geo.to_original(boxes), ref_boxes, atol=1e-4)

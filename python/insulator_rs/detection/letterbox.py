@@ -9,6 +9,9 @@ boxes are mapped back with the per-axis gains ``new_w / w0`` and ``new_h / h0``.
 With ``auto=True`` (what Ultralytics' predict does for models with a dynamic
 input, ``rect=True``) the padding is only what reaches the next multiple of the
 stride, so a 640x480 frame becomes a 640x480 input instead of 640x640.
+Boxes are mapped back with the letterbox actually applied; Ultralytics'
+``scale_boxes`` re-derives the gain from the padded input, which in rect mode
+differs (by up to ~0.3 %) for rare sizes such as 251x501 into 320.
 
 All coordinates are pixels, x right and y down, origin at the top-left corner
 of the top-left pixel.
