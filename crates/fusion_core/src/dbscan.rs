@@ -1,6 +1,6 @@
 //! DBSCAN on 3-D points with scikit-learn's semantics.
 //!
-//! The work is done on a uniform grid ([`crate::dbscan_grid`], near-linear, no neighbour lists);
+//! The work is done on a uniform grid (module `dbscan_grid`: near-linear, no neighbour lists);
 //! clouds too wide for its packed cell keys fall back to kiddo's ImmutableKdTree here. The
 //! immutable tree is used on purpose: kiddo's mutable tree panics when a bucket fills with
 //! equal coordinates, which LiDAR scan lines produce routinely. Both give identical labels.
