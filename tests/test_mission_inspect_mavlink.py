@@ -200,3 +200,36 @@ def test_signed_link(tmp_path, capsys):
                *MAVLINK, "--signing-key", str(key)])
     assert rc == 2 and not (tmp_path / "r2").exists()
     assert "signing key file" in capsys.readouterr().err
+
+
+def test_far_side_finds_owed_on_the_landing_side_are_inspected_before_landing(tmp_path, monkeypatch):
+    """An insulator of the landing side localized from the far side during the last pass is
+    deferred; the state machine releases it on arrival on that side, which used to be the
+    landing itself (the mission then went on from the ground). It must be visited first.
+    Perception is replaced by that one scripted localization (a true insulator's pose)."""
+    from insulator_rs.mission.state_machine import State
+
+    outcomes = []
+
+    def scripted_event(self, st):
+        landing_side = self.sm.plan[-1].side if self.sm.plan else 0
+        if outcomes or self.sm.state != State.EXPLORE or self.sm.side != -landing_side:
+            return  # once, on the far side's pass (the last one: the small scene has one crossing)
+        gt = next(t for t in self.tower.insulators if self.geom.line.side(t.center) == landing_side)
+        outcomes.append(self.sm.localized(gt.center, gt.axis, st.position, st.time))
+
+    monkeypatch.setattr(InspectionRun, "detection_event", scripted_event)
+    rc, out, s = _inspect(tmp_path)
+    assert outcomes == ["deferred"]
+    assert rc == 0 and s["status"] == "finished" and s["state"] == "finish"
+    assert s["insulators_found"] == 1 and s["insulators_inspected"] == 1 and len(s["photos"]) == 2
+    released = [t["time_s"] for t in s["transitions"] if "deferred waypoints released" in t["reason"]]
+    assert len(released) == 1
+    assert s["transitions"][-1]["to"] == "finish" and "hold" not in [t["to"] for t in s["transitions"]]
+    import numpy as np
+
+    traj = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, usecols=(0, 3))
+    z_at_release = traj[np.argmin(np.abs(traj[:, 0] - released[0])), 1]
+    assert z_at_release > 1.5  # released in the air, above the landing point, not after touch-down
+    touchdowns = np.flatnonzero((traj[1:, 1] < 0.05) & (traj[:-1, 1] >= 0.05))
+    assert len(touchdowns) == 1 and traj[-1, 1] < 0.05  # one landing, at the end

@@ -466,6 +466,11 @@ class InspectionRun:
                 break
             if head.kind == "land":
                 above = PlanItem("land", head.position + np.array([0.0, 0.0, LAND_HEIGHT]), head.yaw, head.side)
+                if head.side != self.sm.side and self.sm.deferred.get(head.side):
+                    # Far-side finds are owed on the landing side, and the state machine releases
+                    # them on arrival there: arrive above the landing point first, not on the ground.
+                    self.sm.plan.insert(0, PlanItem("scan", above.position, head.yaw, head.side))
+                    continue
                 if self.fly_segment([above]):
                     self.land()
                     self.sm.reached(self.vehicle.state().time)
