@@ -37,7 +37,7 @@ def small_scene(tmp_path):
     return scene, mission
 
 
-ARGS = ["--detect-period", "2.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
 
 
 @pytest.mark.slow

@@ -36,6 +36,7 @@ flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``)::
     pass_spacing = 8.0            # m, optional: vertical spacing of the exploration passes
     crossing_clearance = 3.0      # m, optional: height above the safety box when crossing sides
     insulator_length = 2.0        # m, optional: length of the insulator strings (for framing and plausibility)
+    confirmations = 3             # optional: localizations within the gate before an insulator is registered
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ class InspectionParams:
     pass_spacing: float = 8.0
     crossing_clearance: float = 3.0
     insulator_length: float = 2.0
+    confirmations: int = 3
 
 
 @dataclass(frozen=True)
@@ -234,6 +236,8 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
                                     default=d.crossing_clearance, positive=True),
         insulator_length=r.number(insp_t, "inspection", "insulator_length",
                                   default=d.insulator_length, positive=True),
+        confirmations=r.integer(insp_t, "inspection", "confirmations",
+                                default=d.confirmations, lo=1),
     )
     if inspection.standoff <= inspection.safety_margin:
         raise r.fail("inspection.standoff",

@@ -167,7 +167,8 @@ class InspectionRun:
         self.perception = OnboardPerception(self.det_camera.model, self.det_camera.T_b_c,
                                             self.lidar.T_b_l, method=method,
                                             insulator_length=mission.inspection.insulator_length)
-        self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate)
+        self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate,
+                                          mission.inspection.confirmations)
         self.fov = 2 * math.atan((self.photo_model.height / 2) / self.photo_model.fy)
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints, policy=policy,
                                          cost=self._cost)

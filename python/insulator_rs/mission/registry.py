@@ -5,6 +5,12 @@ updates that insulator (running mean of the centre, sign-aligned mean of the
 axis) instead of creating a duplicate; otherwise it becomes a new insulator.
 Each record knows its side of the tower, so the mission can defer insulators
 on the far side until the vehicle is there.
+
+A record is only *confirmed* (reported, inspected) once ``confirmations``
+localizations have fallen within its gate: a real insulator is localized on
+every detection event that sees it, while a box that once caught the lattice
+behind a far-side insulator gives a one-off localization on the steel. This is
+the M-of-N track confirmation of multi-target tracking with N unbounded.
 """
 
 from __future__ import annotations
@@ -28,37 +34,57 @@ class Insulator:
     side: int
     inspected: bool = False
     history: list[np.ndarray] = field(default_factory=list)
+    confirmed: bool = False
 
 
 class InsulatorRegistry:
-    """Insulators in W, deduplicated with a distance gate (m)."""
+    """Insulators in W, deduplicated with a distance gate (m); a record is confirmed
+    after ``confirmations`` localizations (1: at once, as the paper does)."""
 
-    def __init__(self, line: LineFrame, gate: float) -> None:
+    def __init__(self, line: LineFrame, gate: float, confirmations: int = 1) -> None:
         if not gate > 0:
             raise ValueError(f"gate: must be > 0 m, got {gate}")
+        if confirmations < 1:
+            raise ValueError(f"confirmations: must be >= 1, got {confirmations}")
         self.line = line
         self.gate = gate
-        self.insulators: list[Insulator] = []
+        self.confirmations = confirmations
+        self._records: list[Insulator] = []
+
+    @property
+    def insulators(self) -> list[Insulator]:
+        """The confirmed insulators, in order of confirmation (their ids 1, 2, ...)."""
+        return sorted((ins for ins in self._records if ins.confirmed), key=lambda ins: ins.id)
+
+    @property
+    def candidates(self) -> list[Insulator]:
+        """Localizations not yet confirmed (id 0)."""
+        return [ins for ins in self._records if not ins.confirmed]
 
     def __len__(self) -> int:
         return len(self.insulators)
 
     def nearest(self, center: np.ndarray) -> tuple[Insulator | None, float]:
-        """The registered insulator nearest ``center`` and its distance (m); (None, inf) if empty."""
-        if not self.insulators:
+        """The confirmed insulator nearest ``center`` and its distance (m); (None, inf) if none."""
+        return self._nearest(self.insulators, center)
+
+    @staticmethod
+    def _nearest(records: list[Insulator], center: np.ndarray) -> tuple[Insulator | None, float]:
+        if not records:
             return None, float("inf")
-        d = [float(np.linalg.norm(ins.center - center)) for ins in self.insulators]
+        d = [float(np.linalg.norm(ins.center - center)) for ins in records]
         i = int(np.argmin(d))
-        return self.insulators[i], d[i]
+        return records[i], d[i]
 
     def observe(self, center: np.ndarray, axis: np.ndarray) -> tuple[Insulator, bool]:
-        """Fuse one localization (W); returns the insulator and whether it is new."""
+        """Fuse one localization (W); returns the record and whether it has just been
+        confirmed (a new insulator for the mission)."""
         c = np.asarray(center, dtype=np.float64).reshape(3)
         a = np.asarray(axis, dtype=np.float64).reshape(3)
         if not (np.all(np.isfinite(c)) and np.all(np.isfinite(a))) or np.linalg.norm(a) < 1e-9:
             raise ValueError("center/axis: must be finite and the axis non-zero")
         a = a / np.linalg.norm(a)
-        known, dist = self.nearest(c)
+        known, dist = self._nearest(self._records, c)
         if known is not None and dist <= self.gate:
             n = known.observations
             known.center = (known.center * n + c) / (n + 1)
@@ -68,8 +94,15 @@ class InsulatorRegistry:
             known.observations = n + 1
             known.history.append(c)
             known.side = int(self.line.side(known.center))
-            return known, False
-        ins = Insulator(id=len(self.insulators) + 1, center=c, axis=a, observations=1,
+            return known, self._confirm(known)
+        ins = Insulator(id=0, center=c, axis=a, observations=1,
                         side=int(self.line.side(c)), history=[c])
-        self.insulators.append(ins)
-        return ins, True
+        self._records.append(ins)
+        return ins, self._confirm(ins)
+
+    def _confirm(self, ins: Insulator) -> bool:
+        if ins.confirmed or ins.observations < self.confirmations:
+            return False
+        ins.confirmed = True
+        ins.id = len(self.insulators)
+        return True

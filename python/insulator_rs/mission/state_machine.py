@@ -169,12 +169,13 @@ class InspectionStateMachine:
     def localized(self, center: np.ndarray, axis: np.ndarray, position: np.ndarray,
                   time: float) -> str:
         """A localization in W arrived while the vehicle is at ``position``. Returns "new",
-        "updated", "deferred" (new, on the far side) or "ignored" (after the mission ended)."""
+        "updated", "candidate" (not yet confirmed by the registry), "deferred" (new, on the
+        far side) or "ignored" (after the mission ended)."""
         if self.state in (State.ABORT, State.FINISH, State.IDLE):
             return "ignored"
         ins, is_new = self.registry.observe(center, axis)
         if not is_new:
-            return "updated"
+            return "updated" if ins.confirmed else "candidate"
         wps = self.make_waypoints(ins)
         self._remaining[ins.id] = len(wps)
         if not wps:
