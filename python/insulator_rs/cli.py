@@ -12,6 +12,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
 # (subcommand, module that registers it)
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
@@ -23,6 +24,17 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
 )
 
 
+def import_optional(module_name: str) -> ModuleType | None:
+    """Import a subcommand module; None only if that module itself is absent (an
+    optional part not installed). A missing dependency inside it still raises."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name != module_name:
+            raise
+        return None
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="insulator-rs",
@@ -30,15 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     subparsers = parser.add_subparsers(dest="command", required=True)
     for _name, module_name in SUBCOMMANDS:
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            # Only tolerate the module itself being absent (an optional part not
-            # installed); a missing dependency inside it must surface.
-            if exc.name != module_name:
-                raise
-            continue
-        module.register(subparsers)
+        module = import_optional(module_name)
+        if module is not None:
+            module.register(subparsers)
     return parser
 
 

@@ -4,7 +4,8 @@ and ``run(args) -> int``; they are imported only when their study runs."""
 from __future__ import annotations
 
 import argparse
-import importlib
+
+from insulator_rs.cli import import_optional
 
 # (study name, module, one-line help)
 STUDIES: tuple[tuple[str, str, str], ...] = (
@@ -20,11 +21,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     studies = parser.add_subparsers(dest="study", required=True)
     for name, module_name, help_text in STUDIES:
         study_parser = studies.add_parser(name, help=help_text)
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            if exc.name != module_name:
-                raise
+        module = import_optional(module_name)
+        if module is None:
             continue
         module.add_arguments(study_parser)
         study_parser.set_defaults(func=module.run)
