@@ -70,17 +70,22 @@ pub fn points_in_boxes<P: PointCloud + ?Sized>(
         return Ok(out);
     }
     let projector = Projector::new(t_c_l, cam);
-    for i in 0..points.len() {
-        let Some(uv) = projector.pixel(points.point(i)) else { continue };
-        if !(uv[0] >= u_lo && uv[0] < u_hi && uv[1] >= v_lo && uv[1] < v_hi) {
-            continue;
-        }
-        for (b, list) in boxes.iter().zip(out.iter_mut()) {
-            if b.contains(uv) {
-                list.push(i);
+    // Slice walk (no per-point index arithmetic for contiguous clouds); the depth test
+    // comes before x, y and distortion are computed (see `Projector::pixel`).
+    points.for_each_point(
+        #[inline(always)]
+        |i, p| {
+            let Some(uv) = projector.pixel(p) else { return };
+            if !(uv[0] >= u_lo && uv[0] < u_hi && uv[1] >= v_lo && uv[1] < v_hi) {
+                return;
             }
-        }
-    }
+            for (b, list) in boxes.iter().zip(out.iter_mut()) {
+                if b.contains(uv) {
+                    list.push(i);
+                }
+            }
+        },
+    );
     Ok(out)
 }
 

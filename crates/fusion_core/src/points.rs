@@ -15,6 +15,15 @@ pub trait PointCloud {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// Calls `f(i, point(i))` for every point, in index order. Layouts that allow it
+    /// override this with a straight slice walk (no per-point index arithmetic or
+    /// bounds checks): the form hot loops should use.
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
+        for i in 0..self.len() {
+            f(i, self.point(i));
+        }
+    }
 }
 
 const NAN3: [f64; 3] = [f64::NAN; 3];
@@ -28,6 +37,12 @@ impl PointCloud for [[f64; 3]] {
     fn point(&self, i: usize) -> [f64; 3] {
         self.get(i).copied().unwrap_or(NAN3)
     }
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
+        for (i, p) in self.iter().enumerate() {
+            f(i, *p);
+        }
+    }
 }
 
 impl PointCloud for [[f32; 3]] {
@@ -38,6 +53,12 @@ impl PointCloud for [[f32; 3]] {
     #[inline]
     fn point(&self, i: usize) -> [f64; 3] {
         self.get(i).map_or(NAN3, |p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
+    }
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
+        for (i, p) in self.iter().enumerate() {
+            f(i, [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]);
+        }
     }
 }
 
@@ -50,6 +71,10 @@ impl PointCloud for Vec<[f64; 3]> {
     fn point(&self, i: usize) -> [f64; 3] {
         self.as_slice().point(i)
     }
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, f: F) {
+        self.as_slice().for_each_point(f)
+    }
 }
 
 impl<P: PointCloud + ?Sized> PointCloud for &P {
@@ -60,6 +85,10 @@ impl<P: PointCloud + ?Sized> PointCloud for &P {
     #[inline]
     fn point(&self, i: usize) -> [f64; 3] {
         (**self).point(i)
+    }
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, f: F) {
+        (**self).for_each_point(f)
     }
 }
 
@@ -121,6 +150,21 @@ impl<T: Copy + Into<f64>> PointCloud for StridedPoints<'_, T> {
             return NAN3;
         }
         [self.element(i, 0), self.element(i, 1), self.element(i, 2)]
+    }
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
+        // C-contiguous (N, 3), the usual numpy layout: walk the rows as a plain slice.
+        if self.row_stride == 3 && self.col_stride == 1 {
+            if let Some(rows) = self.data.get(self.offset..self.offset.saturating_add(self.rows.saturating_mul(3))) {
+                for (i, p) in rows.chunks_exact(3).enumerate() {
+                    f(i, [p[0].into(), p[1].into(), p[2].into()]);
+                }
+                return;
+            }
+        }
+        for i in 0..self.rows {
+            f(i, [self.element(i, 0), self.element(i, 1), self.element(i, 2)]);
+        }
     }
 }
 
@@ -193,6 +237,21 @@ mod tests {
         assert!(s.point(2)[0].is_nan());
         let data32: Vec<f32> = vec![1.0, 2.0, 3.0];
         assert_eq!(StridedPoints::new(&data32, 1, 3, 1, 0).unwrap().point(0), [1.0, 2.0, 3.0]);
+        // The bulk walk (contiguous fast path and strided fallback) visits the same points.
+        let c_off = StridedPoints::new(&data, 3, 3, 1, 3).unwrap();
+        for view in [c, f, r, s, c_off] {
+            assert_eq!(walk(&view), (0..view.len()).map(|i| (i, view.point(i))).collect::<Vec<_>>());
+        }
+        let v: Vec<[f64; 3]> = vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]];
+        assert_eq!(walk(&v), vec![(0, v[0]), (1, v[1])]);
+        let v32: [[f32; 3]; 2] = [[0.5, 1.5, -2.0], [f32::MAX, 0.0, 1.0]];
+        assert_eq!(walk(&v32[..]), vec![(0, v32[..].point(0)), (1, v32[..].point(1))]);
+    }
+
+    fn walk<P: PointCloud + ?Sized>(p: &P) -> Vec<(usize, [f64; 3])> {
+        let mut out = Vec::new();
+        p.for_each_point(|i, q| out.push((i, q)));
+        out
     }
 
     #[test]

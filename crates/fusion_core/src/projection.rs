@@ -16,30 +16,54 @@ pub struct Projection {
 
 /// `T_c_l` and the camera, unpacked once for the per-point loop.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Projector<'a> {
-    rotation: Matrix3<f64>,
-    translation: Vector3<f64>,
-    cam: &'a CameraModel,
+pub(crate) struct Projector {
+    /// Rotation C <- L, row-major plain f64s (no matrix indexing in the hot loop).
+    rotation: [[f64; 3]; 3],
+    translation: [f64; 3],
+    /// A copy, so the hot loop reads its fields from the stack, not through a pointer.
+    cam: CameraModel,
 }
 
-impl<'a> Projector<'a> {
-    pub(crate) fn new(t_c_l: &Isometry3<f64>, cam: &'a CameraModel) -> Self {
-        Self { rotation: t_c_l.rotation.to_rotation_matrix().into_inner(), translation: t_c_l.translation.vector, cam }
+impl Projector {
+    pub(crate) fn new(t_c_l: &Isometry3<f64>, cam: &CameraModel) -> Self {
+        let r: Matrix3<f64> = t_c_l.rotation.to_rotation_matrix().into_inner();
+        let t: Vector3<f64> = t_c_l.translation.vector;
+        Self {
+            rotation: [
+                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+            ],
+            translation: [t[0], t[1], t[2]],
+            cam: *cam,
+        }
     }
 
     /// Pixel of an L-frame point, or `None` when behind/near the camera or non-finite.
     #[inline(always)]
     pub(crate) fn pixel(&self, p: [f64; 3]) -> Option<[f64; 2]> {
-        let r = &self.rotation;
-        let t = &self.translation;
+        let z = self.depth(p);
         // Depth first: most of a 360-degree frame is behind the camera and stops here.
-        let z = r[(2, 0)] * p[0] + r[(2, 1)] * p[1] + r[(2, 2)] * p[2] + t[2];
         if z.is_nan() || z <= NEAR_LIMIT {
             return None;
         }
-        let x = r[(0, 0)] * p[0] + r[(0, 1)] * p[1] + r[(0, 2)] * p[2] + t[0];
-        let y = r[(1, 0)] * p[0] + r[(1, 1)] * p[1] + r[(1, 2)] * p[2] + t[1];
+        let [x, y] = self.lateral(p);
         self.cam.project_xyz(x, y, z)
+    }
+
+    /// Camera-frame depth z of an L-frame point.
+    #[inline(always)]
+    fn depth(&self, p: [f64; 3]) -> f64 {
+        let r2 = &self.rotation[2];
+        r2[0] * p[0] + r2[1] * p[1] + r2[2] * p[2] + self.translation[2]
+    }
+
+    /// Camera-frame x, y of an L-frame point.
+    #[inline(always)]
+    fn lateral(&self, p: [f64; 3]) -> [f64; 2] {
+        let [r0, r1, _] = &self.rotation;
+        let t = &self.translation;
+        [r0[0] * p[0] + r0[1] * p[1] + r0[2] * p[2] + t[0], r1[0] * p[0] + r1[1] * p[1] + r1[2] * p[2] + t[1]]
     }
 
     #[inline(always)]
@@ -56,18 +80,16 @@ pub fn project_points<P: PointCloud + ?Sized>(points: &P, t_c_l: &Isometry3<f64>
     let projector = Projector::new(t_c_l, cam);
     let n = points.len();
     let mut out = Projection { uv: Vec::with_capacity(n), valid: Vec::with_capacity(n) };
-    for i in 0..n {
-        match projector.pixel(points.point(i)) {
-            Some(uv) => {
-                out.uv.push(uv);
-                out.valid.push(projector.in_image(uv));
-            }
-            None => {
-                out.uv.push([f64::NAN; 2]);
-                out.valid.push(false);
-            }
+    points.for_each_point(#[inline(always)] |_, p| match projector.pixel(p) {
+        Some(uv) => {
+            out.uv.push(uv);
+            out.valid.push(projector.in_image(uv));
         }
-    }
+        None => {
+            out.uv.push([f64::NAN; 2]);
+            out.valid.push(false);
+        }
+    });
     out
 }
 
