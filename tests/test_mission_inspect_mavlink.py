@@ -22,8 +22,14 @@ MAVLINK = ["--vehicle", "mavlink", "--time-scale", "4"]
 ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
 
 
-def _inspect(tmp_path, *extra):
+def _inspect(tmp_path, *extra, confirmations=1):
+    """Fly the small scene. The registry confirms at once (the paper's behaviour) unless told
+    otherwise: over MAVLink the simulated PX4 flies on while a frame renders, so a fast pass
+    gets too few detection events for the default 3 confirmations (test_mission_inspect
+    exercises those in-process)."""
     scene, mission = small_scene(tmp_path)
+    # [inspection] is the mission file's last table
+    mission.write_text(mission.read_text() + f"confirmations = {confirmations}\n")
     out = tmp_path / "report"
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS, *extra])
     return rc, out, json.loads((out / "summary.json").read_text())
