@@ -206,6 +206,24 @@ def test_stale_position_holds_with_a_reason(vehicle: MavlinkVehicle) -> None:
     assert sim.with_vehicle(lambda v: v.mode.value) == "HOLD"
 
 
+def test_link_loss_just_after_a_heartbeat_is_reported_as_link_loss(vehicle: MavlinkVehicle) -> None:
+    """A silent link whose last message was a heartbeat is a link loss, not a stale position.
+
+    The position stream stops first, a heartbeat still arrives (well inside the 1 s stale
+    timeout), then the link goes: only the heartbeat failsafe may fire (CI once saw the
+    stale-position hold win this race)."""
+    sim = sim_of(vehicle)
+    take_off_into_offboard(vehicle)
+    sim.set_rate("LOCAL_POSITION_NED", 0.0)
+    time.sleep(0.5)  # 2 vehicle s at 4x: heartbeats arrive, positions do not
+    sim.set_link_lost(True)
+    with pytest.raises(VehicleFailsafe) as failsafe:
+        for _ in range(400):
+            vehicle.send_setpoint(np.array([0.0, 0.0, 3.0]))
+            vehicle.advance(DT)
+    assert failsafe.value.reason == "autopilot heartbeat lost for more than 3 s"
+
+
 def test_commands_survive_packet_loss_and_delay() -> None:
     """20 % loss each way and 30 ms latency: retransmission gets every command through."""
     client = connect_vehicle(None, time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)

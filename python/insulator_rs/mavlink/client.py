@@ -567,10 +567,12 @@ class MavlinkVehicle:
                                  "setpoints stopped; the autopilot flies its own failsafe")
             return
         armed = bool(self._heartbeat.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
-        # Stale position only while the link is alive (a heartbeat came after the
-        # last position); a silent link is the heartbeat failsafe above.
+        # Stale position only while the link is provably alive: a heartbeat came
+        # more than the stale timeout after the last position. A heartbeat that
+        # merely happened to be the link's last message must not turn a silent
+        # link into a stale-position hold (the heartbeat failsafe above owns that).
         if armed and now - self._local_wall > fs.position_stale_timeout \
-                and self._heartbeat_wall > self._local_wall:
+                and self._heartbeat_wall - self._local_wall > fs.position_stale_timeout:
             self._raise_failsafe(f"local position stale for more than {fs.position_stale_timeout:g} s", "hold")
         elif armed and self._battery < fs.low_battery_fraction \
                 and self._landed_state != M.MAV_LANDED_STATE_ON_GROUND:
