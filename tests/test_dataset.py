@@ -140,6 +140,21 @@ def test_dataset_command_writes_the_yolo_layout(dataset):
     assert n_boxes == sum(int(v["boxes"]) for v in views) > 0
 
 
+def test_training_card_counts_a_rendered_dataset(dataset):
+    """The model card of a model trained on a rendered data.yaml counts its images and boxes
+    per split (reference: the files and views.csv the writer made)."""
+    import csv
+
+    from insulator_rs.detection.train_command import describe_yolo_dataset
+
+    summary = describe_yolo_dataset(dataset / "data.yaml")
+    assert summary["images"] == {"train": 4, "val": 1, "test": 1}
+    with (dataset / "views.csv").open() as f:
+        views = list(csv.DictReader(f))
+    for split in SPLITS:
+        assert summary["boxes"][split] == sum(int(v["boxes"]) for v in views if v["split"] == split)
+
+
 def test_dataset_labels_sit_on_the_insulators(dataset):
     """Reference: cv2.projectPoints of points along each ground-truth insulator axis, through
     the pose in views.csv and the scaled default lens; every label box holds the projection of

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from insulator_rs.detection.voc import DEFAULT_FRACTIONS, convert_voc_dataset
+from insulator_rs.detection.voc import DEFAULT_FRACTIONS, IMAGE_SUFFIXES, convert_voc_dataset
 
 
 def plot_training_curves(results_csv: Path, out_png: Path) -> Path | None:
@@ -52,6 +52,23 @@ def plot_training_curves(results_csv: Path, out_png: Path) -> Path | None:
     fig.savefig(out_png, dpi=100)
     plt.close(fig)
     return out_png
+
+
+def describe_yolo_dataset(data_yaml: Path) -> dict[str, object]:
+    """Images and boxes per split of a YOLO dataset laid out as ``images/<split>``, ``labels/<split>``."""
+    root = data_yaml.parent
+    images: dict[str, int] = {}
+    boxes: dict[str, int] = {}
+    for split_dir in sorted((root / "images").glob("*")) if (root / "images").is_dir() else []:
+        if not split_dir.is_dir():
+            continue
+        split = split_dir.name
+        images[split] = sum(1 for p in split_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        labels = root / "labels" / split
+        boxes[split] = sum(
+            sum(1 for line in txt.read_text().splitlines() if line.strip())
+            for txt in labels.glob("*.txt")) if labels.is_dir() else 0
+    return {"yaml": str(data_yaml), "images": images, "boxes": boxes}
 
 
 def package_model(
@@ -100,13 +117,15 @@ def run_train(args: argparse.Namespace) -> int:
     t_start = time.time()
     dataset: dict[str, object]
     if args.data.suffix in (".yaml", ".yml"):
-        data_yaml, dataset = args.data, {"yaml": str(args.data)}
+        data_yaml, dataset = args.data, describe_yolo_dataset(args.data)
+        split = "as laid out in the given data.yaml"
         test_split = args.data.parent / "images" / "test"
     else:
         print(f"converting VOC {args.data} -> {out / 'data'} (split by source photo)", flush=True)
         summary = convert_voc_dataset(args.data, out / "data", fractions=tuple(args.fractions), seed=args.seed,
                                       limit_per_split=args.limit_per_split)
         data_yaml, dataset = summary.yaml_path, summary.to_dict()
+        split = "by source photo (Roboflow copies of one photo share a split)"
         test_split = out / "data" / "images" / "test"
         print(f"  images per split {summary.images}, source photos {summary.source_photos}", flush=True)
     cfg = TrainConfig(data_yaml=data_yaml, out_dir=out, name="run", model_cfg=args.model_cfg, epochs=args.epochs,
@@ -124,7 +143,7 @@ def run_train(args: argparse.Namespace) -> int:
         "name": args.name,
         "architecture": f"{args.model_cfg} (Ultralytics), trained from scratch: no pretrained weights",
         "data": dataset,
-        "split": "by source photo (Roboflow copies of one photo share a split)",
+        "split": split,
         "epochs": result.epochs_run,
         "time_budget_hours": args.hours,
         "imgsz": args.imgsz,
