@@ -92,6 +92,19 @@ def test_bad_arguments_are_named(tmp_path):
         main(["inspect", "--v-max", "-1", "--out", str(tmp_path)])
 
 
+def test_unknown_or_broken_detector_is_refused_before_flying(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert main(["inspect", "--detector", "no-such-model", "--out", str(out)]) == 2
+    assert "--detector: 'no-such-model' is neither a shipped model" in capsys.readouterr().err
+    assert main(["inspect", "--detector", str(tmp_path / "missing.onnx"), "--out", str(out)]) == 2
+    assert "--detector: no such ONNX file" in capsys.readouterr().err
+    broken = tmp_path / "broken.onnx"
+    broken.write_bytes(b"\x08\x01" * 10)
+    assert main(["inspect", "--detector", str(broken), "--out", str(out)]) == 2
+    assert "broken.onnx" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_bad_mission_file_is_refused_before_flying(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text((MISSIONS / "tower_a.toml").read_text().replace("max_width = 10.0", "max_width = -3"))

@@ -18,7 +18,8 @@ is sent to the vehicle. The run follows the paper's
 online algorithm: take off, fly the exploration path (minimum-snap
 trajectories, safety-checked), and on every detection event render the
 detection camera, turn its ground-truth boxes into detections with the
-detector stand-in, cast a LiDAR frame, cull and accumulate the points and
+detector stand-in (or, with ``--detector``, run a YOLO network such as the
+shipped ``insulator-sim`` on its pixels), cast a LiDAR frame, cull and accumulate the points and
 localize with ``ir.localize``; new insulators get inspection waypoints, which
 the state machine visits (a photo from the simulated camera, gimbal aimed, at
 each), then the flight goes on, crosses over the top, finishes and lands.
@@ -40,7 +41,8 @@ from typing import Any
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.exceptions import ConfigError, VehicleError
+from insulator_rs.detection.detector import Detector
+from insulator_rs.exceptions import ConfigError, ModelError, VehicleError
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
 from insulator_rs.mission.geometry import MissionGeometry
@@ -141,12 +143,31 @@ def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time
     return vehicle
 
 
+def load_detector(name_or_path: str | None) -> Detector | None:
+    """The YOLO network for detection events: a shipped model by name or an ONNX file; None
+    keeps the stand-in. Raises ValueError/ModelError naming ``--detector``."""
+    if name_or_path is None:
+        return None
+    from insulator_rs.models import available_models
+
+    path = Path(name_or_path)
+    if name_or_path in available_models():
+        return Detector.from_name(name_or_path)
+    if path.suffix == ".onnx" or path.exists():
+        if not path.is_file():
+            raise ValueError(f"--detector: no such ONNX file: {path}")
+        return Detector(path)
+    raise ValueError(f"--detector: {name_or_path!r} is neither a shipped model {available_models()} "
+                     "nor an ONNX file")
+
+
 class InspectionRun:
     """One simulated single-flight inspection (state, sensors, report)."""
 
     def __init__(self, mission: Mission, tower: Tower, out: Path, *, method: str, policy: str,
                  seed: int, detect_period: float, detect_scale: float, photo_scale: float,
-                 max_flight_time: float, quiet: bool = False, vehicle: Vehicle | None = None) -> None:
+                 max_flight_time: float, quiet: bool = False, vehicle: Vehicle | None = None,
+                 detector: Detector | None = None) -> None:
         self.mission = mission
         self.tower = tower
         self.geom = MissionGeometry.from_mission(mission)
@@ -163,7 +184,8 @@ class InspectionRun:
         self.det_camera = Camera(_scaled_camera(base, detect_scale))
         self.photo_model = _scaled_camera(base, photo_scale)
         self.lidar = Mid360()
-        self.detector = DetectorStandin(seed=seed)
+        self.standin = DetectorStandin(seed=seed)
+        self.network = detector  # None: the stand-in turns ground-truth boxes into detections
         self.perception = OnboardPerception(self.det_camera.model, self.det_camera.T_b_c,
                                             self.lidar.T_b_l, method=method,
                                             insulator_length=mission.inspection.insulator_length)
@@ -238,13 +260,11 @@ class InspectionRun:
                                        seed=self.seed + self.events, time=st.time)
         if not frame.boxes:
             return
-        ids = list(frame.boxes)
-        det = self.detector.detect(np.array([frame.boxes[i] for i in ids]),
-                                   (self.det_camera.model.width, self.det_camera.model.height), ids)
-        if len(det) == 0:
+        boxes = self._detect(frame)
+        if len(boxes) == 0:
             return
         scan = self.lidar.scan(self.tower.mesh, (T_true, T_true), st.time, seed=self.seed + self.events)
-        for loc in self.perception.event(det.boxes, scan.points_l, T_w_b):
+        for loc in self.perception.event(boxes, scan.points_l, T_w_b):
             self.localizations += 1
             outcome = self.sm.localized(loc.center, loc.axis, st.position, st.time)
             if outcome in ("new", "deferred"):
@@ -254,6 +274,16 @@ class InspectionRun:
                          f"{np.round(loc.center, 2).tolist()} ({loc.n_points} points, error "
                          f"{err:.2f} m vs ground truth) -> {outcome}")
                 self.write_summary()
+
+    def _detect(self, frame: Any) -> np.ndarray:
+        """Detection boxes (M, 4) in the detection image: the network's on the rendered pixels,
+        or the stand-in's from the ground-truth boxes."""
+        if self.network is not None:
+            return self.network(np.ascontiguousarray(frame.rgb[:, :, ::-1])).boxes
+        ids = list(frame.boxes)
+        det = self.standin.detect(np.array([frame.boxes[i] for i in ids]),
+                                  (self.det_camera.model.width, self.det_camera.model.height), ids)
+        return det.boxes
 
     def _gt_match(self, ins: Insulator) -> tuple[int | None, float, float]:
         """(GT instance id, centre error m, axis error deg) of the nearest true insulator."""
@@ -512,6 +542,7 @@ class InspectionRun:
             "scene": self.tower.spec.name,
             "mission": self.mission.source,
             "method": self.method,
+            "detector": self.network.path.stem if self.network is not None else "stand-in (ground-truth boxes)",
             "policy": self.policy,
             "state": self.sm.state.value,
             "vehicle": type(self.vehicle).__name__,
@@ -565,6 +596,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--detector", default=None,
+                   help="a shipped model name (e.g. insulator-sim) or an ONNX file: run that YOLO network "
+                        "on the rendered detection images (default: the detector stand-in on the "
+                        "ground-truth boxes)")
     p.add_argument("--detect-period", type=float, default=1.0, help="s between detection events (default 1)")
     p.add_argument("--detect-scale", type=float, default=0.25,
                    help="detection camera resolution as a fraction of the 1280x960 camera (default 0.25)")
@@ -639,7 +674,8 @@ def run(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
         mission = load_mission(mission_path)
         MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
-    except (ConfigError, ValueError) as exc:
+        detector = load_detector(args.detector)
+    except (ConfigError, ValueError, ModelError) as exc:
         print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
         return 2
     if args.v_max is not None or args.a_max is not None:
@@ -660,7 +696,7 @@ def run(args: argparse.Namespace) -> int:
         runner = InspectionRun(mission, tower, args.out, method=args.method, policy=args.policy, seed=args.seed,
                                detect_period=args.detect_period, detect_scale=args.detect_scale,
                                photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
-                               quiet=args.quiet, vehicle=vehicle)
+                               quiet=args.quiet, vehicle=vehicle, detector=detector)
         code = 0
         try:
             runner.fly()
