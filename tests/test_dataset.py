@@ -149,6 +149,7 @@ def test_training_card_counts_a_rendered_dataset(dataset):
 
     summary = describe_yolo_dataset(dataset / "data.yaml")
     assert summary["images"] == {"train": 4, "val": 1, "test": 1}
+    assert summary["rendered_images_per_scene"] == {"tower_a": 3, "tower_b": 3}
     with (dataset / "views.csv").open() as f:
         views = list(csv.DictReader(f))
     for split in SPLITS:

@@ -68,7 +68,15 @@ def describe_yolo_dataset(data_yaml: Path) -> dict[str, object]:
         boxes[split] = sum(
             sum(1 for line in txt.read_text().splitlines() if line.strip())
             for txt in labels.glob("*.txt")) if labels.is_dir() else 0
-    return {"yaml": str(data_yaml), "images": images, "boxes": boxes}
+    summary: dict[str, object] = {"yaml": str(data_yaml), "images": images, "boxes": boxes}
+    views = root / "views.csv"
+    if views.is_file():  # written by ``insulator-rs dataset``: where each rendered image was taken
+        import csv
+        from collections import Counter
+
+        with views.open() as f:
+            summary["rendered_images_per_scene"] = dict(Counter(row["scene"] for row in csv.DictReader(f)))
+    return summary
 
 
 def package_model(
@@ -131,7 +139,7 @@ def run_train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(data_yaml=data_yaml, out_dir=out, name="run", model_cfg=args.model_cfg, epochs=args.epochs,
                       hours=args.hours, imgsz=args.imgsz, batch=args.batch, workers=args.workers,
                       threads=args.threads, seed=args.seed, patience=args.patience,
-                      extra={"close_mosaic": args.close_mosaic})
+                      extra={"close_mosaic": args.close_mosaic, **({"cache": args.cache} if args.cache else {})})
 
     def on_epoch(epoch: int, epochs: int) -> None:
         print(f"[train] epoch {epoch}/{epochs} done at {time.time() - t_start:.0f} s", flush=True)
@@ -180,6 +188,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--patience", type=int, default=100)
     p.add_argument("--close-mosaic", type=int, default=5, help="last epochs without mosaic augmentation")
+    p.add_argument("--cache", choices=("ram", "disk"), default=None,
+                   help="keep decoded, resized images between epochs (large rendered PNGs decode slowly)")
     p.add_argument("--fractions", type=float, nargs=3, default=list(DEFAULT_FRACTIONS),
                    metavar=("TRAIN", "VALID", "TEST"), help="source-photo fractions when re-splitting")
     p.add_argument("--static", action="store_true",
