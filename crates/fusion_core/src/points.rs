@@ -3,6 +3,8 @@
 //! The [`PointCloud`] trait lets every kernel take a Rust slice or a strided
 //! view of a numpy array (float32 or float64, contiguous or not) without a copy.
 
+use std::ops::Range;
+
 use crate::error::{invalid, Result};
 
 /// A cloud of 3-D points, read one point at a time as f64 metres.
@@ -15,15 +17,27 @@ pub trait PointCloud {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    /// Calls `f(i, point(i))` for every point, in index order. Layouts that allow it
-    /// override this with a straight slice walk (no per-point index arithmetic or
-    /// bounds checks): the form hot loops should use.
+    /// Calls `f(i, point(i))` for every `i` in `range` (clamped to the cloud), in index
+    /// order. Layouts that allow it override this with a straight slice walk (no
+    /// per-point index arithmetic or bounds checks): the form hot loops should use.
     #[inline]
-    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
-        for i in 0..self.len() {
+    fn for_each_point_in<F: FnMut(usize, [f64; 3])>(&self, range: Range<usize>, mut f: F) {
+        for i in range.start..range.end.min(self.len()) {
             f(i, self.point(i));
         }
     }
+    /// Calls `f(i, point(i))` for every point, in index order.
+    #[inline]
+    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, f: F) {
+        self.for_each_point_in(0..self.len(), f);
+    }
+}
+
+/// `range` clamped to `0..len` (empty when it starts past the end).
+#[inline]
+fn clamp(range: Range<usize>, len: usize) -> Range<usize> {
+    let end = range.end.min(len);
+    range.start.min(end)..end
 }
 
 const NAN3: [f64; 3] = [f64::NAN; 3];
@@ -38,9 +52,10 @@ impl PointCloud for [[f64; 3]] {
         self.get(i).copied().unwrap_or(NAN3)
     }
     #[inline]
-    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
-        for (i, p) in self.iter().enumerate() {
-            f(i, *p);
+    fn for_each_point_in<F: FnMut(usize, [f64; 3])>(&self, range: Range<usize>, mut f: F) {
+        let r = clamp(range, self.len());
+        for (k, p) in self[r.clone()].iter().enumerate() {
+            f(r.start + k, *p);
         }
     }
 }
@@ -55,9 +70,10 @@ impl PointCloud for [[f32; 3]] {
         self.get(i).map_or(NAN3, |p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
     }
     #[inline]
-    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
-        for (i, p) in self.iter().enumerate() {
-            f(i, [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]);
+    fn for_each_point_in<F: FnMut(usize, [f64; 3])>(&self, range: Range<usize>, mut f: F) {
+        let r = clamp(range, self.len());
+        for (k, p) in self[r.clone()].iter().enumerate() {
+            f(r.start + k, [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]);
         }
     }
 }
@@ -72,8 +88,8 @@ impl PointCloud for Vec<[f64; 3]> {
         self.as_slice().point(i)
     }
     #[inline]
-    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, f: F) {
-        self.as_slice().for_each_point(f)
+    fn for_each_point_in<F: FnMut(usize, [f64; 3])>(&self, range: Range<usize>, f: F) {
+        self.as_slice().for_each_point_in(range, f)
     }
 }
 
@@ -87,8 +103,8 @@ impl<P: PointCloud + ?Sized> PointCloud for &P {
         (**self).point(i)
     }
     #[inline]
-    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, f: F) {
-        (**self).for_each_point(f)
+    fn for_each_point_in<F: FnMut(usize, [f64; 3])>(&self, range: Range<usize>, f: F) {
+        (**self).for_each_point_in(range, f)
     }
 }
 
@@ -152,17 +168,19 @@ impl<T: Copy + Into<f64>> PointCloud for StridedPoints<'_, T> {
         [self.element(i, 0), self.element(i, 1), self.element(i, 2)]
     }
     #[inline]
-    fn for_each_point<F: FnMut(usize, [f64; 3])>(&self, mut f: F) {
+    fn for_each_point_in<F: FnMut(usize, [f64; 3])>(&self, range: Range<usize>, mut f: F) {
+        let r = clamp(range, self.rows);
         // C-contiguous (N, 3), the usual numpy layout: walk the rows as a plain slice.
         if self.row_stride == 3 && self.col_stride == 1 {
-            if let Some(rows) = self.data.get(self.offset..self.offset.saturating_add(self.rows.saturating_mul(3))) {
-                for (i, p) in rows.chunks_exact(3).enumerate() {
-                    f(i, [p[0].into(), p[1].into(), p[2].into()]);
+            let start = self.offset.saturating_add(r.start.saturating_mul(3));
+            if let Some(rows) = self.data.get(start..start.saturating_add(r.len().saturating_mul(3))) {
+                for (k, p) in rows.chunks_exact(3).enumerate() {
+                    f(r.start + k, [p[0].into(), p[1].into(), p[2].into()]);
                 }
                 return;
             }
         }
-        for i in 0..self.rows {
+        for i in r {
             f(i, [self.element(i, 0), self.element(i, 1), self.element(i, 2)]);
         }
     }
@@ -241,11 +259,24 @@ mod tests {
         let c_off = StridedPoints::new(&data, 3, 3, 1, 3).unwrap();
         for view in [c, f, r, s, c_off] {
             assert_eq!(walk(&view), (0..view.len()).map(|i| (i, view.point(i))).collect::<Vec<_>>());
+            check_ranges(&view);
         }
         let v: Vec<[f64; 3]> = vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]];
         assert_eq!(walk(&v), vec![(0, v[0]), (1, v[1])]);
         let v32: [[f32; 3]; 2] = [[0.5, 1.5, -2.0], [f32::MAX, 0.0, 1.0]];
         assert_eq!(walk(&v32[..]), vec![(0, v32[..].point(0)), (1, v32[..].point(1))]);
+        check_ranges(&v);
+        check_ranges(&v32[..]);
+    }
+
+    /// Sub-range walks (the parallel chunks' form) visit `range` clamped to the cloud, never panicking.
+    fn check_ranges<P: PointCloud + ?Sized>(p: &P) {
+        for (lo, hi) in [(1, 3), (0, 0), (2, 100), (7, 9), (3, 1)] {
+            let mut got = Vec::new();
+            p.for_each_point_in(lo..hi, |i, q| got.push((i, q)));
+            let want: Vec<_> = (lo..hi.min(p.len())).map(|i| (i, p.point(i))).collect();
+            assert_eq!(got, want, "range {lo}..{hi}");
+        }
     }
 
     fn walk<P: PointCloud + ?Sized>(p: &P) -> Vec<(usize, [f64; 3])> {
