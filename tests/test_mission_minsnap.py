@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.minsnap import plan_min_snap, plan_min_snap_safe, solve_min_snap
+from insulator_rs.mission.minsnap import (
+    optimize_segment_times,
+    plan_min_snap,
+    plan_min_snap_safe,
+    snap_cost,
+    solve_min_snap,
+)
 from insulator_rs.mission.safety import safety_volumes
 
 VM = np.array([3.0, 3.0, 1.5])
@@ -117,6 +123,8 @@ def test_bad_input():
         plan_min_snap(np.zeros((1, 3)), VM, AM)
     with pytest.raises(ValueError, match="repeated"):
         plan_min_snap(np.zeros((2, 3)), VM, AM)
+    with pytest.raises(ValueError, match="time_allocation"):
+        plan_min_snap(waypoints(0), VM, AM, time_allocation="fastest")
 
 
 def test_moving_start_keeps_its_velocity_and_the_limits():
@@ -147,3 +155,46 @@ def test_deviation_bound_keeps_the_curve_near_the_straight_path():
         return max(d)
 
     assert worst(bounded) <= 1.0 + 0.05 < worst(plain)
+
+
+def test_segment_times_of_a_symmetric_path_become_equal():
+    """Three equally spaced collinear waypoints, rest to rest: by symmetry the snap-optimal
+    split of any total time is equal halves; started from 1:3 it gets there within 1 %."""
+    wp = np.array([[0.0, 0, 0], [5.0, 0, 0], [10.0, 0, 0]])
+    T = optimize_segment_times(wp, np.array([1.0, 3.0]))
+    assert T.sum() == pytest.approx(4.0)
+    np.testing.assert_allclose(T, [2.0, 2.0], rtol=1e-2)
+
+
+@pytest.mark.parametrize("seed", [0, 3, 5])
+def test_segment_times_match_scipy_slsqp(seed):
+    """Reference: scipy.optimize.minimize (SLSQP) of the same snap cost over the segment times
+    with sum(T) fixed. Tolerance: our cost within 1 % of SLSQP's (and never above the start)."""
+    from scipy.optimize import minimize
+
+    wp = waypoints(seed, n=5)
+    start = np.linalg.norm(np.diff(wp, axis=0), axis=1) / 2.0
+    ours = optimize_segment_times(wp, start)
+    assert ours.sum() == pytest.approx(start.sum()) and np.all(ours > 0)
+    scale = snap_cost(wp, start)
+    ref = minimize(lambda t: snap_cost(wp, t) / scale, start, method="SLSQP",
+                   bounds=[(0.1 * t, None) for t in start],
+                   constraints=[{"type": "eq", "fun": lambda t: t.sum() - start.sum()}],
+                   options={"ftol": 1e-10, "maxiter": 500})
+    assert ref.success, ref.message
+    assert snap_cost(wp, ours) <= snap_cost(wp, start)
+    assert snap_cost(wp, ours) <= snap_cost(wp, ref.x) * 1.01
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_snap_time_allocation_keeps_the_limits_and_lowers_the_snap_at_equal_time(seed):
+    wp = waypoints(seed)
+    pmm = plan_min_snap(wp, VM, AM)
+    snap = plan_min_snap(wp, VM, AM, time_allocation="snap")
+    t = np.linspace(0, snap.total_time, 20001)
+    assert np.all(np.max(np.abs(snap.evaluate(t, 1)), axis=0) <= VM * (1 + 1e-9))
+    assert np.all(np.max(np.abs(snap.evaluate(t, 2)), axis=0) <= AM * (1 + 1e-9))
+    np.testing.assert_allclose(snap.evaluate(np.concatenate([[0.0], np.cumsum(snap.durations)])), wp, atol=1e-8)
+    # At the same total time the snap-optimal split has the lower cost.
+    same_total = snap.durations * pmm.total_time / snap.total_time
+    assert snap_cost(wp, same_total) <= snap_cost(wp, pmm.durations)

@@ -46,7 +46,7 @@ from insulator_rs.exceptions import ConfigError, ModelError, VehicleError
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.minsnap import MinSnapTrajectory, plan_min_snap_safe
+from insulator_rs.mission.minsnap import TIME_ALLOCATIONS, MinSnapTrajectory, plan_min_snap_safe
 from insulator_rs.mission.perception import OnboardPerception
 from insulator_rs.mission.registry import Insulator, InsulatorRegistry
 from insulator_rs.mission.report import ReportWriter
@@ -167,7 +167,7 @@ class InspectionRun:
     def __init__(self, mission: Mission, tower: Tower, out: Path, *, method: str, policy: str,
                  seed: int, detect_period: float, detect_scale: float, photo_scale: float,
                  max_flight_time: float, quiet: bool = False, vehicle: Vehicle | None = None,
-                 detector: Detector | None = None) -> None:
+                 detector: Detector | None = None, time_allocation: str = "pmm") -> None:
         self.mission = mission
         self.tower = tower
         self.geom = MissionGeometry.from_mission(mission)
@@ -186,6 +186,7 @@ class InspectionRun:
         self.lidar = Mid360()
         self.standin = DetectorStandin(seed=seed)
         self.network = detector  # None: the stand-in turns ground-truth boxes into detections
+        self.time_allocation = time_allocation
         self.perception = OnboardPerception(self.det_camera.model, self.det_camera.T_b_c,
                                             self.lidar.T_b_l, method=method,
                                             insulator_length=mission.inspection.insulator_length)
@@ -358,7 +359,8 @@ class InspectionRun:
         v0 = np.clip(st.velocity, -self.v_max, self.v_max)
         traj: MinSnapTrajectory = plan_min_snap_safe(pts, self.v_max, self.a_max, self.geom.volumes,
                                                      dt=SAFETY_CHECK_DT, v_start=v0,
-                                                     max_deviation=MAX_PATH_DEVIATION)
+                                                     max_deviation=MAX_PATH_DEVIATION,
+                                                     time_allocation=self.time_allocation)
         # the time at which the trajectory passes each item (items are among its waypoints)
         knots = np.concatenate([[0.0], np.cumsum(traj.durations)])
         item_times = []
@@ -542,6 +544,7 @@ class InspectionRun:
             "scene": self.tower.spec.name,
             "mission": self.mission.source,
             "method": self.method,
+            "time_allocation": self.time_allocation,
             "detector": self.network.path.stem if self.network is not None else "stand-in (ground-truth boxes)",
             "policy": self.policy,
             "state": self.sm.state.value,
@@ -600,6 +603,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="a shipped model name (e.g. insulator-sim) or an ONNX file: run that YOLO network "
                         "on the rendered detection images (default: the detector stand-in on the "
                         "ground-truth boxes)")
+    p.add_argument("--time-allocation", default="pmm", choices=TIME_ALLOCATIONS,
+                   help="min-snap segment times: pmm (point-mass proportions, default) or snap "
+                        "(redistributed to minimise snap, Richter et al.; slower to plan)")
     p.add_argument("--detect-period", type=float, default=1.0, help="s between detection events (default 1)")
     p.add_argument("--detect-scale", type=float, default=0.25,
                    help="detection camera resolution as a fraction of the 1280x960 camera (default 0.25)")
@@ -696,7 +702,8 @@ def run(args: argparse.Namespace) -> int:
         runner = InspectionRun(mission, tower, args.out, method=args.method, policy=args.policy, seed=args.seed,
                                detect_period=args.detect_period, detect_scale=args.detect_scale,
                                photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
-                               quiet=args.quiet, vehicle=vehicle, detector=detector)
+                               quiet=args.quiet, vehicle=vehicle, detector=detector,
+                               time_allocation=args.time_allocation)
         code = 0
         try:
             runner.fly()
