@@ -95,13 +95,13 @@ def test_bad_arguments_are_named(tmp_path):
 def test_unknown_or_broken_detector_is_refused_before_flying(tmp_path, capsys):
     out = tmp_path / "report"
     assert main(["inspect", "--detector", "no-such-model", "--out", str(out)]) == 2
-    assert "--detector: 'no-such-model' is neither a shipped model" in capsys.readouterr().err
+    assert "--detector: name: no shipped model 'no-such-model'; shipped: [" in capsys.readouterr().err
     assert main(["inspect", "--detector", str(tmp_path / "missing.onnx"), "--out", str(out)]) == 2
-    assert "--detector: no such ONNX file" in capsys.readouterr().err
+    assert "--detector: model " in (err := capsys.readouterr().err) and "missing.onnx: file not found" in err
     broken = tmp_path / "broken.onnx"
     broken.write_bytes(b"\x08\x01" * 10)
     assert main(["inspect", "--detector", str(broken), "--out", str(out)]) == 2
-    assert "broken.onnx" in capsys.readouterr().err
+    assert "--detector: model " in (err := capsys.readouterr().err) and "broken.onnx" in err
     assert not out.exists()
 
 

@@ -41,8 +41,9 @@ from typing import Any
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.detection.commands import open_detector
 from insulator_rs.detection.detector import Detector
-from insulator_rs.exceptions import ConfigError, ModelError, VehicleError
+from insulator_rs.exceptions import ConfigError, VehicleError
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
 from insulator_rs.mission.geometry import MissionGeometry
@@ -72,6 +73,7 @@ PHOTO_SETTLE_TIMEOUT = 8.0  # s
 HOLD_TIMEOUT = 10.0  # s in HOLD before the mission aborts
 STATUS_PERIOD = 15.0  # s of flight between progress lines
 SUMMARY_PERIOD = 5.0  # s of flight between summary rewrites
+DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
 LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
 TAKEOFF_TIMEOUT = 60.0  # s of vehicle time for the climb to the first pass height
 LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
@@ -143,22 +145,15 @@ def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time
     return vehicle
 
 
-def load_detector(name_or_path: str | None) -> Detector | None:
-    """The YOLO network for detection events: a shipped model by name or an ONNX file; None
-    keeps the stand-in. Raises ValueError/ModelError naming ``--detector``."""
-    if name_or_path is None:
+def load_detector(model: str | None) -> Detector | None:
+    """The YOLO network for detection events (a shipped model name or an ONNX file); None keeps
+    the stand-in. Raises ValueError naming ``--detector``."""
+    if model is None:
         return None
-    from insulator_rs.models import available_models
-
-    path = Path(name_or_path)
-    if name_or_path in available_models():
-        return Detector.from_name(name_or_path)
-    if path.suffix == ".onnx" or path.exists():
-        if not path.is_file():
-            raise ValueError(f"--detector: no such ONNX file: {path}")
-        return Detector(path)
-    raise ValueError(f"--detector: {name_or_path!r} is neither a shipped model {available_models()} "
-                     "nor an ONNX file")
+    try:
+        return open_detector(model, conf=DETECT_CONF)
+    except ValueError as exc:  # ModelError included: missing, truncated or not a YOLO export
+        raise ValueError(f"--detector: {exc}") from exc
 
 
 class InspectionRun:
@@ -681,7 +676,7 @@ def run(args: argparse.Namespace) -> int:
         mission = load_mission(mission_path)
         MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
         detector = load_detector(args.detector)
-    except (ConfigError, ValueError, ModelError) as exc:
+    except (ConfigError, ValueError) as exc:
         print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
         return 2
     if args.v_max is not None or args.a_max is not None:
