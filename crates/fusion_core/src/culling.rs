@@ -48,8 +48,9 @@ impl PixelBox {
 /// Clouds at least this large are culled in parallel chunks: below it rayon's
 /// fork-join (a few µs) costs more than the second core saves.
 pub const PARALLEL_MIN_POINTS: usize = 8192;
-/// Points per parallel chunk: a few per core keeps the cores busy when one is loaded.
-const CHUNK_POINTS: usize = 4096;
+/// Smallest parallel chunk; otherwise one chunk per rayon thread (fewer, larger
+/// chunks measured faster than 4096-point ones on 2 cores: less joining and waking).
+const MIN_CHUNK_POINTS: usize = 4096;
 
 /// For each box, the ascending indices of the points that are valid (in front of the
 /// camera, inside the image) and project inside the box. One pass over the cloud,
@@ -86,9 +87,10 @@ pub fn points_in_boxes<P: PointCloud + Sync + ?Sized>(
     if n < PARALLEL_MIN_POINTS {
         return Ok(cull_range(points, 0..n, &projector, boxes, &union));
     }
-    let chunks: Vec<Vec<Vec<usize>>> = (0..n.div_ceil(CHUNK_POINTS))
+    let chunk = n.div_ceil(rayon::current_num_threads()).max(MIN_CHUNK_POINTS);
+    let chunks: Vec<Vec<Vec<usize>>> = (0..n.div_ceil(chunk))
         .into_par_iter()
-        .map(|c| cull_range(points, c * CHUNK_POINTS..((c + 1) * CHUNK_POINTS).min(n), &projector, boxes, &union))
+        .map(|c| cull_range(points, c * chunk..((c + 1) * chunk).min(n), &projector, boxes, &union))
         .collect();
     let mut out: Vec<Vec<usize>> = (0..boxes.len())
         .map(|k| Vec::with_capacity(chunks.iter().map(|c| c[k].len()).sum()))
