@@ -42,7 +42,7 @@ flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``)::
 from __future__ import annotations
 
 import math
-import tomllib
+from insulator_rs._toml import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any

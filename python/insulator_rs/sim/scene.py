@@ -15,7 +15,7 @@ Every error raised while loading names the file and the dotted field, e.g.
 from __future__ import annotations
 
 import math
-import tomllib
+from insulator_rs._toml import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
