@@ -1,0 +1,106 @@
+"""The ``Sensors`` port: what the flight loop and the perception pipeline read from the world.
+
+Like PX4's drivers publishing on uORB, every sensor source is an adapter behind this
+one interface, and the consumers (the flight loop, :mod:`insulator_rs.perception`-side
+code, the report) never know which one they read:
+
+* the simulator (``insulator_rs.sim.sensors``): renders the scene from the airframe's
+  true pose, which only the simulator knows;
+* a recorded flight (MCAP / rosbag2 / ROS 1 bag), replayed offline;
+* live drivers: a Livox Mid-360 over UDP and a camera through OpenCV.
+
+Every stamp is in ONE clock, the vehicle's (seconds, the clock of
+:attr:`insulator_rs.vehicle.VehicleState.time`): a source whose sensor has a clock of
+its own converts at its edge (see the time-sync module) before anything leaves it.
+Frames follow DESIGN.md: points in the LiDAR frame L, images in the camera optical
+frame C, extrinsics ``T_b_l``/``T_b_c`` (4x4 float64, ``p_b = T_b_x @ p_x``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from insulator_rs._core import CameraModel
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One camera image.
+
+    ``time``: vehicle clock (s) at exposure. ``image``: (H, W, 3) uint8, BGR (OpenCV's
+    order). ``camera``: the intrinsics of this image (its width/height match ``image``).
+    ``T_b_c``: the camera's pose in the body frame at exposure (a gimbal's angle included).
+    """
+
+    time: float
+    image: np.ndarray
+    camera: CameraModel
+    T_b_c: np.ndarray
+
+
+@dataclass(frozen=True)
+class LidarScan:
+    """One LiDAR scan (a Mid-360 frame spans 100 ms of flight).
+
+    ``points_l``: (N, 3) float32 or float64 in L, metres. ``times``: (N,) float64 vehicle
+    clock (s) of each point. ``T_b_l``: the LiDAR's extrinsics. ``intensity``: (N,)
+    reflectivity 0..255 where the sensor gives it.
+    """
+
+    points_l: np.ndarray
+    times: np.ndarray
+    T_b_l: np.ndarray
+    intensity: np.ndarray | None = None
+
+    @property
+    def time_start(self) -> float:
+        return float(self.times.min()) if len(self.times) else float("nan")
+
+    @property
+    def time_end(self) -> float:
+        return float(self.times.max()) if len(self.times) else float("nan")
+
+    def __len__(self) -> int:
+        return len(self.points_l)
+
+
+@dataclass(frozen=True)
+class PoseStamped:
+    """The vehicle's estimated pose: ``T_w_b`` (4x4 float64, W = local ENU) at ``time`` (s)."""
+
+    time: float
+    T_w_b: np.ndarray
+
+
+@runtime_checkable
+class Sensors(Protocol):
+    """A source of timestamped camera frames and LiDAR scans (vehicle clock).
+
+    ``now`` is the vehicle time of the caller: a live source returns the newest data it
+    has received up to then, the simulator renders at that instant, a replay returns what
+    was recorded up to then. None means nothing (new) is there, which is not an error:
+    a sensor that stopped delivering is reported through ``health()``.
+    """
+
+    def detection_frame(self, now: float) -> CameraFrame | None:
+        """The newest camera frame for detection, stamped at or before ``now``."""
+        ...
+
+    def lidar_scan(self, now: float) -> LidarScan | None:
+        """The newest complete LiDAR scan ending at or before ``now``."""
+        ...
+
+    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
+        """The inspection photo at ``now`` with the camera at ``T_b_c`` (gimbal aimed);
+        full resolution."""
+        ...
+
+    def health(self) -> dict[str, object]:
+        """Counters a crew would want in the report: frames, scans, drops, errors."""
+        ...
+
+    def close(self) -> None:
+        ...
