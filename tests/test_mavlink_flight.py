@@ -98,8 +98,8 @@ def test_connect_arm_offboard_fly_a_trajectory_capture_and_land(vehicle: Mavlink
     assert rate >= 19.0
     vehicle.capture_image()
     wait_until(vehicle, lambda s: len(vehicle.camera_feedback) == 1, 2.0)
-    sim_capture = sim.with_vehicle(lambda v: v.captures[-1])
-    np.testing.assert_allclose(vehicle.captures[0].position, sim_capture.position, atol=0.01)
+    sim_capture = sim.captured_positions[-1]
+    np.testing.assert_allclose(vehicle.captures[0].position, sim_capture, atol=0.01)
     assert vehicle.camera_feedback[0].image_index == 0
     vehicle.land()
     wait_until(vehicle, lambda s: not s.armed, 20.0)
@@ -112,7 +112,7 @@ def test_offboard_before_setpoints_is_refused_with_px4s_result(vehicle: MavlinkV
     with pytest.raises(CommandRejected) as refusal:
         vehicle.start_offboard()
     assert refusal.value.command == "MAV_CMD_DO_SET_MODE"
-    assert refusal.value.result == "MAV_RESULT_TEMPORARILY_REJECTED"
+    assert refusal.value.reason == "MAV_RESULT_TEMPORARILY_REJECTED"
     assert "OFFBOARD" in str(refusal.value)
     assert vehicle.state().mode == "HOLD"
 

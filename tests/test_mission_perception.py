@@ -3,7 +3,7 @@
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.mission.perception import EVENTS_PER_LOCALIZATION, OnboardPerception
+from insulator_rs.mission.perception import EVENTS_PER_LOCALIZATION, PerceptionPipeline
 
 CAM = ir.CameraModel(300.0, 300.0, 159.5, 119.5, 320, 240)
 T_B_C = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
@@ -27,7 +27,7 @@ def test_three_events_localize_the_insulator_in_front_of_the_lattice():
     background 4 m behind it inside the same box)."""
     rng = np.random.default_rng(0)
     center, axis = np.array([8.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0])
-    per = OnboardPerception(CAM, T_B_C, T_B_L)
+    per = PerceptionPipeline(CAM, T_B_C, T_B_L)
     out = []
     for k in range(EVENTS_PER_LOCALIZATION):
         T_w_b = np.eye(4)
@@ -46,7 +46,7 @@ def test_three_events_localize_the_insulator_in_front_of_the_lattice():
 
 def test_separate_insulators_get_separate_tracks():
     rng = np.random.default_rng(1)
-    per = OnboardPerception(CAM, T_B_C, T_B_L)
+    per = PerceptionPipeline(CAM, T_B_C, T_B_L)
     T_w_b = np.eye(4)
     a = insulator(np.array([8.0, -1.5, 0.0]), np.array([0.0, 0.0, 0.5]), 40, rng)
     b = insulator(np.array([8.0, 1.5, 0.0]), np.array([0.0, 0.0, 0.5]), 40, rng)
@@ -59,7 +59,7 @@ def test_separate_insulators_get_separate_tracks():
 
 
 def test_empty_inputs():
-    per = OnboardPerception(CAM, T_B_C, T_B_L)
+    per = PerceptionPipeline(CAM, T_B_C, T_B_L)
     assert per.event(np.zeros((0, 4)), np.zeros((5, 3)), np.eye(4)) == []
     assert per.event(np.array([[0, 0, 10, 10.0]]), np.zeros((0, 3)), np.eye(4)) == []
 
@@ -69,7 +69,7 @@ def test_scale_check_rejects_a_localization_that_does_not_fit_its_box():
     localization looks 2.5 times too long for the box and is rejected."""
     for length, expected in ((2.0, 1), (5.0, 0)):
         rng = np.random.default_rng(2)
-        per = OnboardPerception(CAM, T_B_C, T_B_L, insulator_length=length)
+        per = PerceptionPipeline(CAM, T_B_C, T_B_L, insulator_length=length)
         T_w_b = np.eye(4)
         ins = insulator(np.array([8.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 60, rng)
         for _ in range(EVENTS_PER_LOCALIZATION):

@@ -1,7 +1,9 @@
-"""Every exception the package raises, under one base class.
+"""Every exception the package raises, under one base class (one name per meaning).
 
 The compiled core raises ``LocalizationError`` (and ``ValueError``/``TypeError``
-for bad arguments); the Python layers raise the others.
+for bad arguments); the Python layers raise the others. Vehicle adapters (the
+simulator, the MAVLink client) raise the same ``CommandRejected``/``VehicleFailsafe``,
+so the flight loop handles a refusal the same way whichever vehicle it flies.
 """
 
 from __future__ import annotations
@@ -26,4 +28,41 @@ class ModelError(InsulatorError, ValueError):
     """A detection model file is missing, truncated/not ONNX, or not a YOLO detection export.
 
     The message names the file and which of those it is.
+    """
+
+
+class CommandRejected(VehicleError):
+    """The vehicle (autopilot) refused a command.
+
+    ``command`` names it (e.g. ``"arm"``, ``"MAV_CMD_DO_SET_MODE"``), ``reason`` says why
+    (the autopilot's words, or its MAV_RESULT name), ``detail`` adds what was asked (e.g. the
+    mode). ``temporary`` is True where the command may succeed later (PX4's
+    TEMPORARILY_REJECTED: arming before a position estimate exists) and False where it is
+    denied outright.
+    """
+
+    def __init__(self, command: str, reason: str, detail: str = "", *, temporary: bool = True) -> None:
+        what = f"{command} ({detail})" if detail else command
+        super().__init__(f"{what} refused: {reason}")
+        self.command = command
+        self.reason = reason
+        self.detail = detail
+        self.temporary = temporary
+
+
+class VehicleFailsafe(VehicleError):
+    """A failsafe fired; ``reason`` says why, ``action`` what the vehicle (or the client on its
+    behalf) did. A vehicle's ``advance`` raises it once per failsafe; the mission then stops
+    commanding (the autopilot, or the pilot, flies)."""
+
+    def __init__(self, reason: str, action: str) -> None:
+        super().__init__(f"failsafe: {reason}; action: {action}")
+        self.reason = reason
+        self.action = action
+
+
+class SensorError(InsulatorError):
+    """A sensor source cannot deliver (device gone, stream ended, bad packet stream).
+
+    The message names the source and what failed.
     """

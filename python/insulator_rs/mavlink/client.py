@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.exceptions import VehicleError
+from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsafe
 from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.frames import (
     attitude_ned_frd_to_enu_flu,
@@ -50,15 +50,8 @@ from insulator_rs.mavlink.frames import (
 )
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import command_name, mavlink2, mavutil, result_name
-from insulator_rs.sim.kinematics import (
-    CapturedImage,
-    FlightMode,
-    VehicleFailsafe,
-    as_finite,
-    as_vector3,
-    require_positive,
-)
-from insulator_rs.vehicle import VehicleState
+from insulator_rs.validation import as_finite, as_vector3, require_positive
+from insulator_rs.vehicle import FlightMode, VehicleState
 
 M = mavlink2
 # MAV_COMP_ID_ONBOARD_COMPUTER: we are the companion computer of the vehicle.
@@ -83,14 +76,14 @@ UNSIGNED_ALLOWED = frozenset({M.MAVLINK_MSG_ID_RADIO_STATUS})
 _SERIAL = re.compile(r"^(?P<device>(/|COM|com)[^:]*):(?P<baud>\d+)$")
 
 
-class CommandRejected(VehicleError):
-    """The autopilot answered a command with something other than ACCEPTED."""
+@dataclass(frozen=True)
+class CapturedImage:
+    """One camera trigger sent to the autopilot, with the reported pose at that instant (W)."""
 
-    def __init__(self, command: str, result: str, detail: str = "") -> None:
-        what = f"{command} ({detail})" if detail else command
-        super().__init__(f"{what} refused by the vehicle: {result}")
-        self.command = command
-        self.result = result
+    index: int
+    time: float
+    position: np.ndarray
+    yaw: float
 
 
 @dataclass(frozen=True)

@@ -55,13 +55,9 @@ from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2
-from insulator_rs.sim.kinematics import (
-    CommandRefused,
-    FlightMode,
-    KinematicVehicle,
-    Setpoint,
-    VehicleFailsafe,
-)
+from insulator_rs.exceptions import CommandRejected, VehicleFailsafe
+from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
+from insulator_rs.vehicle import FlightMode
 
 M = mavlink2
 # Wall-clock period of the simulation loop (s): physics, inbound, telemetry.
@@ -168,6 +164,8 @@ class SimulatedPx4:
                 raise ValueError(f"rates_hz[{name!r}] must be a known message with a rate >= 0, got {rate!r}")
             self.rates_hz[name] = float(rate)
         self.origin = origin
+        # true airframe positions (W) at each MAV_CMD_IMAGE_START_CAPTURE, for tests to compare
+        self.captured_positions: list[np.ndarray] = []
         self.system_id = system_id
         self.component_id = component_id
         self.faults = LinkFaults()
@@ -394,7 +392,7 @@ class SimulatedPx4:
                 home_amsl = self.origin[2] + float(vehicle.home[2])
                 altitude = p[6] - home_amsl if math.isfinite(p[6]) else vehicle.params.takeoff_altitude
                 if altitude <= 0.0:
-                    raise CommandRefused("takeoff", f"altitude {p[6]!r} m AMSL is not above home")
+                    raise CommandRejected("takeoff", f"altitude {p[6]!r} m AMSL is not above home")
                 vehicle.request_takeoff(altitude)
             elif command == M.MAV_CMD_NAV_LAND:
                 vehicle.land()
@@ -413,7 +411,7 @@ class SimulatedPx4:
                     self._capture()
             else:
                 result = M.MAV_RESULT_UNSUPPORTED
-        except CommandRefused as refusal:
+        except CommandRejected as refusal:
             result = M.MAV_RESULT_TEMPORARILY_REJECTED if refusal.temporary else M.MAV_RESULT_DENIED
         self.stats.last_ack[command] = result
         self._send(M.MAVLink_command_ack_message(
@@ -566,16 +564,17 @@ class SimulatedPx4:
             capabilities, 0, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, self.system_id))
 
     def _capture(self) -> None:
+        # the airframe's true pose at the trigger, as a camera's own GNSS/attitude tag would give
         v = self.vehicle
-        v.capture_image()
-        image = v.captures[-1]
-        lat, lon, alt = self._geodetic(image.position)
-        yaw_ned = yaw_enu_to_ned(image.yaw)
+        index, position, yaw = len(self.captured_positions), v.model.position.copy(), float(v.model.yaw)
+        self.captured_positions.append(position)
+        lat, lon, alt = self._geodetic(position)
+        yaw_ned = yaw_enu_to_ned(yaw)
         quaternion = [math.cos(yaw_ned / 2), 0.0, 0.0, math.sin(yaw_ned / 2)]
         self._send(M.MAVLink_camera_image_captured_message(
-            int(image.time * 1000) & 0xFFFFFFFF, int(time.time() * 1e6), 0,
+            int(v.clock.now * 1000) & 0xFFFFFFFF, int(time.time() * 1e6), 0,
             int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
-            int(round((image.position[2] - v.home[2]) * 1000)), quaternion, image.index, 1, b""))
+            int(round((position[2] - v.home[2]) * 1000)), quaternion, index, 1, b""))
 
 
 def main(argv: list[str] | None = None) -> int:
