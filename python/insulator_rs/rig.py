@@ -31,6 +31,7 @@ from insulator_rs._toml import tomllib
 from insulator_rs.calibration import load_camera_model
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.poses import check_pose
+from insulator_rs.textfile import read_config_text
 
 RIGS_DIR = Path(__file__).resolve().parent / "rigs"
 SIMULATOR_RIG = "simulator"
@@ -88,11 +89,10 @@ def load_rig(path: str | Path) -> SensorRig:
     """Read and validate a rig file (see the module docstring)."""
     p = Path(path)
     source = str(p)
-    if not p.is_file():
-        raise ConfigError(f"{source}: <file>: no such file")
+    text = read_config_text(p, f"{source}: <file>")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: <file>: cannot parse: {exc}") from exc
     extra = sorted(set(data) - {"camera", "lidar"})
     if extra:
@@ -108,7 +108,7 @@ def load_rig(path: str | Path) -> SensorRig:
         cal_path = p.resolve().parent / cal_path
     try:
         camera = load_camera_model(cal_path)
-    except ConfigError as exc:
+    except (ConfigError, OSError) as exc:  # a bad calibration, or none at that path
         raise ConfigError(f"{source}: camera.calibration: {exc}") from exc
     return SensorRig(source, camera, _matrix(source, cam_t, "camera", "T_b_c"),
                      _matrix(source, lidar_t, "lidar", "T_b_l"))

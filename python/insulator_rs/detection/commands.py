@@ -18,6 +18,7 @@ import cv2
 
 from insulator_rs.detection.detector import Detections, Detector, as_bgr_uint8
 from insulator_rs.detection.evaluate import EVAL_CONF, coco_evaluate, load_split
+from insulator_rs.mission import bounds
 
 
 def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None) -> Detector:
@@ -91,7 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         p.add_argument("--model", default="insulator-real", help="shipped model name or ONNX path")
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
-        p.add_argument("--threads", type=int, default=None, help="onnxruntime CPU threads")
+        p.add_argument("--threads", type=bounds.option("--threads"), default=None, help="onnxruntime CPU threads")
         p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
 
     run = sub.add_parser("run", help="detect insulators in images")

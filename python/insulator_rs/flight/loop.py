@@ -2,9 +2,9 @@
 
 The paper's online algorithm: take off, fly the exploration path (minimum-snap trajectories,
 safety-checked), and every ``detect_period`` s take a detection frame from the sensors, run
-the detector, and hand the frame, its boxes and the LiDAR scan of that instant to the
-perception pipeline (paired and deskewed with the pose history the loop feeds every control
-tick); new insulators get inspection waypoints, which the state machine visits (a photo at
+the detector, and hand the frame, its boxes and the LiDAR points of that instant (the scans
+ending at it and one scan later) to the perception pipeline (paired and deskewed with the
+pose history the loop feeds every control tick); new insulators get inspection waypoints, which the state machine visits (a photo at
 each, from the companion computer's camera through ``Sensors.photo``, gimbal aimed), then the
 flight goes on, crosses over the top, finishes and lands.
 
@@ -114,6 +114,7 @@ class FlightLoop:
         self.localizations = 0
         self.sensor_errors = 0
         self._airborne = False
+        self._pending: tuple[Any, np.ndarray] | None = None  # a detection frame and its boxes
         self._printed_transitions = 0
         self._next_detect = 0.0
         self._next_status = STATUS_PERIOD
@@ -153,8 +154,8 @@ class FlightLoop:
 
     # -- sensing -------------------------------------------------------------------------
     def detection_event(self, st: VehicleState) -> None:
-        """Take a detection frame, detect, pair with the LiDAR scan of that instant, localize,
-        tell the state machine."""
+        """Take a detection frame and run the detector; a frame with boxes waits for the LiDAR
+        points of its instant (see :meth:`_pair_pending`)."""
         self.events += 1
         try:
             frame = self.sensors.detection_frame(st.time)
@@ -167,6 +168,24 @@ class FlightLoop:
         except SensorError as exc:
             self._sensor_error(exc)
             return
+        if scan is not None:
+            self.perception.add_scan(scan)
+        self._pending = (frame, boxes)
+
+    def _pair_pending(self, st: VehicleState) -> None:
+        """Once the scan after a pending frame is complete (the pairing window past the frame),
+        hand the frame with the points of both sides of its instant to perception; tell the
+        state machine of each localization. As a live pipeline pairs a frame with the LiDAR
+        points of +-100 ms: a frame waits one scan."""
+        if self._pending is None or st.time < self._pending[0].time + self.perception.pairing_window - 1e-9:
+            return
+        frame, boxes = self._pending
+        self._pending = None
+        try:
+            scan = self.sensors.lidar_scan(st.time)
+        except SensorError as exc:
+            self._sensor_error(exc)
+            scan = None
         if scan is not None:
             self.perception.add_scan(scan)
         for loc in self.perception.process(frame, boxes):
@@ -194,9 +213,11 @@ class FlightLoop:
         t = st.time - self.t_start
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
         self.perception.add_pose(PoseStamped(st.time, pose_from_yaw(st.position, st.yaw)))
-        if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT) and st.time >= self._next_detect:
-            self._next_detect = st.time + self.settings.detect_period
-            self.detection_event(st)
+        if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
+            self._pair_pending(st)
+            if st.time >= self._next_detect:
+                self._next_detect = st.time + self.settings.detect_period
+                self.detection_event(st)
         if t >= self._next_status:
             self._next_status += STATUS_PERIOD
             self.say(f"[{t:7.1f} s] {self.sm.state.value}: at {np.round(st.position, 1).tolist()}, "

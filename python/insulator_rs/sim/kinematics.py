@@ -24,6 +24,7 @@ Everything here is in the world frame W (ENU, metres, radians, seconds).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +41,10 @@ LANDED_HEIGHT_M = 0.05
 LANDED_SPEED_MPS = 0.2
 # Takeoff is complete (mode goes to HOLD) within this distance of the target.
 TAKEOFF_REACHED_M = 0.3
+# Integration steps of true pose kept for the simulated sensors (10 s at 100 Hz): a LiDAR
+# frame is cast along the true path of its 0.1 s, which may lie a few seconds back when the
+# vehicle runs ahead of a sensor render (the simulated PX4 flies on in wall time).
+TRUE_TRACK_SAMPLES = 1000
 
 
 @dataclass(frozen=True)
@@ -286,6 +291,9 @@ class KinematicVehicle:
         self._has_taken_off = False
         self._closed = False
         self._pending_failsafe: VehicleFailsafe | None = None
+        # (time, true position, true yaw) after each integration step, for the simulated sensors
+        self.true_track: deque[tuple[float, np.ndarray, float]] = deque(maxlen=TRUE_TRACK_SAMPLES)
+        self.true_track.append((self.clock.now, position.copy(), self.model.yaw))
 
     # -- Vehicle protocol ------------------------------------------------------
 
@@ -417,8 +425,21 @@ class KinematicVehicle:
             h = min(MAX_INTEGRATION_STEP_S, remaining)
             remaining -= h
             self._autopilot_step(h)
+            self.true_track.append((self.clock.now, self.model.position.copy(), self.model.yaw))
         self.raise_pending_failsafe()
         return self.state()
+
+    def true_pose_at(self, time: float) -> tuple[np.ndarray, float]:
+        """The true (position, yaw) at ``time`` (s), interpolated over the last integration steps
+        (clamped to the oldest/newest kept): where simulated sensors were at that instant."""
+        times = np.fromiter((s[0] for s in self.true_track), float, len(self.true_track))
+        k = int(np.searchsorted(times, time))
+        if k <= 0 or k >= len(times):
+            _, position, yaw = self.true_track[0 if k <= 0 else -1]
+            return position.copy(), yaw
+        (t0, p0, y0), (t1, p1, y1) = self.true_track[k - 1], self.true_track[k]
+        f = (time - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return p0 + f * (p1 - p0), wrap_angle(y0 + f * wrap_angle(y1 - y0))
 
     def raise_pending_failsafe(self) -> None:
         """Raise the failsafe that fired since the last call, if any (once each)."""

@@ -3,14 +3,13 @@ from the scene.
 
 The sensors ride on the airframe's TRUE pose, which only the simulator knows: the wiring
 hands in a ``pose`` callable (see :func:`kinematic_true_pose`, :func:`simulated_px4_true_pose`)
-returning the position (W, m), yaw (rad) and velocity (W, m/s) to render at. Against an
-outside autopilot (a PX4 SITL with ``--sim-sensors``) there is no truth to ask, and
-:func:`reported_pose` renders at the pose the autopilot reports.
+returning T_w_b at a vehicle time. Against an outside autopilot (a PX4 SITL with
+``--sim-sensors``) there is no truth to ask, and :func:`reported_pose` renders at the pose
+the autopilot reports.
 
 * ``detection_frame(now)``: the detection camera (the rig's lens, scaled), no shadows.
 * ``lidar_scan(now)``: one Mid-360 frame over ``[now - 0.1 s, now]``, each shot cast from
-  the pose at its own time (the airframe moved at its current velocity during the frame),
-  points in L at their own time, as the driver delivers them.
+  the true pose at its own time, points in L at their own time, as the driver delivers them.
 * ``photo(now, T_b_c)``: the full-resolution inspection camera, aimed by the gimbal.
 
 Frames are stamped ``now`` (the vehicle clock the flight loop gives). The ground truth of
@@ -36,31 +35,30 @@ from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.mesh import Mesh
 from insulator_rs.vehicle import Vehicle
 
-#: (position W m, yaw rad, velocity W m/s) of the airframe, now.
-PoseSource = Callable[[], tuple[np.ndarray, float, np.ndarray]]
+#: T_w_b (4x4) of the airframe at a vehicle time (s), at or shortly before now.
+PoseSource = Callable[[float], np.ndarray]
 
 
 def kinematic_true_pose(vehicle: KinematicVehicle) -> PoseSource:
-    """The in-process airframe's true pose (no odometry noise, no GPS glitch)."""
-    def pose() -> tuple[np.ndarray, float, np.ndarray]:
-        m = vehicle.model
-        return m.position.copy(), float(m.yaw), m.velocity.copy()
+    """The in-process airframe's true pose (no odometry noise, no GPS glitch) at a time."""
+    def pose(time: float) -> np.ndarray:
+        return pose_from_yaw(*vehicle.true_pose_at(time))
     return pose
 
 
 def simulated_px4_true_pose(simulator: Any) -> PoseSource:
-    """The true pose of the airframe our simulated PX4 flies (read under its lock)."""
-    def pose() -> tuple[np.ndarray, float, np.ndarray]:
-        return simulator.with_vehicle(
-            lambda v: (v.model.position.copy(), float(v.model.yaw), v.model.velocity.copy()))
+    """The true pose of the airframe our simulated PX4 flies (read under its lock) at a time."""
+    def pose(time: float) -> np.ndarray:
+        return pose_from_yaw(*simulator.with_vehicle(lambda v: v.true_pose_at(time)))
     return pose
 
 
 def reported_pose(vehicle: Vehicle) -> PoseSource:
-    """The pose an outside autopilot reports (a SITL has no other truth to give)."""
-    def pose() -> tuple[np.ndarray, float, np.ndarray]:
+    """The pose an outside autopilot reports (a SITL has no other truth to give), carried back
+    to an earlier time along its reported velocity."""
+    def pose(time: float) -> np.ndarray:
         st = vehicle.state()
-        return st.position.copy(), float(st.yaw), st.velocity.copy()
+        return pose_from_yaw(st.position - st.velocity * (st.time - time), st.yaw)
     return pose
 
 
@@ -87,17 +85,13 @@ class SimulatedSensors:
         self.truth: dict[int, dict[int, tuple[float, float, float, float]]] = {}  # id(image) -> boxes
         self.last_error: str | None = None
 
-    def _T_w_b(self) -> tuple[np.ndarray, np.ndarray]:
-        position, yaw, velocity = self.pose()
-        return pose_from_yaw(position, yaw), np.asarray(velocity, dtype=np.float64)
-
     def _fail(self, what: str, exc: ValueError) -> SensorError:
         self.counts["errors"] += 1
         self.last_error = f"{what}: {exc}"
         return SensorError(f"simulated {what}: {exc}")
 
     def detection_frame(self, now: float) -> CameraFrame | None:
-        T_w_b, _ = self._T_w_b()
+        T_w_b = self.pose(now)
         n = self.counts["detection_frames"] = self.counts["detection_frames"] + 1
         try:
             frame = self.detection_camera.render(self.mesh, T_w_b, lighting=Lighting(shadows=False),
@@ -109,23 +103,16 @@ class SimulatedSensors:
         return CameraFrame(now, image, self.detection_camera.model, self.detection_camera.T_b_c)
 
     def lidar_scan(self, now: float) -> LidarScan | None:
-        T_now, velocity = self._T_w_b()
         t0 = now - self.lidar.frame_period
-
-        def trajectory(t: float) -> np.ndarray:
-            T = T_now.copy()
-            T[:3, 3] -= velocity * (now - t)
-            return T
-
         n = self.counts["scans"] = self.counts["scans"] + 1
         try:
-            scan = self.lidar.scan(self.mesh, trajectory, t0, seed=self.seed + 100_000 + n)
+            scan = self.lidar.scan(self.mesh, self.pose, t0, seed=self.seed + 100_000 + n)
         except ValueError as exc:
             raise self._fail("LiDAR", exc) from exc
         return LidarScan(scan.points_l, scan.timestamps, self.lidar.T_b_l)
 
     def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
-        T_w_b, _ = self._T_w_b()
+        T_w_b = self.pose(now)
         n = self.counts["photos"] = self.counts["photos"] + 1
         try:
             frame = Camera(self.photo_model, T_b_c).render(self.mesh, T_w_b, seed=self.seed + 200_000 + n,
