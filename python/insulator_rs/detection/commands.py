@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -23,20 +22,7 @@ from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TES
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.exceptions import ImageError
-
-MAX_THREADS_PER_CPU = 2  # more onnxruntime threads than 2 per core only add contention
-
-
-def thread_count(value: str) -> int:
-    """``--threads``: 1 .. 2 x the CPU count; more is refused, naming the flag and the bound."""
-    try:
-        n = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--threads must be an integer, got {value!r}") from None
-    bound = MAX_THREADS_PER_CPU * (os.cpu_count() or 1)
-    if not 1 <= n <= bound:
-        raise argparse.ArgumentTypeError(f"--threads must be between 1 and {bound} (2 x {os.cpu_count() or 1} CPUs), got {n}")
-    return n
+from insulator_rs.mission import bounds
 
 
 def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
@@ -139,8 +125,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         p.add_argument("--model", default="insulator-real", help="shipped model name or ONNX path")
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
-        p.add_argument("--threads", type=thread_count, default=None,
-                       help="onnxruntime CPU threads (1 to 2 x the CPU count)")
+        p.add_argument("--threads", type=bounds.option("--threads"), default=None,
+                       help="onnxruntime CPU threads (bounded: mission/bounds.py)")
         p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
 
     run = sub.add_parser("run", help="detect insulators in images")
