@@ -44,6 +44,7 @@ import insulator_rs as ir
 from insulator_rs.detection.commands import open_detector
 from insulator_rs.detection.detector import Detector
 from insulator_rs.exceptions import ConfigError, VehicleError
+from insulator_rs.mission import bounds
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
 from insulator_rs.mission.geodesy import GeoPoint
@@ -606,7 +607,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=bounds.option("--seed"), default=0)
     p.add_argument("--detector", default=None,
                    help="a shipped model name (e.g. insulator-sim) or an ONNX file: run that YOLO network "
                         "on the rendered detection images (default: the detector stand-in on the "
@@ -614,14 +615,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--time-allocation", default="pmm", choices=TIME_ALLOCATIONS,
                    help="min-snap segment times: pmm (point-mass proportions, default) or snap "
                         "(redistributed to minimise snap, Richter et al.; slower to plan)")
-    p.add_argument("--detect-period", type=float, default=1.0, help="s between detection events (default 1)")
-    p.add_argument("--detect-scale", type=float, default=0.25,
+    p.add_argument("--detect-period", type=bounds.option("--detect-period"), default=1.0, help="s between detection events (default 1)")
+    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=0.25,
                    help="detection camera resolution as a fraction of the 1280x960 camera (default 0.25)")
-    p.add_argument("--photo-scale", type=float, default=1.0,
+    p.add_argument("--photo-scale", type=bounds.option("--photo-scale"), default=1.0,
                    help="inspection photo resolution as a fraction of 1280x960 (default 1)")
-    p.add_argument("--v-max", type=float, default=None, help="override the mission's velocity limits (m/s)")
-    p.add_argument("--a-max", type=float, default=None, help="override the mission's acceleration limits (m/s^2)")
-    p.add_argument("--max-flight-time", type=float, default=1800.0, help="abort after this many s of flight")
+    p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s)")
+    p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
+    p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--vehicle", choices=("sim", "mavlink"), default=None,
                    help="sim: the in-process kinematic vehicle (default); mavlink: the MAVLink offboard "
@@ -669,17 +670,9 @@ def _vehicle_kind(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    for name in ("detect_period", "detect_scale", "photo_scale", "max_flight_time"):
-        value = getattr(args, name)
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"--{name.replace('_', '-')}: must be > 0, got {value}")
-    if args.detect_scale > 1 or args.photo_scale > 1:
-        raise ValueError("--detect-scale/--photo-scale: must be <= 1")
-    for flag, value in (("--v-max", args.v_max), ("--a-max", args.a_max)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{flag}: must be > 0, got {value}")
-    mavlink = _vehicle_kind(args) == "mavlink"
+    # The numeric options were checked by argparse against insulator_rs.mission.bounds.
     try:
+        mavlink = _vehicle_kind(args) == "mavlink"
         tower = load_tower(args.scene)
         mission_path = args.mission
         if mission_path is None:
