@@ -183,6 +183,12 @@ def test_sigkill_mid_run_with_overwrite_leaves_the_old_report_whole(tmp_path):
     s = json.loads((staged / "summary.json").read_text())
     assert s["status"] == "running" and s["marker"] == "new run"  # the partial new run says so
     assert (staged / "images" / "insulator_07_1.jpg").is_file()
+    # the next run names what the killed one left, deletes nothing of it, and replaces the old report
+    w = ReportWriter(out, origin=ORIGIN, overwrite=True)
+    assert w.layout.leftovers() == [staged]
+    w.close()
+    assert json.loads((out / "summary.json").read_text())["status"] == "running"  # the new run's
+    assert _siblings(out) == [staged] and (staged / "images" / "insulator_07_1.jpg").is_file()
 
 
 def test_sigkill_mid_run_into_a_new_folder_leaves_a_running_report(tmp_path):
