@@ -145,17 +145,16 @@ def test_in_process_failsafe_aborts_the_same_way(tmp_path, monkeypatch):
 
 
 def test_vehicle_options_are_checked(tmp_path, capsys):
+    """Refused before anything flies: status 2 and the flag named, no traceback."""
     base = ["inspect", "--out", str(tmp_path / "r")]
-    with pytest.raises(ValueError, match="--connection: the camera and LiDAR of a real vehicle"):
-        main([*base, "--connection", "udpin:127.0.0.1:14540"])
-    with pytest.raises(ValueError, match="--time-scale: must be in"):
-        main([*base, "--vehicle", "mavlink", "--time-scale", "10"])
-    with pytest.raises(ValueError, match="--time-scale: only applies to --vehicle mavlink"):
-        main([*base, "--time-scale", "2"])
-    with pytest.raises(ValueError, match="--sim-sensors: only applies with --connection"):
-        main([*base, "--vehicle", "mavlink", "--sim-sensors"])
-    with pytest.raises(ValueError, match="--signing-key: no such file"):
-        main([*base, "--vehicle", "mavlink", "--signing-key", str(tmp_path / "missing.key")])
+    for extra, message in (
+            (["--connection", "udpin:127.0.0.1:14540"], "--connection: the camera and LiDAR of a real vehicle"),
+            (["--vehicle", "mavlink", "--time-scale", "10"], "--time-scale: must be in"),
+            (["--time-scale", "2"], "--time-scale: only applies to --vehicle mavlink"),
+            (["--vehicle", "mavlink", "--sim-sensors"], "--sim-sensors: only applies with --connection"),
+            (["--vehicle", "mavlink", "--signing-key", str(tmp_path / "missing.key")], "--signing-key: no such file")):
+        assert main([*base, *extra]) == 2
+        assert message in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
 
 

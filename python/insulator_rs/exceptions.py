@@ -27,3 +27,10 @@ class ModelError(InsulatorError, ValueError):
 
     The message names the file and which of those it is.
     """
+
+
+class ImageError(InsulatorError, ValueError):
+    """An image file cannot be used: missing, not decodable, truncated, or of an unsupported pixel depth.
+
+    The message names the file and which of those it is.
+    """
