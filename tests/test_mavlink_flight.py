@@ -104,6 +104,15 @@ def test_connect_arm_offboard_fly_a_trajectory_and_land(vehicle: MavlinkVehicle)
 
 
 def test_offboard_before_setpoints_is_refused_with_px4s_result(vehicle: MavlinkVehicle) -> None:
+    """Reference: PX4 v1.16.0 SITL (tests/test_px4_sitl.py). On the ground, disarmed, PX4
+    ACCEPTs DO_SET_MODE OFFBOARD without a setpoint stream and stays in its mode: the client
+    believes the HEARTBEAT, not the ACK. In the air it answers TEMPORARILY_REJECTED."""
+    with pytest.raises(VehicleError, match="accepted mode OFFBOARD but its heartbeat never showed it"):
+        vehicle.start_offboard()
+    assert vehicle.state().mode == "HOLD"
+    vehicle.arm()
+    vehicle.takeoff(2.0)
+    wait_until(vehicle, lambda s: s.mode == "HOLD" and abs(s.position[2] - 2.0) < 0.1, 15.0)
     with pytest.raises(CommandRejected) as refusal:
         vehicle.start_offboard()
     assert refusal.value.command == "MAV_CMD_DO_SET_MODE"
