@@ -9,6 +9,7 @@ mod camera;
 mod culling;
 mod dbscan;
 mod errors;
+mod livox;
 mod localize;
 mod pca;
 mod projection;
@@ -29,5 +30,6 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     pca::register(py, m)?;
     localize::register(py, m)?;
     raycast::register(m)?;
+    livox::register(m)?;
     Ok(())
 }

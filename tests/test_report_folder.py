@@ -19,8 +19,11 @@ import textwrap
 import time
 from pathlib import Path
 
+import geojson
 import numpy as np
+import pymap3d
 import pytest
+from PIL import Image
 
 from insulator_rs.cli import main
 from insulator_rs.mission.geodesy import GeoPoint
@@ -180,6 +183,12 @@ def test_sigkill_mid_run_with_overwrite_leaves_the_old_report_whole(tmp_path):
     s = json.loads((staged / "summary.json").read_text())
     assert s["status"] == "running" and s["marker"] == "new run"  # the partial new run says so
     assert (staged / "images" / "insulator_07_1.jpg").is_file()
+    # the next run names what the killed one left, deletes nothing of it, and replaces the old report
+    w = ReportWriter(out, origin=ORIGIN, overwrite=True)
+    assert w.layout.leftovers() == [staged]
+    w.close()
+    assert json.loads((out / "summary.json").read_text())["status"] == "running"  # the new run's
+    assert _siblings(out) == [staged] and (staged / "images" / "insulator_07_1.jpg").is_file()
 
 
 def test_sigkill_mid_run_into_a_new_folder_leaves_a_running_report(tmp_path):
@@ -255,3 +264,23 @@ def test_inspect_interrupted_with_overwrite_replaces_with_the_interrupted_run(tm
     assert s["status"] == "interrupted" and "marker" not in s and len(s["photos"]) >= 1
     assert sorted(f"images/{p.name}" for p in (out / "images").iterdir()) == sorted(p["file"] for p in s["photos"])
     assert _siblings(out) == []
+    _check_deliverables(out, s)
+
+
+def _check_deliverables(out: Path, s: dict) -> None:
+    """The inspect command's photos carry EXIF GPS of the pose it logged (pymap3d from the summary's
+    origin: 1e-8 deg, 1 mm; heading 90 - yaw to 0.006 deg) and its GeoJSON validates."""
+    o = s["origin"]
+    for p in s["photos"]:
+        gps = Image.open(out / p["file"]).getexif().get_ifd(0x8825)
+        lat, lon, alt = pymap3d.enu2geodetic(*p["position"], o["lat"], o["lon"], o["alt"])
+        got_lat = sum(float(v) / 60 ** k for k, v in enumerate(gps[2])) * (1 if gps[1] == "N" else -1)
+        got_lon = sum(float(v) / 60 ** k for k, v in enumerate(gps[4])) * (1 if gps[3] == "E" else -1)
+        assert abs(got_lat - lat) < 1e-8 and abs(got_lon - lon) < 1e-8 and abs(float(gps[6]) - alt) < 1e-3
+        heading = (90.0 - np.degrees(p["yaw"])) % 360.0
+        assert min(abs(float(gps[17]) - heading), 360 - abs(float(gps[17]) - heading)) < 0.006
+    doc = geojson.loads((out / "inspection.geojson").read_text())
+    assert doc.is_valid, doc.errors()
+    kinds = [f["properties"]["kind"] for f in doc["features"]]
+    assert kinds.count("photo") == len(s["photos"]) and kinds.count("insulator") == len(s["insulators"])
+    assert kinds.count("flight_path") == 1

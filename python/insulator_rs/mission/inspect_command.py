@@ -513,6 +513,8 @@ class InspectionRun:
                  f"with mission {self.mission.source}; report -> {self.out}"
                  + (f" (written in {self.report.layout.path}, replaces the old report when the run ends)"
                     if self.report.layout.staged else ""))
+        for left in self.report.layout.leftovers():
+            self.say(f"note: {left} is what an earlier run killed mid-way left (kept; delete it when done)")
         try:
             self.takeoff()
             self._fly_plan()

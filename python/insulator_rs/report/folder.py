@@ -87,6 +87,13 @@ class ReportFolder:
             self.path = self.final
         self.committed = not self.staged
 
+    def leftovers(self) -> list[Path]:
+        """Hidden siblings that earlier runs left when killed: ``.NAME.new-*`` (a replacing run's
+        partial report, its summary says ``running``) and ``.NAME.old-*`` (a replaced report the
+        two-rename fallback had not yet deleted). Kept for the user to look at, never deleted here."""
+        return sorted(p for p in self.final.parent.glob(f".{self.final.name}.*-*")
+                      if p.is_dir() and p != self.path and p.name.split(".")[-1].startswith(("new-", "old-")))
+
     def commit(self) -> None:
         """Put the staged report in ``final`` in one step and delete the old one (idempotent)."""
         if self.committed:

@@ -79,7 +79,7 @@ def map_layers(origin: GeoPoint, *, insulators: Sequence[Mapping[str, Any]],
 
 
 def _position(lat: float, lon: float, alt: float) -> list[float]:
-    """An RFC 7946 position: longitude first."""
+    """An RFC 7946 position (longitude first, as KML's coordinates too), rounded."""
     return [round(lon, DEG_DECIMALS), round(lat, DEG_DECIMALS), round(alt, ALT_DECIMALS)]
 
 
@@ -112,15 +112,14 @@ def kml_text(layers: MapLayers, *, title: str = "insulator inspection") -> str:
     folders = {"tower_base": kml.newfolder(name="Tower"), "insulator": kml.newfolder(name="Insulators"),
                "photo": kml.newfolder(name="Photos")}
     for p in layers.points:
-        lat, lon, alt = p.geo
-        pnt = folders[p.kind].newpoint(name=p.name, coords=[(lon, lat, alt)])
+        pnt = folders[p.kind].newpoint(name=p.name, coords=[tuple(_position(*p.geo))])
         pnt.altitudemode = simplekml.AltitudeMode.absolute
         for key, value in p.properties.items():
             pnt.extendeddata.newdata(name=key, value=json.dumps(value) if not isinstance(value, str) else value)
         if p.kind == "photo" and "file" in p.properties:
             pnt.description = f'<img src="{p.properties["file"]}" width="480"/>'
     if len(layers.path_geo) >= 2:
-        line = kml.newlinestring(name="flown path", coords=[(g[1], g[0], g[2]) for g in layers.path_geo.tolist()])
+        line = kml.newlinestring(name="flown path", coords=[tuple(_position(*g)) for g in layers.path_geo.tolist()])
         line.altitudemode = simplekml.AltitudeMode.absolute
         line.style.linestyle.width = 2
         line.style.linestyle.color = simplekml.Color.yellow
