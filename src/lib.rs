@@ -10,6 +10,7 @@ mod camera;
 mod culling;
 mod dbscan;
 mod errors;
+mod livox;
 mod localize;
 mod pca;
 mod projection;
@@ -31,5 +32,6 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     localize::register(py, m)?;
     bounded::register(py, m)?;
     raycast::register(m)?;
+    livox::register(m)?;
     Ok(())
 }
