@@ -94,3 +94,15 @@ def test_detect_eval_field_test_scores_the_held_back_photos(tmp_path: Path) -> N
     assert m["images"] == 6 and m["instances"] == 6 and m["imgsz"] == [320, 320]
     assert main(["detect", "eval", "--split", "field-test", "--field-photos", str(tmp_path / "none")]) == 2
     assert main(["detect", "eval"]) == 2
+
+
+def test_field_comparison_before_and_after(tmp_path: Path) -> None:
+    """Same model before and after: identical figures; a different input size is scored separately."""
+    from insulator_rs.detection.train_command import PAPER_MAP, field_comparison
+    from insulator_rs.models import model_path
+
+    field, _ = _make_sets(tmp_path, n=40)
+    out = field_comparison(model_path("insulator-real"), field, "insulator-real", threads=1)
+    assert out["paper_map"] == PAPER_MAP and out["after"]["images"] == 6
+    assert out["before"]["map50_95"] == out["after"]["map50_95"] and "before_at_new_imgsz" not in out
+    assert "detect eval --split field-test --model insulator-real" in out["command"]

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 
 from insulator_rs.detection.detector import Detections, Detector
-from insulator_rs.detection.evaluate import EVAL_CONF, coco_evaluate, load_images, load_split
+from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_split
 from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
@@ -83,29 +83,29 @@ def evaluate_split(args: argparse.Namespace) -> int:
         print("error: give either a split folder or --split field-test", file=sys.stderr)
         return 2
     detector = open_detector(args.model, conf=args.conf, iou=args.iou, threads=args.threads, imgsz=args.imgsz)
-    if args.named_split is not None:
-        from insulator_rs.detection.field_dataset import field_test_images
-
-        labels = args.field_photos / "labels"
-        try:
-            images = field_test_images(args.field_photos)
-        except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        samples = load_images(images, voc_dir=labels)  # the VOC files sit in labels/, not beside the images
-        args.split = Path(f"{args.named_split} ({args.field_photos}, {len(images)} photos held back by photo)")
-    else:
-        samples = load_split(args.split, detector.names)
-
-    def detect(image: cv2.typing.MatLike) -> tuple[object, object, list[str]]:
-        det = detector(image)
-        return det.boxes, det.scores, det.labels
 
     def progress(i: int, n: int) -> None:
         if i % 10 == 0 or i == n:
             print(f"  evaluated {i}/{n} images", file=sys.stderr, flush=True)
 
-    metrics = coco_evaluate(samples, detect, progress=progress)  # type: ignore[arg-type]
+    if args.named_split is not None:
+        try:
+            metrics = evaluate_field_test(detector, args.field_photos, progress=progress)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        args.split = Path(f"{args.named_split} ({args.field_photos}, photos held back by photo)")
+        return _report_metrics(args, detector, metrics)
+    samples = load_split(args.split, detector.names)
+
+    def detect(image: cv2.typing.MatLike) -> tuple[object, object, list[str]]:
+        det = detector(image)
+        return det.boxes, det.scores, det.labels
+
+    return _report_metrics(args, detector, coco_evaluate(samples, detect, progress=progress))  # type: ignore[arg-type]
+
+
+def _report_metrics(args: argparse.Namespace, detector: Detector, metrics: CocoMetrics) -> int:
     print(f"{args.split}: {metrics.images} images, {metrics.instances} instances, "
           f"mAP50-95 {metrics.map50_95:.4f}, mAP50 {metrics.map50:.4f}, mAP75 {metrics.map75:.4f}, "
           f"AR100 {metrics.recall100:.4f}, {metrics.ms_per_image:.1f} ms/image")

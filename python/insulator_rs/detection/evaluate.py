@@ -153,3 +153,20 @@ def coco_evaluate(
     return CocoMetrics(map50_95=float(stats[0]), map50=float(stats[1]), map75=float(stats[2]),
                        recall100=float(stats[8]), images=len(samples), instances=len(gt["annotations"]),
                        detections=len(dets), ms_per_image=1000 * seconds / len(samples))
+
+
+def evaluate_field_test(detector: object, field_photos: Path,
+                        progress: Callable[[int, int], None] | None = None) -> CocoMetrics:
+    """COCO figures of ``detector`` (a :class:`Detector`) on the held-back field photos, full frames letterboxed.
+
+    The split is :func:`field_dataset.field_test_images` (the one training held back, by photo).
+    """
+    from insulator_rs.detection.field_dataset import field_test_images
+
+    samples = load_images(field_test_images(field_photos), voc_dir=Path(field_photos) / "labels")
+
+    def detect(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        det = detector(image)  # type: ignore[operator]
+        return det.boxes, det.scores, det.labels
+
+    return coco_evaluate(samples, detect, progress=progress)

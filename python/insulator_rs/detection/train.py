@@ -154,8 +154,9 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
 
         args["trainer"] = uav_trainer_class()
     if cfg.resume is not None:
-        # Ultralytics restores every argument from the checkpoint; only these may change on resume.
-        args = {k: v for k, v in args.items() if k in ("trainer", "workers", "device", "cache", "batch")}
+        # Ultralytics restores every argument from the checkpoint; only these may change on resume
+        # (data: the dataset may have been rebuilt at another path).
+        args = {k: v for k, v in args.items() if k in ("trainer", "workers", "device", "cache", "batch", "data")}
         args["resume"] = str(cfg.resume)
     t0 = time.monotonic()
     model.train(**args)

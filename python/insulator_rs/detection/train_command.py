@@ -113,6 +113,39 @@ def package_model(
     return card
 
 
+PAPER_MAP = 0.17  # the paper's real-photo detector figure that issue 12 compares against
+
+
+def field_comparison(onnx_path: Path, field_photos: Path, before: str | None, *,
+                     threads: int | None = None) -> dict[str, Any]:
+    """Field-geometry figures (held-back photos, full frames letterboxed) of the new model and of ``before``.
+
+    ``before`` (a shipped model name or ONNX path, the starting point) is scored
+    at its own input size and at the new model's, so the gain from the input
+    size and the gain from training are told apart.
+    """
+    from insulator_rs.detection.commands import open_detector
+    from insulator_rs.detection.evaluate import EVAL_CONF, evaluate_field_test
+
+    new = open_detector(str(onnx_path), conf=EVAL_CONF, threads=threads)
+    out: dict[str, Any] = {
+        "evaluator": "pycocotools COCOeval (bbox), onnxruntime detector, conf 0.001, iou 0.7, full frames letterboxed",
+        "split": f"field-test: photos of {field_photos} held back by photo (field_dataset.field_test_images)",
+        "command": f"insulator-rs detect eval --split field-test --model {onnx_path.stem}",
+        "paper_map": PAPER_MAP,
+        "after": {"imgsz": list(new.imgsz), **evaluate_field_test(new, field_photos).to_dict()},
+    }
+    if before is not None:
+        own = open_detector(before, conf=EVAL_CONF, threads=threads)
+        out["before"] = {"model": before, "imgsz": list(own.imgsz),
+                         **evaluate_field_test(own, field_photos).to_dict()}
+        if own.imgsz != new.imgsz:
+            same = open_detector(before, conf=EVAL_CONF, threads=threads, imgsz=new.imgsz[0])
+            out["before_at_new_imgsz"] = {"model": before, "imgsz": list(same.imgsz),
+                                          **evaluate_field_test(same, field_photos).to_dict()}
+    return out
+
+
 def run_train(args: argparse.Namespace) -> int:
     try:
         from insulator_rs.detection.train import TrainConfig, export_onnx, prepare_offline, result_dict, train_yolo
@@ -180,6 +213,9 @@ def run_train(args: argparse.Namespace) -> int:
         "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "func"},
         "train_result": result_dict(result),
     }
+    if args.field_photos is not None:
+        card["field_geometry_metrics"] = field_comparison(onnx_path, args.field_photos, args.start_weights,
+                                                          threads=args.threads)
     card = package_model(onnx_path=onnx_path, test_split=test_split, card=card, threads=args.threads)
     tm = card.get("test_metrics")
     if tm:

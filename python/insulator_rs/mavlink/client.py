@@ -15,7 +15,9 @@ What it does, as PX4's offboard documentation asks:
   (custom main mode 6 = OFFBOARD), takes off, lands, returns; every
   COMMAND_ACK is read (with retransmission per the MAVLink command protocol)
   and a refusal raises ``CommandRejected`` naming the command and result;
-* triggers the camera with MAV_CMD_IMAGE_START_CAPTURE and records the pose;
+* never asks the autopilot for photos: the inspection camera is the companion
+  computer's own (the ``Sensors`` port); PX4 answers MAV_CMD_IMAGE_START_CAPTURE
+  with UNSUPPORTED;
 * failsafes on our side: autopilot heartbeat lost, a mode change we did not
   command (the pilot took over: setpoint streaming stops at once, in the
   receiving thread), stale local position (-> HOLD), low battery (-> RTL or
@@ -51,7 +53,6 @@ from insulator_rs.mavlink.frames import (
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import command_name, mavlink2, mavutil, result_name
 from insulator_rs.sim.kinematics import (
-    CapturedImage,
     FlightMode,
     VehicleFailsafe,
     as_finite,
@@ -160,7 +161,6 @@ class MavlinkVehicle:
         source_system: int = 1,
         source_component: int = ONBOARD_COMPONENT_ID,
         local_origin_w: object = (0.0, 0.0, 0.0),
-        camera_component: int = 1,
     ) -> None:
         heartbeat_timeout = require_positive(heartbeat_timeout, "heartbeat_timeout")
         self.command_timeout = require_positive(command_timeout, "command_timeout")
@@ -174,12 +174,6 @@ class MavlinkVehicle:
         self.failsafes = failsafes or FailsafeSettings()
         self.local_origin_w = as_vector3(local_origin_w, "local_origin_w")
         self.connection = connection
-        if not isinstance(camera_component, int) or not 0 <= camera_component <= 255:
-            raise ValueError(f"camera_component must be a MAVLink component id, got {camera_component!r}")
-        # 1: the autopilot's camera trigger (PX4); 100+: a MAVLink camera component.
-        self.camera_component = camera_component
-        self.captures: list[CapturedImage] = []
-        self.camera_feedback: list[Any] = []
         self.simulator: Any = None  # set by connect_vehicle when it started the sim
 
         self._lock = threading.Condition()
@@ -203,7 +197,6 @@ class MavlinkVehicle:
         self._fault: str | None = None
         self._pending_failsafe: tuple[str, str] | None = None
         self._raised_failsafes: set[str] = set()
-        self._image_sequence = 0
 
         self._conn = open_connection(connection, source_system=source_system, source_component=source_component)
         if signing_key is not None:
@@ -351,15 +344,6 @@ class MavlinkVehicle:
                 self._lock.wait(timeout=0.05)
         self._check_failsafes()
         return self.state()
-
-    def capture_image(self) -> None:
-        """MAV_CMD_IMAGE_START_CAPTURE (one image); the pose at the trigger goes into ``captures``."""
-        state = self.state()
-        self._image_sequence += 1
-        self._command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, self._image_sequence, detail="1 image",
-                      component=self.camera_component)
-        self.captures.append(CapturedImage(index=len(self.captures), time=state.time,
-                                           position=state.position, yaw=state.yaw))
 
     def land(self) -> None:
         self._stop_streaming()
@@ -546,8 +530,6 @@ class MavlinkVehicle:
                 self._battery = msg.battery_remaining / 100.0
         elif kind == "COMMAND_ACK":
             self._acks[msg.command] = msg
-        elif kind == "CAMERA_IMAGE_CAPTURED":
-            self.camera_feedback.append(msg)
 
     def _raise_failsafe(self, reason: str, action: str) -> None:
         if reason in self._raised_failsafes:

@@ -433,7 +433,6 @@ class InspectionRun:
                        and np.linalg.norm(st.velocity) < PHOTO_SPEED_TOLERANCE)
             if settled or st.time - t0 > PHOTO_SETTLE_TIMEOUT:
                 break
-        self.vehicle.capture_image()
         cam = Camera(self.photo_model, _gimballed_T_b_c(wp.gimbal_pitch))
         frame = cam.render(self.tower.mesh, self._sensor_T_w_b(st), seed=self.seed + len(self.photos),
                            time=st.time)
@@ -475,10 +474,30 @@ class InspectionRun:
         self.sm.start(self.vehicle.state().time)
         self._print_transitions()
 
+    def on_command_failure(self, exc: VehicleError) -> None:
+        """The vehicle refused a command or never answered it (arm, take-off, a mode switch):
+        reported, and the mission aborts (then lands, see :meth:`land`)."""
+        self.abort_reason = f"vehicle command failed: {exc}"
+        self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
+        if self.sm.state != State.ABORT:
+            self.sm.abort(self.abort_reason, self.vehicle.state().time)
+        self.write_summary()
+
     def land(self) -> None:
         if self.failsafe is not None:
             return  # the autopilot flies its failsafe (or the pilot flies): command nothing
-        self.vehicle.land()
+        st = self.vehicle.state()
+        if st.landed and not st.armed:
+            return  # never took off (e.g. arming was refused)
+        try:
+            self.vehicle.land()
+        except VehicleFailsafe as exc:
+            self.on_failsafe(exc)
+            return
+        except VehicleError as exc:  # refused or unanswered: PX4's own failsafes keep the vehicle
+            self.abort_reason = f"{self.abort_reason or 'mission aborted'}; landing command failed: {exc}"
+            self.say(f"[{self.now():7.1f} s] landing command failed: {exc}")
+            return
         st = self.vehicle.state()
         t0 = st.time
         while not st.landed and st.time - t0 < LAND_TIMEOUT:
@@ -496,7 +515,22 @@ class InspectionRun:
                     if self.report.layout.staged else ""))
         for left in self.report.layout.leftovers():
             self.say(f"note: {left} is what an earlier run killed mid-way left (kept; delete it when done)")
-        self.takeoff()
+        try:
+            self.takeoff()
+            self._fly_plan()
+        except VehicleFailsafe as exc:  # raised by a command rather than during a tick
+            self.on_failsafe(exc)
+        except VehicleError as exc:
+            self.on_command_failure(exc)
+        if self.sm.state == State.ABORT:
+            self.land()
+            self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
+        else:
+            self.status = "finished"
+        self._print_transitions()
+
+    def _fly_plan(self) -> None:
+        """Fly the state machine's plan until it is done (finished or aborted)."""
         while not self.sm.done:
             if self.sm.state == State.HOLD:
                 self.hold()
@@ -523,12 +557,6 @@ class InspectionRun:
                 if it.kind == "inspect":
                     break
             self.fly_segment(items)
-        if self.sm.state == State.ABORT:
-            self.land()
-            self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
-        else:
-            self.status = "finished"
-        self._print_transitions()
 
     # -- report --------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
