@@ -26,7 +26,10 @@ Everything is in seconds (float64). Before the first pair the map is undefined
 from __future__ import annotations
 
 import math
+import threading
+import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -231,3 +234,68 @@ class ChainedClock:
     def __call__(self, sensor_s: float | np.ndarray) -> np.ndarray:
         host = self.sensor_to_host.to_target(sensor_s)
         return host if self.host_to_vehicle is None else self.host_to_vehicle.to_target(host)
+
+
+class TelemetryClock:
+    """The vehicle clock *now*, for a host that only sees the vehicle's telemetry.
+
+    A thread polls ``vehicle_time()`` (the stamp of the newest telemetry, e.g.
+    ``MavlinkVehicle.state().time``, PX4's ``time_boot_ms``) every ``poll_s`` and pairs
+    each new stamp with the host clock at the poll: that pair is (send, arrival) with a
+    latency >= 0, so the :class:`OneWaySync` lower envelope maps vehicle -> host, and its
+    inverse gives the vehicle time of any host instant. Drivers stamp arrivals with
+    :meth:`now`. With an autopilot that answers MAVLink TIMESYNC,
+    :class:`TimesyncExchange` is the tighter alternative (it measures the round trip).
+    """
+
+    def __init__(self, vehicle_time: Callable[[], float], *, poll_s: float = 0.002,
+                 host_clock: Callable[[], float] = time.monotonic, window: int = 2048) -> None:
+        if not (math.isfinite(poll_s) and poll_s > 0):
+            raise ValueError(f"poll_s: must be a finite number > 0, got {poll_s}")
+        self._vehicle_time = vehicle_time
+        self._host = host_clock
+        self.poll_s = float(poll_s)
+        self.sync = OneWaySync(window=window, refit_every=16)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last: float | None = None
+        self.errors = 0
+
+    def start(self) -> TelemetryClock:
+        self._thread = threading.Thread(target=self._run, name="telemetry-clock", daemon=True)
+        self._thread.start()
+        return self
+
+    def poll(self) -> None:
+        """One poll (the thread calls this; tests may call it directly)."""
+        try:
+            stamp = float(self._vehicle_time())
+        except Exception:  # a vehicle that is closing or not yet connected: try again later
+            self.errors += 1
+            return
+        host = self._host()
+        if stamp != self._last and math.isfinite(stamp):
+            self._last = stamp
+            with self._lock:
+                self.sync.add(stamp, host)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            self.poll()
+
+    def ready(self) -> bool:
+        return self.sync.ready()
+
+    def now(self) -> float:
+        """The vehicle time (s) of this instant; raises TimeSyncError before any stamp."""
+        host = self._host()
+        with self._lock:
+            if not self.sync.ready():
+                raise TimeSyncError("time sync: no vehicle telemetry yet")
+            return float(self.sync.fit.inverse(host))
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
