@@ -5,6 +5,7 @@
 
 use pyo3::prelude::*;
 
+mod bounded;
 mod camera;
 mod culling;
 mod dbscan;
@@ -29,6 +30,7 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     ransac::register(py, m)?;
     pca::register(py, m)?;
     localize::register(py, m)?;
+    bounded::register(py, m)?;
     raycast::register(m)?;
     livox::register(m)?;
     Ok(())

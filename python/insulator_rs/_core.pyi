@@ -15,6 +15,7 @@ from insulator_rs.exceptions import InsulatorError
 _Points = NDArray[np.float32] | NDArray[np.float64]
 
 __all__ = [
+    "BoundedLocalization",
     "CameraModel",
     "LineFit",
     "Localization",
@@ -37,6 +38,7 @@ __all__ = [
     "livox_parse_discovery_ack",
     "livox_parse_header",
     "livox_work_mode_request",
+    "localize_bounded",
     "localize_defaults",
     "pca",
     "points_in_boxes",
@@ -155,6 +157,46 @@ def localize(
     seed: int = ...,
 ) -> Localization: ...
 def localize_defaults() -> dict[str, float | int]: ...
+@final
+class BoundedLocalization:
+    """Insulator centre and unit axis in B, the line from the LiDAR and the ends from the boxes."""
+
+    @property
+    def center(self) -> NDArray[np.float64]: ...
+    @property
+    def direction(self) -> NDArray[np.float64]: ...
+    @property
+    def n_points(self) -> int: ...
+    @property
+    def n_clusters(self) -> int: ...
+    @property
+    def n_nonfinite(self) -> int: ...
+    @property
+    def ends_from_image(self) -> int: ...
+    @property
+    def length(self) -> float | None: ...
+    @property
+    def views_used(self) -> int: ...
+    @property
+    def method(self) -> str: ...
+
+def localize_bounded(
+    points_b: _Points,
+    boxes: Any,
+    T_b_c: Any,
+    cam: CameraModel,
+    *,
+    insulator_length: float | None = None,
+    border_margin: float = ...,
+    max_extent: float = ...,
+    eps: float = ...,
+    min_points: int = ...,
+    tau: float = ...,
+    ransac_threshold: float = ...,
+    max_iterations: int = ...,
+    confidence: float = ...,
+    seed: int = ...,
+) -> BoundedLocalization: ...
 
 # --- scene ray casting (src/raycast.rs, the simulator's LiDAR and camera) ---
 

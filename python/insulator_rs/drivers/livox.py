@@ -68,8 +68,8 @@ def parse_url(url: str) -> tuple[str, int | None]:
     rest = url[len(prefix):].rstrip("/")
     host, _, port = rest.partition(":")
     if port:
-        if not port.isdigit() or not (0 < int(port) < 65536):
-            raise SensorError(f"--lidar: port must be 1..65535, got {port!r} in {url!r}")
+        if not port.isdigit() or not (0 <= int(port) < 65536):
+            raise SensorError(f"--lidar: port must be 0..65535 (0: any free port), got {port!r} in {url!r}")
         return host, int(port)
     return host, None
 
