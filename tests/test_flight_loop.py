@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from test_mission_inspect import small_scene
 
 from insulator_rs import inspect_command
@@ -37,10 +38,10 @@ def test_a_refused_arm_aborts_before_take_off_without_a_traceback(tmp_path, monk
     monkeypatch.setattr(inspect_command, "kinematic_vehicle", no_position_estimate)
     rc, out, s = _run(tmp_path)
     assert rc == 1
-    assert s["status"] == "aborted: vehicle: arm refused: no valid position estimate", s["status"]
+    assert s["status"] == "aborted: vehicle command failed: arm refused by the vehicle: no valid position estimate", s["status"]
     assert s["insulators_found"] == 0 and s["photos"] == []
     assert not made[0].armed and made[0].mode.value != "LAND"  # nothing to land: it never flew
-    assert "aborted: vehicle: arm refused" in capsys.readouterr().out
+    assert "aborted: vehicle command failed: arm refused by the vehicle" in capsys.readouterr().out
 
 
 def test_a_refused_mode_change_after_take_off_aborts_and_lands(tmp_path, monkeypatch):
@@ -60,7 +61,7 @@ def test_a_refused_mode_change_after_take_off_aborts_and_lands(tmp_path, monkeyp
     monkeypatch.setattr(inspect_command, "kinematic_vehicle", refuses_offboard)
     rc, out, s = _run(tmp_path)
     assert rc == 1
-    assert s["status"] == ("aborted: vehicle: MAV_CMD_DO_SET_MODE (OFFBOARD) refused: MAV_RESULT_DENIED"), s["status"]
+    assert s["status"] == ("aborted: vehicle command failed: MAV_CMD_DO_SET_MODE (OFFBOARD) refused by the vehicle: MAV_RESULT_DENIED"), s["status"]
     assert s["failsafe"] is None and s["state"] == "abort"
     v = made[0]
     assert v.landed and v.mode.value == "LAND"  # the mission's own landing after the refusal
@@ -68,6 +69,7 @@ def test_a_refused_mode_change_after_take_off_aborts_and_lands(tmp_path, monkeyp
     assert z.max() > z[0] + 2.0 and z[-1] < z[0] + 0.1  # it had climbed to its first height, and came down
 
 
+@pytest.mark.slow
 def test_sensor_errors_cost_events_not_the_flight(tmp_path, monkeypatch):
     """Every third detection frame fails (a camera dropping frames): the flight goes on, counts
     the errors, and still finds both insulators of the small scene."""

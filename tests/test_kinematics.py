@@ -155,7 +155,7 @@ def test_takeoff_offboard_trajectory_land_and_auto_disarm() -> None:
 def test_offboard_is_refused_without_a_setpoint_stream() -> None:
     vehicle = KinematicVehicle()
     vehicle.arm()
-    with pytest.raises(CommandRejected, match="OFFBOARD refused: no offboard setpoint stream"):
+    with pytest.raises(CommandRejected, match="OFFBOARD refused by the vehicle: no offboard setpoint stream"):
         vehicle.start_offboard()
     vehicle.send_setpoint((0.0, 0.0, 0.0))
     vehicle.advance(1.5)  # stream went stale: older than COM_OF_LOSS_T
@@ -168,7 +168,7 @@ def test_offboard_is_refused_without_a_setpoint_stream() -> None:
 
 def test_arming_twice_is_accepted_as_px4_does_and_takeoff_while_disarmed_is_refused() -> None:
     vehicle = KinematicVehicle()
-    with pytest.raises(CommandRejected, match="takeoff refused: vehicle is disarmed"):
+    with pytest.raises(CommandRejected, match="takeoff refused by the vehicle: vehicle is disarmed"):
         vehicle.takeoff(5.0)
     vehicle.arm()
     vehicle.arm()  # PX4 Commander::arm returns TRANSITION_NOT_CHANGED -> ACCEPTED
@@ -186,7 +186,9 @@ def test_arming_is_refused_without_position_and_with_a_critical_battery() -> Non
         vehicle.arm()
 
 
-def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t() -> None:
+def test_offboard_loss_falls_back_to_position_mode_after_com_of_loss_t() -> None:
+    """Reference: PX4 v1.16.0 SITL, stream stopped in OFFBOARD: "Failsafe activated" and the
+    HEARTBEAT shows POSCTL (COM_OBL_RC_ACT = 0) about 1.5 s later; the vehicle holds."""
     vehicle = KinematicVehicle()
     start_flying(vehicle)
     last_setpoint_time = vehicle.state().time
@@ -196,9 +198,9 @@ def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t() -> None:
     with pytest.raises(VehicleFailsafe) as failsafe:
         vehicle.advance(0.1)
     assert failsafe.value.reason == "offboard setpoints lost for more than 1 s"
-    assert failsafe.value.action == "hold"
+    assert failsafe.value.action == "posctl"
     state = vehicle.state()
-    assert state.mode == "HOLD"
+    assert state.mode == "POSCTL"
     assert state.fault == "offboard setpoints lost for more than 1 s"
     assert not state.healthy
     assert state.time - last_setpoint_time == pytest.approx(1.05, abs=1e-6)
@@ -208,7 +210,7 @@ def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t() -> None:
 def test_disarm_in_the_air_is_refused_and_preflight_auto_disarm() -> None:
     vehicle = KinematicVehicle()
     start_flying(vehicle)
-    with pytest.raises(CommandRejected, match="disarm refused: not landed"):
+    with pytest.raises(CommandRejected, match="disarm refused by the vehicle: not landed"):
         vehicle.disarm()
     ground = KinematicVehicle(params=AutopilotParameters(preflight_disarm_delay=3.0))
     ground.arm()

@@ -1,9 +1,7 @@
 """Every exception the package raises, under one base class (one name per meaning).
 
 The compiled core raises ``LocalizationError`` (and ``ValueError``/``TypeError``
-for bad arguments); the Python layers raise the others. Vehicle adapters (the
-simulator, the MAVLink client) raise the same ``CommandRejected``/``VehicleFailsafe``,
-so the flight loop handles a refusal the same way whichever vehicle it flies.
+for bad arguments); the Python layers raise the others.
 """
 
 from __future__ import annotations
@@ -38,12 +36,12 @@ class CommandRejected(VehicleError):
     (the autopilot's words, or its MAV_RESULT name), ``detail`` adds what was asked (e.g. the
     mode). ``temporary`` is True where the command may succeed later (PX4's
     TEMPORARILY_REJECTED: arming before a position estimate exists) and False where it is
-    denied outright.
+    denied outright. The simulator and the MAVLink client raise this same class.
     """
 
     def __init__(self, command: str, reason: str, detail: str = "", *, temporary: bool = True) -> None:
         what = f"{command} ({detail})" if detail else command
-        super().__init__(f"{what} refused: {reason}")
+        super().__init__(f"{what} refused by the vehicle: {reason}")
         self.command = command
         self.reason = reason
         self.detail = detail
@@ -61,8 +59,17 @@ class VehicleFailsafe(VehicleError):
         self.action = action
 
 
-class SensorError(InsulatorError):
-    """A sensor source cannot deliver (device gone, stream ended, bad packet stream).
+class ImageError(InsulatorError, ValueError):
+    """An image file cannot be used: missing, not decodable, truncated, or of an unsupported pixel depth.
 
-    The message names the source and what failed.
+    The message names the file and which of those it is.
     """
+
+
+class SensorError(InsulatorError):
+    """A live sensor could not be opened, configured or read (the message names the sensor
+    and the address, device or pipeline)."""
+
+
+class TimeSyncError(InsulatorError):
+    """A clock map was asked for before any time pair arrived."""

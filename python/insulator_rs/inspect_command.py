@@ -37,6 +37,7 @@ from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.minsnap import TIME_ALLOCATIONS
 from insulator_rs.mission.state_machine import POLICIES
+from insulator_rs.report import check_out_folder, parse_out_folder
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
 from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits
@@ -110,7 +111,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="built-in scene name (tower_a, tower_b) or a scene TOML file (default tower_a)")
     p.add_argument("--mission", type=Path, default=None,
                    help="mission file (TOML/YAML); default: the example mission of a built-in scene")
-    p.add_argument("--out", type=Path, default=Path("inspection_report"), help="report folder (created)")
+    p.add_argument("--out", type=parse_out_folder, default=Path("inspection_report"),
+                   help="report folder (created; one that holds files is refused unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the report in --out: the new run is written beside it and swapped in "
+                        "when it ends, so the old report stays whole until then")
     p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
@@ -205,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
         mission = load_mission(mission_path)
         MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
+        check_out_folder(args.out, overwrite=args.overwrite)
         network = load_network(args.detector)
     except (ConfigError, ValueError) as exc:
         print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
@@ -230,7 +236,8 @@ def run(args: argparse.Namespace) -> int:
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
                               quiet=args.quiet)
     try:
-        loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings)
+        loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
+                          overwrite=args.overwrite)
         code = 0
         try:
             loop.fly()

@@ -14,8 +14,9 @@ nothing more is sent to the vehicle. A command the vehicle refuses aborts the mi
 (landing if airborne and the vehicle still takes commands); a sensor error costs that
 detection event or photo, never the flight.
 
-The report folder (:mod:`insulator_rs.mission.report`) is written as the flight goes; an
-interruption (Ctrl-C) still leaves the summary, the photos taken and the plot.
+The report folder (:mod:`insulator_rs.report`: photos with EXIF GPS, WGS-84, GeoJSON/KML) is
+written as the flight goes; an interruption (Ctrl-C) still leaves the summary, the photos
+taken and the plot.
 """
 
 from __future__ import annotations
@@ -33,14 +34,15 @@ from insulator_rs.flight.detector import BoxDetector
 from insulator_rs.flight.segment import plan_segment
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
+from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.perception import PerceptionPipeline
 from insulator_rs.mission.pmm import rest_to_rest_times
 from insulator_rs.mission.registry import Insulator, InsulatorRegistry
-from insulator_rs.mission.report import ReportWriter
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, State
 from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.poses import pose_from_yaw
+from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.rig import SensorRig
 from insulator_rs.sensors import PoseStamped, Sensors
 from insulator_rs.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
@@ -83,7 +85,8 @@ class FlightLoop:
     """One single-flight inspection: state, perception, report (see the module docstring)."""
 
     def __init__(self, mission: Mission, vehicle: Vehicle, sensors: Sensors, detector: BoxDetector,
-                 out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings()) -> None:
+                 out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
+                 overwrite: bool = False) -> None:
         self.mission = mission
         self.vehicle = vehicle
         self.sensors = sensors
@@ -102,7 +105,9 @@ class FlightLoop:
         self.fov = 2 * math.atan((rig.camera.height / 2) / rig.camera.fy)
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints,
                                          policy=settings.policy, cost=self._cost)
-        self.report = ReportWriter(out)
+        tower = mission.tower
+        self.report = ReportWriter(out, origin=GeoPoint(tower.lat, tower.lon, tower.alt), overwrite=overwrite)
+        self.clock = FlightClock(self.vehicle.state().time)  # UTC of vehicle stamps; re-anchored at take-off
         self.out = out
         self.photos: list[dict[str, Any]] = []
         self.photo_camera: Any = None  # intrinsics of the photos taken (the sensors say)
@@ -327,10 +332,12 @@ class FlightLoop:
             self.say(f"[{self.now():7.1f} s] photo of insulator {wp.insulator_id}: no image from the camera")
             return
         n = sum(1 for p in self.photos if p["insulator_id"] == wp.insulator_id)
-        name = f"insulator_{wp.insulator_id:02d}_{n + 1}.png"
-        self.report.save_image(name, np.ascontiguousarray(frame.image[:, :, ::-1]))
+        name = f"insulator_{wp.insulator_id:02d}_{n + 1}.jpg"
+        record = self.report.save_photo(name, frame.image, time_utc=self.clock.at(frame.time),
+                                        position_enu=st.position, yaw_enu=st.yaw, gimbal_pitch=wp.gimbal_pitch,
+                                        description=f"insulator {wp.insulator_id}, photo {n + 1}")
         self.photo_camera = frame.camera
-        self.photos.append({"file": f"images/{name}", "insulator_id": wp.insulator_id,
+        self.photos.append({**record, "insulator_id": wp.insulator_id,
                             "time_s": frame.time - self.t_start, "position": st.position, "yaw": st.yaw,
                             "gimbal_pitch": wp.gimbal_pitch, "T_b_c": frame.T_b_c})
         self.say(f"[{self.now():7.1f} s] photo {name}")
@@ -341,6 +348,7 @@ class FlightLoop:
         target = st.position + np.array([0.0, 0.0, MIN_PASS_HEIGHT])
         self.vehicle.send_setpoint(target, None, st.yaw)
         self.t_start = st.time
+        self.clock = FlightClock(st.time)
         self.vehicle.arm()
         self._airborne = True
         self.vehicle.takeoff(MIN_PASS_HEIGHT)
@@ -356,10 +364,22 @@ class FlightLoop:
         self._print_transitions()
 
     def land(self) -> None:
+        """Land where the vehicle is, unless a failsafe has the vehicle or it never flew. A refused
+        or unanswered land command is reported; the autopilot's own failsafes keep the vehicle."""
         if self.failsafe is not None or not self._airborne:
-            return  # the autopilot flies its failsafe (or the pilot flies): command nothing
-        self.vehicle.land()
+            return  # the autopilot flies its failsafe (or the pilot flies), or nothing took off
         st = self.vehicle.state()
+        if st.landed and not st.armed:
+            return
+        try:
+            self.vehicle.land()
+        except VehicleFailsafe as exc:
+            self.on_failsafe(exc)
+            return
+        except VehicleError as exc:
+            self.abort_reason = f"{self.abort_reason or 'mission aborted'}; landing command failed: {exc}"
+            self.say(f"[{self.now():7.1f} s] landing command failed: {exc}")
+            return
         t0 = st.time
         while not st.landed and st.time - t0 < LAND_TIMEOUT:
             try:
@@ -369,21 +389,29 @@ class FlightLoop:
                 return
             self.report.log_pose(st.time - self.t_start, st.position, st.yaw, self.sm.state.value)
 
+    def on_command_failure(self, exc: VehicleError) -> None:
+        """The vehicle refused a command or never answered it (arm, take-off, a mode switch):
+        reported, and the mission aborts (then lands, see :meth:`land`)."""
+        self.abort(f"vehicle command failed: {exc}")
+        self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
+        self.write_summary()
+
     def fly(self) -> None:
         """The whole flight; a refused command aborts it cleanly (see the module docstring)."""
-        self.say(f"inspecting with mission {self.mission.source}; report -> {self.out}")
+        layout = self.report.layout
+        self.say(f"inspecting with mission {self.mission.source}; report -> {self.out}"
+                 + (f" (written in {layout.path}, replaces the old report when the run ends)"
+                    if layout.staged else ""))
+        for left in layout.leftovers():
+            self.say(f"note: {left} is what an earlier run killed mid-way left (kept; delete it when done)")
         try:
             self._fly()
-        except VehicleFailsafe as exc:  # from a command (arm, take-off) rather than advance
+        except VehicleFailsafe as exc:  # raised by a command rather than during a tick
             self.on_failsafe(exc)
         except VehicleError as exc:
-            self.say(f"[{self.now():7.1f} s] vehicle: {exc}")
-            self.abort(f"vehicle: {exc}")
-            try:
-                self.land()
-            except VehicleError as again:
-                self.say(f"[{self.now():7.1f} s] landing refused too: {again}; the autopilot keeps the vehicle")
+            self.on_command_failure(exc)
         if self.sm.state == State.ABORT:
+            self.land()
             self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
         else:
             self.status = "finished"
@@ -417,8 +445,6 @@ class FlightLoop:
                 if it.kind == "inspect":
                     break
             self.fly_segment(items)
-        if self.sm.state == State.ABORT:
-            self.land()
 
     # -- report --------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
