@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Literal, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -95,12 +95,13 @@ class PerceptionPipeline:
 
     ``camera``/``T_b_c``/``T_b_l`` are the rig's; :meth:`process` takes the intrinsics and
     camera pose of each frame and the extrinsics of each scan from the data themselves (a
-    gimbal, a binned detection image), :meth:`event` uses these.
+    gimbal, a binned detection image), :meth:`event` uses these. ``localize_params`` are
+    passed to ``ir.localize`` (its defaults otherwise).
     """
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
                  method: str = "dbscan+ransac", insulator_length: float | None = None,
-                 pairing_window: float = PAIRING_WINDOW) -> None:
+                 pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None) -> None:
         if method not in ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"):
             raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac or dbscan+pca, got {method!r}")
         if not (np.isfinite(pairing_window) and pairing_window > 0):
@@ -111,6 +112,7 @@ class PerceptionPipeline:
         self.method = method
         self.insulator_length = insulator_length
         self.pairing_window = float(pairing_window)
+        self.localize_params = dict(localize_params or {})  # ir.localize tuning overrides (eps, tau...)
         self.tracks: list[Track] = []
         self.poses = PoseHistory()
         self.scans: deque[LidarScan] = deque(maxlen=SCAN_BUFFER)
@@ -204,7 +206,7 @@ class PerceptionPipeline:
             acc_w = np.vstack(list(track.events))
             acc_b = acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3]
             try:
-                est = ir.localize(acc_b, method=cast(Method, self.method))
+                est = ir.localize(acc_b, method=cast(Method, self.method), **self.localize_params)
             except ir.LocalizationError:
                 self.counters.failures += 1
                 continue
