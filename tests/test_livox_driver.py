@@ -78,7 +78,7 @@ class Rig:
             time.sleep(0.003)
 
     def settle(self) -> dict[str, object]:
-        assert wait_for(lambda: self.driver.health()["datagrams"] == self.sent, 10.0), self.driver.health()
+        assert wait_for(lambda: self.driver.received() == self.sent, 10.0), self.driver.health()
         self.driver.flush()
         return self.driver.health()
 
@@ -334,3 +334,29 @@ def test_parse_url() -> None:
         parse_url("velodyne://x")
     with pytest.raises(SensorError, match="port"):
         parse_url("mid360://h:99999")
+
+
+def test_only_the_lidar_is_heard() -> None:
+    """A stranger's valid packets (another source port) are counted and never parsed,
+    once the first valid sender has been locked onto."""
+    sim = frames(1)
+    emitter = LivoxEmitter(clock=CLOCK)
+    emitter.start_at(sim[0].t_start)
+    datagrams = emitter.add_frame(sim[0])
+    rig = Rig(time_map=CLOCK.to_vehicle)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        rig.feed(datagrams[:10])
+        assert wait_for(lambda: rig.driver.health()["point_packets"] == 10, 5.0)
+        forged = LivoxEmitter(clock=SensorClock(offset_s=5000.0 + 0.002, drift=30e-6))
+        forged.start_at(sim[0].t_start)
+        for d in forged.add_frame(sim[0])[:20]:
+            stranger.sendto(d, rig.driver.point_address)
+        rig.feed(datagrams[10:])
+        assert wait_for(lambda: rig.driver.health()["foreign_datagrams"] == 20, 5.0)
+        assert wait_for(lambda: rig.driver.health()["point_packets"] == len(datagrams), 5.0)
+        health = rig.driver.health()
+    finally:
+        stranger.close()
+        rig.close()
+    assert health["duplicates"] == 0 and health["reordered"] == 0 and health["lost"] == 0
