@@ -5,10 +5,12 @@
 
 use pyo3::prelude::*;
 
+mod bounded;
 mod camera;
 mod culling;
 mod dbscan;
 mod errors;
+mod livox;
 mod localize;
 mod pca;
 mod projection;
@@ -28,6 +30,8 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     ransac::register(py, m)?;
     pca::register(py, m)?;
     localize::register(py, m)?;
+    bounded::register(py, m)?;
     raycast::register(m)?;
+    livox::register(m)?;
     Ok(())
 }

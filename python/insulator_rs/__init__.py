@@ -9,6 +9,7 @@ from __future__ import annotations
 from insulator_rs._core import (
     NEAR_LIMIT,
     NOISE,
+    BoundedLocalization,
     CameraModel,
     LineFit,
     Localization,
@@ -17,6 +18,7 @@ from insulator_rs._core import (
     chain_transforms,
     dbscan,
     localize,
+    localize_bounded,
     localize_defaults,
     pca,
     points_in_boxes,
@@ -28,6 +30,7 @@ from insulator_rs.calibration import load_camera_model
 __all__: list[str] = [
     "NEAR_LIMIT",
     "NOISE",
+    "BoundedLocalization",
     "CameraModel",
     "LineFit",
     "Localization",
@@ -37,6 +40,7 @@ __all__: list[str] = [
     "dbscan",
     "load_camera_model",
     "localize",
+    "localize_bounded",
     "localize_defaults",
     "pca",
     "points_in_boxes",

@@ -27,3 +27,19 @@ class ModelError(InsulatorError, ValueError):
 
     The message names the file and which of those it is.
     """
+
+
+class ImageError(InsulatorError, ValueError):
+    """An image file cannot be used: missing, not decodable, truncated, or of an unsupported pixel depth.
+
+    The message names the file and which of those it is.
+    """
+
+
+class SensorError(InsulatorError):
+    """A live sensor could not be opened, configured or read (the message names the sensor
+    and the address, device or pipeline)."""
+
+
+class TimeSyncError(InsulatorError):
+    """A clock map was asked for before any time pair arrived."""
