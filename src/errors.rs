@@ -7,11 +7,14 @@
 //!   `insulator_rs.exceptions.InsulatorError` (the package's base class).
 //! * every `RaycastError` (scene_raycast) is an argument error naming the
 //!   argument -> `ValueError`.
+//! * livox_mid360's `PacketError` (a malformed datagram) and `ControlError` (a bad
+//!   command frame) -> `ValueError` with the crate's message.
 //!
 //! A binding never maps a core error itself: it runs the kernel through
 //! [`detach`], which works for any error type implementing [`CoreError`].
 
 use fusion_core::FusionError;
+use livox_mid360::{ControlError, PacketError};
 use scene_raycast::RaycastError;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::marker::Ungil;
@@ -62,6 +65,18 @@ impl CoreError for FusionError {
 
 impl CoreError for RaycastError {
     /// Every variant names the argument at fault (the message starts with it).
+    fn into_pyerr(self, _py: Python<'_>) -> PyErr {
+        PyValueError::new_err(self.to_string())
+    }
+}
+
+impl CoreError for PacketError {
+    fn into_pyerr(self, _py: Python<'_>) -> PyErr {
+        PyValueError::new_err(self.to_string())
+    }
+}
+
+impl CoreError for ControlError {
     fn into_pyerr(self, _py: Python<'_>) -> PyErr {
         PyValueError::new_err(self.to_string())
     }
