@@ -78,8 +78,7 @@ class Rig:
             time.sleep(0.003)
 
     def settle(self) -> dict[str, object]:
-        assert wait_for(lambda: self.driver.health()["datagrams"] + self.driver.foreign_datagrams == self.sent,
-                        10.0), self.driver.health()
+        assert wait_for(lambda: self.driver.received() == self.sent, 10.0), self.driver.health()
         self.driver.flush()
         return self.driver.health()
 

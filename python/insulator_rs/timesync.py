@@ -16,8 +16,7 @@ Two kinds of pairs:
   :class:`TimesyncExchange` speaks the message fields (ns);
 * one-way stamps (a LiDAR packet stamped by the sensor, received here): arrival =
   send time + a latency that is never negative, so the map is the lower envelope of
-  the pairs: within each of ``ONE_WAY_BINS`` time bins the pair of least latency is
-  kept, and the line is fitted through those.
+  the pairs (the line under all of them with the least summed latency, drift bounded).
 
 Everything is in seconds (float64). Before the first pair the map is undefined
 (:meth:`ClockMap.ready` is False); with one pair (or all pairs at one instant) drift is 0.
@@ -40,8 +39,8 @@ from insulator_rs.exceptions import TimeSyncError
 REJECT_MAD = 3.0
 #: Floor of the rejection threshold (s): below this residuals are noise, never outliers.
 REJECT_FLOOR_S = 50e-6
-#: Lower-envelope bins of a one-way fit.
-ONE_WAY_BINS = 16
+#: Pairs kept (the least latency of each bin) before a one-way fit's hull.
+ONE_WAY_BINS = 256
 
 
 @dataclass(frozen=True)
@@ -176,25 +175,73 @@ class TwoWaySync(ClockMap):
 
 
 class OneWaySync(ClockMap):
-    """Sender clock -> our clock from (sender stamp, arrival) pairs: the latency envelope."""
+    """Sender clock -> our clock from (sender stamp, arrival) pairs: the latency envelope.
 
-    def __init__(self, *, window: int = 2048, refit_every: int = 64) -> None:
+    Arrival = map(sent) + latency, latency >= 0, so the map is the line under every pair
+    that hugs them closest: the lower convex hull edge (or a slope bound through a hull
+    vertex) minimising the summed latencies, a linear programme whose optimum lies on the
+    hull (the classic one-way clock-skew estimate). The slope is bounded to
+    ``1 +- max_drift``: a single burst of pairs that all arrived at once (no span of
+    arrivals to read a rate from) then yields drift 0, not a collapsed clock. Pairs are
+    first reduced to the least-latency one of each of ``ONE_WAY_BINS`` bins.
+    """
+
+    def __init__(self, *, window: int = 2048, refit_every: int = 64, max_drift: float = 1e-3) -> None:
         super().__init__(window=window, refit_every=refit_every)
+        if not (math.isfinite(max_drift) and 0 <= max_drift < 0.5):
+            raise ValueError(f"max_drift: must be in [0, 0.5), got {max_drift}")
+        self.max_drift = float(max_drift)
 
     def add(self, sent: float, received: float) -> None:
         self._add(sent, received)
 
     def _refit(self) -> ClockFit:
         x, y, _ = self._arrays()
-        if len(x) < 2 * ONE_WAY_BINS:
-            i = int(np.argmin(y - x))
-            return ClockFit(source_ref=float(x[i]), target_ref=float(y[i]), drift=0.0, rms=0.0, n=1)
-        edges = np.linspace(x.min(), x.max(), ONE_WAY_BINS + 1)
-        bins = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, ONE_WAY_BINS - 1)
-        lat = y - x
-        picks = [np.flatnonzero(bins == b)[np.argmin(lat[bins == b])] for b in range(ONE_WAY_BINS)
-                 if np.any(bins == b)]
-        return robust_line(x[picks], y[picks])
+        x0 = float(x.min())
+        dx = x - x0
+        d = y - x  # offset + drift * x + latency
+        span = float(dx.max())
+        if span > 0 and len(x) > ONE_WAY_BINS:
+            bins = np.minimum((dx / span * ONE_WAY_BINS).astype(np.int64), ONE_WAY_BINS - 1)
+            order = np.lexsort((d, bins))
+            first = np.r_[True, bins[order][1:] != bins[order][:-1]]
+            keep = order[first]
+            hx, hd = dx[keep], d[keep]
+        else:
+            hx, hd = dx, d
+        hull = _lower_hull(hx, hd)
+        vx, vd = hx[hull], hd[hull]
+        slopes = [0.0, -self.max_drift, self.max_drift]
+        if len(vx) > 1:
+            edge = np.diff(vd) / np.maximum(np.diff(vx), 1e-12)
+            slopes += [float(e) for e in edge if abs(e) <= self.max_drift]
+        best: tuple[float, float, float] | None = None
+        for slope in slopes:
+            a = float(np.min(vd - slope * vx))  # the line through the support vertex
+            cost = float(np.sum(d - (a + slope * dx)))
+            if best is None or cost < best[0]:
+                best = (cost, a, slope)
+        assert best is not None
+        _, a, slope = best
+        resid = d - (a + slope * dx)
+        return ClockFit(source_ref=x0, target_ref=x0 + a, drift=slope, rms=float(np.sqrt(np.mean(resid**2))),
+                        n=len(x))
+
+
+def _lower_hull(x: np.ndarray, y: np.ndarray) -> list[int]:
+    """Indices of the lower convex hull of the points, left to right (monotone chain)."""
+    order = np.lexsort((y, x))
+    hull: list[int] = []
+    for i in order.tolist():
+        while len(hull) >= 2:
+            i1, i2 = hull[-2], hull[-1]
+            cross = (x[i2] - x[i1]) * (y[i] - y[i1]) - (y[i2] - y[i1]) * (x[i] - x[i1])
+            if cross <= 0:
+                hull.pop()
+            else:
+                break
+        hull.append(i)
+    return hull
 
 
 class TimesyncExchange:

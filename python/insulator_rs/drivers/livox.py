@@ -118,7 +118,7 @@ class LivoxMid360:
                  lidar_ip: str | None = None, lidar_command_port: int = PORT_COMMAND,
                  announce_ip: str | None = None,
                  time_map: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
-                 reorder_grace_s: float = 0.005, command_timeout: float = 1.0) -> None:
+                 reorder_grace_s: float = 0.005, resync_gap_s: float = 1.0, command_timeout: float = 1.0) -> None:
         T = np.asarray(T_b_l, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"T_b_l: expected a finite 4x4 matrix, got shape {T.shape}")
@@ -133,7 +133,8 @@ class LivoxMid360:
         self.command_timeout = float(command_timeout)
         self._time_map = time_map
         self.clock = OneWaySync()
-        self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s)
+        self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s,
+                                             resync_gap_s=resync_gap_s)
         self._scans: deque[LidarScan] = deque(maxlen=keep_scans)
         self._imu: deque[ImuBatch] = deque(maxlen=64)
         self._lock = threading.Lock()
@@ -299,6 +300,10 @@ class LivoxMid360:
             out = list(self._imu)
             self._imu.clear()
         return out
+
+    def received(self) -> int:
+        """Datagrams read so far, from the LiDAR or not."""
+        return int(self._assembler.stats()["datagrams"]) + self.foreign_datagrams
 
     def health(self) -> dict[str, object]:
         stats: dict[str, object] = dict(self._assembler.stats())
