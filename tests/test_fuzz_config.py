@@ -194,7 +194,7 @@ def _within(limit: bounds.Limit, lo: float | None = None, hi: float | None = Non
 def valid_missions(draw) -> dict[str, Any]:
     m = bounds.MISSION
     tower = GeoPoint(draw(st.floats(-60.0, 60.0)), draw(st.floats(-179.0, 179.0)),
-                     draw(_within(m["tower.alt"], hi=8000.0)))
+                     draw(_within(m["tower.alt"], lo=-400.0, hi=8000.0)))
     bearing = draw(st.floats(0.0, 2 * math.pi))
     spans = [draw(st.floats(50.0, 5000.0)) for _ in range(draw(st.integers(1, 2)))]
     neighbours = []
