@@ -95,7 +95,7 @@ def _answers(connection: str) -> dict[str, int | None]:
 def test_px4_answers_commands_as_the_simulated_px4_does(px4) -> None:
     """Reference: PX4 v1.16.0 itself. Our simulated PX4 must give the same COMMAND_ACK results
     on the ground (disarmed, then armed and disarmed again), None meaning no ACK at all."""
-    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.sim.px4 import SimulatedPx4
 
     real = _answers(px4.connection)
     with SimulatedPx4(system_id=2) as sim:
@@ -122,3 +122,76 @@ def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
     assert {p["insulator_id"] for p in s["photos"]} == {r["id"] for r in s["insulators"]}
     assert all(p["insulator_visible"] for p in s["photos"])
     assert "Landing detected" in log and "Disarmed by landing" in log
+
+
+def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch) -> None:
+    """Once PX4 has taken off, a stranger on loopback sends the client's port a HEARTBEAT of an
+    autopilot with system id 42 (POSCTL) twice a second and ~900 truncated 10-byte MAVLink 2
+    headers per second for 4 s. The mission finishes as without them (every insulator found
+    and photographed, no PX4 failsafe); the client dropped and counted every datagram and
+    sent nothing to the stranger."""
+    import socket
+    import threading
+
+    from insulator_rs.mavlink.client import MavlinkVehicle
+    from insulator_rs.mavlink.wire import mavlink2 as M
+
+    stats: list[dict[str, int]] = []
+    original_close = MavlinkVehicle.close
+
+    def close_and_keep_stats(self):
+        stats.append(self.link_stats.as_dict())
+        original_close(self)
+
+    monkeypatch.setattr(MavlinkVehicle, "close", close_and_keep_stats)
+    heartbeat = M.MAVLink_heartbeat_message(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4,
+                                            M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3 << 16, M.MAV_STATE_ACTIVE, 3)
+    foreign = heartbeat.pack(M.MAVLink(None, srcSystem=42, srcComponent=1))
+    header = bytes([0xFD, 9, 0, 0, 7, 1, 1, 0, 0, 0])
+    client_port = int(px4.connection.rsplit(":", 1)[1])
+    sent = {"truncated": 0, "heartbeats": 0, "replies": 0}
+    done = threading.Event()
+
+    def attack() -> None:
+        while "Takeoff detected" not in px4.log():
+            if done.wait(0.2):
+                return
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+            stranger.bind(("127.0.0.1", 0))
+            stranger.setblocking(False)
+            start = time.monotonic()
+            while time.monotonic() - start < 4.0 and not done.is_set():
+                for _ in range(9):
+                    stranger.sendto(header, ("127.0.0.1", client_port))
+                    sent["truncated"] += 1
+                if sent["truncated"] % 450 == 0:
+                    stranger.sendto(foreign, ("127.0.0.1", client_port))
+                    sent["heartbeats"] += 1
+                time.sleep(0.01)
+            time.sleep(1.0)
+            try:
+                while True:
+                    stranger.recvfrom(65535)
+                    sent["replies"] += 1
+            except BlockingIOError:
+                pass
+
+    attacker = threading.Thread(target=attack, daemon=True)
+    attacker.start()
+    scene, mission = small_scene(tmp_path)
+    mission.write_text(mission.read_text() + "confirmations = 1\n")
+    mission = mission_at_home(mission, tmp_path / "at_home.toml")
+    out = tmp_path / "report"
+    try:
+        rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
+                   "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"])
+    finally:
+        done.set()
+        attacker.join(timeout=10)
+    s = json.loads((out / "summary.json").read_text())
+    assert sent["truncated"] > 2000 and sent["heartbeats"] >= 4  # the attack ran, mid-flight
+    assert FAILSAFE_LINE not in px4.log()
+    assert rc == 0 and s["status"] == "finished", s["status"]
+    assert s["insulators_matched"] == 2 and s["insulators_inspected"] == 2 and len(s["photos"]) == 4
+    assert stats[0]["foreign_address"] >= sent["truncated"] + sent["heartbeats"]
+    assert sent["replies"] == 0  # nothing streamed to the stranger

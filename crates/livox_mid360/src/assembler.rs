@@ -367,9 +367,49 @@ impl ScanAssembler {
             self.segment_start = Some((w, began_late));
         }
 
+        let (kept, accepted) = self.distribute(packet);
+        self.stats.points += accepted as u64;
+        if late && accepted == 0 && kept > 0 {
+            self.stats.late_dropped += 1;
+            return Accepted::LateDropped;
+        }
+        if !late {
+            self.close_before(h.timestamp_ns);
+        }
+        while self.open.len() > self.config.max_open_scans {
+            match self.open.keys().next().copied() {
+                Some(w) => self.close(w),
+                None => break,
+            }
+        }
+        Accepted::Points(accepted)
+    }
+
+    /// Adds the packet's points to the windows of their times; returns (decoded, accepted).
+    fn distribute(&mut self, packet: &Packet<'_>) -> (usize, usize) {
+        let h = packet.header;
+        let n = usize::from(h.dot_num);
+        let w_first = self.window_of(h.sample_time_ns(0));
+        let w_last = self.window_of(h.sample_time_ns(n.saturating_sub(1)));
+        let keep_zero = self.config.keep_zero_points;
+        // Common case: the whole packet falls in one open window: decode straight into it.
+        if w_first == w_last && !self.closed_through.is_some_and(|c| w_first <= c) {
+            let scan = self.open.entry(w_first).or_insert_with(|| OpenScan { sorted: true, ..OpenScan::default() });
+            let before = scan.points.len();
+            let last = scan.points.times_ns.last().copied();
+            let (kept, skipped) = decode_points(packet, &mut scan.points, keep_zero).unwrap_or((0, 0));
+            if kept > 0 {
+                scan.packets += 1;
+            }
+            if last.is_some_and(|t| scan.points.times_ns.get(before).is_some_and(|&first| first < t)) {
+                scan.sorted = false;
+            }
+            self.stats.zero_points += skipped as u64;
+            return (kept, kept);
+        }
         let mut scratch = std::mem::take(&mut self.scratch);
         scratch.clear();
-        let (kept, skipped) = decode_points(packet, &mut scratch, self.config.keep_zero_points).unwrap_or((0, 0));
+        let (kept, skipped) = decode_points(packet, &mut scratch, keep_zero).unwrap_or((0, 0));
         self.stats.zero_points += skipped as u64;
         let mut accepted = 0usize;
         let mut last_window: Option<u64> = None;
@@ -397,21 +437,7 @@ impl ScanAssembler {
             accepted += 1;
         }
         self.scratch = scratch;
-        self.stats.points += accepted as u64;
-        if late && accepted == 0 && kept > 0 {
-            self.stats.late_dropped += 1;
-            return Accepted::LateDropped;
-        }
-        if !late {
-            self.close_before(h.timestamp_ns);
-        }
-        while self.open.len() > self.config.max_open_scans {
-            match self.open.keys().next().copied() {
-                Some(w) => self.close(w),
-                None => break,
-            }
-        }
-        Accepted::Points(accepted)
+        (kept, accepted)
     }
 
     fn close_before(&mut self, t_ns: u64) {
