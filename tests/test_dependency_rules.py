@@ -25,9 +25,6 @@ ALLOWED_TO_USE_SIM = (
     "insulator_rs.evaluation",  # scorer and studies: ground truth, after a flight
     "insulator_rs.inspect_command",  # composition root: wires the adapters a run asks for
     "insulator_rs.cli",  # composition root: registers every command
-    # the simulated PX4 is a simulator adapter on the MAVLink side; it moves into sim/
-    # (issue 9 item 6), after which this line goes
-    "insulator_rs.mavlink.px4_sim",
 )
 # Offline tools with heavy optional dependencies, not part of the flying software.
 OFFLINE_TOOLS = ("insulator_rs.detection.train", "insulator_rs.detection.train_command")

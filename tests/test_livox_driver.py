@@ -360,3 +360,33 @@ def test_only_the_lidar_is_heard() -> None:
         stranger.close()
         rig.close()
     assert health["duplicates"] == 0 and health["reordered"] == 0 and health["lost"] == 0
+
+
+def test_datagrams_before_the_vehicle_clock_exists_are_counted_not_fatal() -> None:
+    from insulator_rs.exceptions import TimeSyncError
+
+    sim = frames(1)
+    emitter = LivoxEmitter(clock=CLOCK)
+    emitter.start_at(sim[0].t_start)
+    datagrams = emitter.add_frame(sim[0])
+    calls = {"n": 0}
+
+    def now() -> float:
+        calls["n"] += 1
+        if calls["n"] <= 5:
+            raise TimeSyncError("time sync: no vehicle telemetry yet")
+        return 0.0
+
+    driver = LivoxMid360(now=now, T_b_l=np.eye(4), host_ip="127.0.0.1", point_port=0, imu_port=None,
+                         time_map=CLOCK.to_vehicle).start()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for d in datagrams[:20]:
+            sock.sendto(d, driver.point_address)
+            time.sleep(0.001)
+        assert wait_for(lambda: driver.receive_errors + driver.health()["point_packets"] == 20, 5.0)
+        assert driver.receive_errors == 5
+        assert driver._thread is not None and driver._thread.is_alive()
+    finally:
+        sock.close()
+        driver.close()

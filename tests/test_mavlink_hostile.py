@@ -19,10 +19,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from insulator_rs.mavlink import connect_vehicle
+from insulator_rs.sim.px4 import connect_simulated_px4
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.link import AutopilotLink
-from insulator_rs.mavlink.px4_sim import SimulatedPx4
+from insulator_rs.sim.px4 import SimulatedPx4
 from insulator_rs.mavlink.signing import configure_signing, key_from_passphrase
 from insulator_rs.mavlink.wire import mavlink2 as M
 
@@ -71,7 +71,7 @@ def _fly_a_little(vehicle: MavlinkVehicle, seconds: float) -> None:
 
 @pytest.fixture
 def signed():
-    vehicle = connect_vehicle(None, time_scale=4.0, signing_key=KEY)
+    vehicle = connect_simulated_px4(time_scale=4.0, signing_key=KEY)
     try:
         yield vehicle
     finally:
@@ -135,7 +135,7 @@ def test_signature_is_checked_before_the_stream_timestamp() -> None:
 
 @pytest.fixture
 def vehicle():
-    client = connect_vehicle(None, time_scale=4.0)
+    client = connect_simulated_px4(time_scale=4.0)
     try:
         yield client
     finally:
@@ -265,8 +265,11 @@ def test_link_counts_each_kind_of_drop() -> None:
         broken[-1] ^= 0xFF  # CRC
         assert link.handle_datagram(bytes(broken), PEER) == [] and link.stats.bad_data >= 1
         assert len(link.handle_datagram(VALID + VALID, PEER)) == 2  # two whole frames in one datagram
+        unknown = bytearray(VALID)
+        unknown[7:10] = (4242).to_bytes(3, "little")  # a message id the dialect lacks (CRC unchecked then)
+        assert link.handle_datagram(bytes(unknown), PEER) == [] and link.stats.unknown_message == 1
         assert link.stats.dropped == (link.stats.foreign_address + link.stats.foreign_source
-                                      + link.stats.truncated + link.stats.bad_data)
+                                      + link.stats.truncated + link.stats.bad_data + link.stats.unknown_message)
         assert math.isfinite(link.stats.dropped)
     finally:
         link.close()

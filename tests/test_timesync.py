@@ -154,9 +154,9 @@ def test_telemetry_clock_against_the_simulated_px4() -> None:
     """The simulated PX4 on loopback (time_scale 1): now() within 20 ms of its clock."""
     import time as _time
 
-    from insulator_rs.mavlink.client import connect_vehicle
+    from insulator_rs.sim.px4 import connect_simulated_px4
 
-    vehicle = connect_vehicle(None, time_scale=1.0)
+    vehicle = connect_simulated_px4(time_scale=1.0)
     clock = TelemetryClock(lambda: vehicle.state().time).start()
     try:
         deadline = _time.monotonic() + 5.0

@@ -76,12 +76,14 @@ def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time
     :func:`kinematic_vehicle`) when ``connection`` is None, else to that autopilot with W's
     origin put at the tower base."""
     from insulator_rs.mavlink import connect_vehicle
+    from insulator_rs.sim.px4 import connect_simulated_px4
 
     tower = mission.tower
-    sim_options = None
     if connection is None:
         sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt)}
-    vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
+        vehicle = connect_simulated_px4(time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
+    else:
+        vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key)
     if connection is not None:
         try:
             vehicle.set_world_origin(tower.lat, tower.lon, tower.alt)
@@ -116,7 +118,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the report in --out: the new run is written beside it and swapped in "
                         "when it ends, so the old report stays whole until then")
-    p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
+    p.add_argument("--method", default="dbscan+ransac",
+                   choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", "bounded"),
+                   help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
     p.add_argument("--seed", type=bounds.option("--seed"), default=0)

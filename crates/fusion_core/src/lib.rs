@@ -8,7 +8,6 @@ pub mod bounded;
 pub mod camera;
 pub mod culling;
 pub mod dbscan;
-mod dbscan_grid;
 pub mod error;
 pub mod points;
 pub mod projection;

@@ -41,7 +41,7 @@ from insulator_rs._core import (
     livox_parse_discovery_ack,
     livox_work_mode_request,
 )
-from insulator_rs.exceptions import SensorError
+from insulator_rs.exceptions import InsulatorError, SensorError
 from insulator_rs.sensors import LidarScan
 from insulator_rs.timesync import OneWaySync
 
@@ -231,7 +231,9 @@ class LivoxMid360:
                 for sock in ready:
                     data, peer = sock.recvfrom(MAX_DATAGRAM)
                     self._receive(sock, data, peer)
-            except (OSError, ValueError):
+            except (OSError, ValueError, InsulatorError):
+                # A socket error, or no vehicle time yet (now() before the first telemetry):
+                # that datagram is lost, counted; the thread keeps going.
                 if self._stop.is_set():
                     return
                 self.receive_errors += 1

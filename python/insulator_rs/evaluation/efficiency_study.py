@@ -60,6 +60,7 @@ from insulator_rs.poses import pose_from_yaw
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.sim.lidar import Mid360
+from insulator_rs.report.folder import parse_out_folder
 from insulator_rs.sim.towers import Tower, load_tower
 
 V_MAX = 3.0  # m/s, every axis (paper)
@@ -343,7 +344,7 @@ def plot(rows: list[StudyRow], path: Path) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("docs/results/efficiency"),
+    parser.add_argument("--out", type=parse_out_folder, default=Path("docs/results/efficiency"),
                         help="folder for efficiency.csv and efficiency.png (created)")
     parser.add_argument("--towers", nargs="+", choices=TOWERS, default=list(TOWERS))
     parser.add_argument("--n", type=int, nargs="+", default=list(N_VALUES), metavar="N",

@@ -52,6 +52,7 @@ def flight_summary(loop: FlightLoop) -> dict[str, Any]:
         "detection_events": loop.events,
         "localizations": loop.localizations,
         "perception": asdict(loop.perception.counters),
+        "refused_not_insulator": dict(loop.perception.not_insulator),
         "sensor_errors": loop.sensor_errors,
         "sensors_health": loop.sensors.health(),
         "insulators_found": len(insulators),

@@ -15,7 +15,9 @@ a bag replay and the studies call, so that what is measured offline is what flie
    :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
    accumulates three.
 5. **Localize** the accumulated points, expressed in the current body frame B, with
-   ``ir.localize``; the result goes back to W and is checked against the box's size.
+   ``ir.localize`` (or ``ir.localize_bounded``, method ``"bounded"``); the result goes back to
+   W and is checked against the box's size and, with a known insulator length, against the
+   shape of an insulator string (``insulator_shape``: the false-find filter).
 
 Use it live (``add_pose`` every control tick, ``add_scan`` for each scan, ``process`` for
 each frame with its boxes) or with a frame and a scan taken at one known pose
@@ -31,10 +33,13 @@ from typing import Any, Literal, cast
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.mission.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
 from insulator_rs.poses import PoseHistory
 from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 
 Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
+# The fifth method (ir.localize_bounded): the LiDAR line, its ends from the events' boxes.
+BOUNDED = "bounded"
 EVENTS_PER_LOCALIZATION = 3
 # m: a box whose anchor lies this close to a track's belongs to it. Anchors are in W, so
 # they do not move with the vehicle; the gate is below the spacing of neighbouring
@@ -65,6 +70,10 @@ class Track:
 
     anchor: np.ndarray
     events: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
+    # (box, T_w_c, camera) of each event in ``events``: the bounded method's image bounds.
+    views: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
+    # Shed relief (m) of each shape-checked localization of this track (insulator_shape).
+    reliefs: list = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -81,12 +90,14 @@ class Localization:
 @dataclass
 class PerceptionCounters:
     """What the pipeline did, for the report: frames processed, frames with no scan points or
-    no pose to pair with, localizations that failed, were implausible, or were made."""
+    no pose to pair with, localizations that failed, were implausible (size vs box), did not
+    look like an insulator (shape), or were made."""
 
     frames: int = 0
     unpaired: int = 0
     failures: int = 0
     implausible: int = 0
+    not_insulator: int = 0  # refused by the false-find filter (reasons in ``not_insulator``)
     localizations: int = 0
 
 
@@ -102,8 +113,9 @@ class PerceptionPipeline:
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
                  method: str = "dbscan+ransac", insulator_length: float | None = None,
                  pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None) -> None:
-        if method not in ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"):
-            raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac or dbscan+pca, got {method!r}")
+        if method not in ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", BOUNDED):
+            raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac, dbscan+pca or {BOUNDED}, "
+                             f"got {method!r}")
         if not (np.isfinite(pairing_window) and pairing_window > 0):
             raise ValueError(f"pairing_window: must be a finite number > 0, got {pairing_window!r}")
         self.camera = camera
@@ -117,6 +129,8 @@ class PerceptionPipeline:
         self.poses = PoseHistory()
         self.scans: deque[LidarScan] = deque(maxlen=SCAN_BUFFER)
         self.counters = PerceptionCounters()
+        # Localizations refused because the cluster does not look like an insulator, by reason.
+        self.not_insulator: dict[str, int] = {}
 
     # kept as attributes for the studies' tables
     @property
@@ -201,12 +215,13 @@ class PerceptionPipeline:
             anchor = np.median(pts_w[near], axis=0)
             track = self._associate(anchor)
             track.events.append(pts_w)
+            track.views.append((np.asarray(box[:4], dtype=np.float64), T_w_c, camera))
             if len(track.events) < EVENTS_PER_LOCALIZATION:
                 continue
             acc_w = np.vstack(list(track.events))
             acc_b = acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3]
             try:
-                est = ir.localize(acc_b, method=cast(Method, self.method), **self.localize_params)
+                est = self._localize(acc_b, track, T_b_w)
             except ir.LocalizationError:
                 self.counters.failures += 1
                 continue
@@ -218,10 +233,39 @@ class PerceptionPipeline:
             if not self._scale_plausible(center, axis, box, T_c_w, camera):
                 self.counters.implausible += 1
                 continue
+            if not self._looks_like_insulator(acc_b, est, center, axis, box, T_c_w, camera, track):
+                self.counters.not_insulator += 1
+                continue
             track.anchor = center
             self.counters.localizations += 1
             out.append(Localization(center, axis / np.linalg.norm(axis), int(est.n_points), float(time)))
         return out
+
+    def _localize(self, acc_b: np.ndarray, track: Track, T_b_w: np.ndarray) -> ir.Localization | ir.BoundedLocalization:
+        """The configured method on the accumulated cloud (B of the latest event)."""
+        if self.method != BOUNDED:
+            return ir.localize(acc_b, method=cast(Method, self.method), **self.localize_params)
+        boxes = np.array([b for b, _, _ in track.views])
+        T_b_c = np.array([T_b_w @ T_w_c for _, T_w_c, _ in track.views])
+        return ir.localize_bounded(acc_b, boxes, T_b_c, track.views[-1][2], insulator_length=self.insulator_length)
+
+    def _looks_like_insulator(self, acc_b: np.ndarray, est: ir.Localization | ir.BoundedLocalization,
+                              center: np.ndarray, axis: np.ndarray, box: np.ndarray, T_c_w: np.ndarray,
+                              camera: ir.CameraModel, track: Track) -> bool:
+        """The false-find filter (insulator_shape): the points on the line and the box must look like
+        a string of the mission's insulators. True without a known length."""
+        if self.insulator_length is None:
+            return True
+        shape = cluster_shape(line_members(acc_b, np.asarray(est.center), np.asarray(est.direction)))
+        if shape is not None:
+            track.reliefs.append(shape.relief)
+        aspect = box_aspect_ratio(center, axis, box, T_c_w, camera, length=self.insulator_length)
+        verdict = check_insulator_shape(shape, insulator_length=self.insulator_length, aspect_ratio=aspect,
+                                        relief_history=track.reliefs)
+        for reason in verdict.reasons:
+            key = reason.split(" (")[0]
+            self.not_insulator[key] = self.not_insulator.get(key, 0) + 1
+        return verdict.ok
 
     def _scale_plausible(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
                          T_c_w: np.ndarray, camera: ir.CameraModel) -> bool:

@@ -15,7 +15,7 @@ Two layers:
   with a critical battery), odometry with configurable Gaussian noise, a
   simulation clock, and fault injection (pilot mode change, GPS glitch or loss). It implements
   ``insulator_rs.vehicle.Vehicle``. The simulated PX4 on MAVLink
-  (``insulator_rs.mavlink.px4_sim``) wraps this same class, so the in-process
+  (``insulator_rs.sim.px4``) wraps this same class, so the in-process
   path and the MAVLink path fly the same vehicle.
 
 Everything here is in the world frame W (ENU, metres, radians, seconds).
