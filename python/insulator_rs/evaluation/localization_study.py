@@ -19,7 +19,8 @@ line), the study draws localization events. One event:
    LiDAR points): pairing, deskewing, culling, accumulation, ``ir.localize`` and the
    plausibility gates are the code that flies, with the mission file's insulator length;
 4. compares the centre it returns (in W) with the ground truth; no result (a
-   ``LocalizationError``, too few points, or a size that does not fit the box) is a failure.
+   ``LocalizationError``, too few points, a size that does not fit the box, or a shape the
+   false-find filter refuses) is a failure.
 
 Errors: centre distance (m), its horizontal and vertical components (m), and
 the angle between the estimated and true axes (degrees). The command prints
@@ -124,7 +125,9 @@ class EventResult:
     n_points: int
     n_input: int
     purity: float
-    outcome: str = "ok"  # "ok", "failed" (no usable cloud) or "implausible" (size does not fit the box)
+    # "ok", "failed" (no usable cloud), "implausible" (size does not fit the box) or "not an
+    # insulator" (the false-find filter: shape)
+    outcome: str = "ok"
 
 
 def _yaw_pose(position: np.ndarray, yaw: float) -> np.ndarray:
@@ -287,16 +290,18 @@ def _localize_event(rig: SensorRig, target, trajectory: Callable[[float], np.nda
         frame = CameraFrame(t, image, rig.camera_model, rig.camera.T_b_c)
         results = {}
         for method, per in pipelines.items():
-            before = (per.counters.localizations, per.counters.failures, per.counters.implausible)
+            c = per.counters
+            before = (c.localizations, c.failures, c.implausible, c.not_insulator)
             for pose in poses:
                 per.add_pose(pose)
             for scan in scans:
                 per.add_scan(scan)
             out = per.process(frame, mine[:1])
-            after = (per.counters.localizations, per.counters.failures, per.counters.implausible)
+            after = (c.localizations, c.failures, c.implausible, c.not_insulator)
             if after == before:
                 continue  # fewer than 3 detection events with LiDAR points so far
-            outcome = "ok" if out else ("failed" if after[1] > before[1] else "implausible")
+            outcome = "ok" if out else ("failed" if after[1] > before[1] else
+                                        "implausible" if after[2] > before[2] else "not an insulator")
             track = max(per.tracks, key=lambda tr: len(tr.events))
             acc = np.vstack(list(track.events))
             results[method] = (out[0] if out else None, outcome, len(acc), _purity(acc, target))
