@@ -11,7 +11,7 @@ use crate::pyutils::{extract_cloud, extract_f64_array, extract_rigid, format_sha
 
 /// Boxes from an (M,4) ``x1, y1, x2, y2`` or (M,5) array (the 5th column, a
 /// detector score, is ignored); an empty array or list means no boxes.
-fn extract_boxes(obj: &Bound<'_, PyAny>) -> PyResult<Vec<PixelBox>> {
+pub(crate) fn extract_boxes(obj: &Bound<'_, PyAny>) -> PyResult<Vec<PixelBox>> {
     let (values, shape) = extract_f64_array(obj, "boxes")?;
     if values.is_empty() && (shape.len() == 1 || (shape.len() == 2 && matches!(shape[1], 0 | 4 | 5))) {
         return Ok(Vec::new());

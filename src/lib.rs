@@ -8,6 +8,7 @@ use pyo3::prelude::*;
 mod camera;
 mod culling;
 mod dbscan;
+mod deskew;
 mod errors;
 mod localize;
 mod pca;
@@ -24,6 +25,7 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     transform::register(py, m)?;
     projection::register(py, m)?;
     culling::register(py, m)?;
+    deskew::register(py, m)?;
     dbscan::register(py, m)?;
     ransac::register(py, m)?;
     pca::register(py, m)?;

@@ -6,6 +6,7 @@
 
 pub mod camera;
 pub mod culling;
+pub mod deskew;
 pub mod dbscan;
 mod dbscan_grid;
 pub mod error;
@@ -16,6 +17,7 @@ pub mod transform;
 pub use camera::{CameraModel, NEAR_LIMIT};
 pub use culling::{points_in_boxes, PixelBox};
 pub use dbscan::{dbscan, NOISE};
+pub use deskew::{deskew, deskew_points_in_boxes, PoseStream};
 pub use error::{FusionError, Result};
 pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
 pub use projection::{project_points, Projection};
