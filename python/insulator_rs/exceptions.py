@@ -27,3 +27,9 @@ class ModelError(InsulatorError, ValueError):
 
     The message names the file and which of those it is.
     """
+
+
+class BagError(InsulatorError, ValueError):
+    """A recorded flight (MCAP file, rosbag2 folder, ROS 1 bag) cannot be read or replayed:
+    missing or truncated file, a missing topic, a wrong message type, stamps out of order or
+    jumping. The message names the file or topic and the time."""
