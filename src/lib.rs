@@ -5,11 +5,13 @@
 
 use pyo3::prelude::*;
 
+mod bounded;
 mod camera;
 mod culling;
 mod dbscan;
 mod deskew;
 mod errors;
+mod livox;
 mod localize;
 mod pca;
 mod projection;
@@ -30,6 +32,8 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     ransac::register(py, m)?;
     pca::register(py, m)?;
     localize::register(py, m)?;
+    bounded::register(py, m)?;
     raycast::register(m)?;
+    livox::register(m)?;
     Ok(())
 }

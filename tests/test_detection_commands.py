@@ -75,3 +75,62 @@ def test_detect_run_unreadable_image(tmp_path: Path, capsys: pytest.CaptureFixtu
     bad.write_bytes(b"not an image")
     assert main(["detect", "run", str(bad)]) == 2
     assert "cannot read image" in capsys.readouterr().err
+
+
+def _bad_images(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """A good photo, a 16-bit PNG and the same photo's JPEG cut in half."""
+    import cv2
+
+    good = sorted(PHOTOS.glob("*.jpg"))[0]
+    png16 = tmp_path / "deep.png"
+    cv2.imwrite(str(png16), (cv2.imread(str(good)).astype(np.uint16) * 257))
+    truncated = tmp_path / "cut.jpg"
+    data = good.read_bytes()
+    truncated.write_bytes(data[: len(data) // 2])
+    return good, png16, truncated
+
+
+def test_read_image_refuses_16bit_and_truncated(tmp_path: Path) -> None:
+    """OpenCV alone decodes the cut JPEG (grey fill) and returns uint16 for the PNG: both refused, file named."""
+    import cv2
+
+    from insulator_rs.detection.image_file import read_image
+    from insulator_rs.exceptions import ImageError
+
+    good, png16, truncated = _bad_images(tmp_path)
+    assert cv2.imread(str(truncated)) is not None  # the silent-wrong-answer this guards against
+    assert read_image(good).dtype == np.uint8
+    with pytest.raises(ImageError, match=r"deep\.png: 16-bit"):
+        read_image(png16)
+    with pytest.raises(ImageError, match=r"cut\.jpg: truncated JPEG"):
+        read_image(truncated)
+    with pytest.raises(ImageError, match="directory"):
+        read_image(tmp_path)
+    with pytest.raises(ImageError, match="no such file"):
+        read_image(tmp_path / "missing.jpg")
+
+
+def test_detect_run_keeps_results_when_an_image_fails(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good, png16, truncated = _bad_images(tmp_path)
+    out = tmp_path / "det.json"
+    code = main(["detect", "run", str(good), str(png16), str(truncated), str(good), "--json", str(out),
+                 "--threads", "1"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "deep.png: 16-bit" in err and "cut.jpg: truncated JPEG" in err and "Traceback" not in err
+    result = json.loads(out.read_text())
+    assert [r["image"] for r in result] == [str(good), str(png16), str(truncated), str(good)]
+    assert "boxes" in result[0] and "boxes" in result[3] and result[0]["boxes"] == result[3]["boxes"]
+    assert "16-bit" in result[1]["error"] and "truncated" in result[2]["error"]
+    assert result[0]["dropped_by_sanitiser"]["total"] == 0
+
+
+@pytest.mark.parametrize("threads", ["100000", "0", "-3", "two"])
+def test_detect_run_threads_bounded(threads: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """The bound itself is mission/bounds.py's (robust's validation layer); here: detect run refuses cleanly."""
+    photo = str(sorted(PHOTOS.glob("*.jpg"))[0])
+    with pytest.raises(SystemExit) as exc:
+        main(["detect", "run", photo, "--threads", threads])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--threads" in err and "Traceback" not in err

@@ -189,7 +189,9 @@ def test_arming_is_refused_without_position_and_with_a_critical_battery() -> Non
         vehicle.arm()
 
 
-def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t() -> None:
+def test_offboard_loss_falls_back_to_position_mode_after_com_of_loss_t() -> None:
+    """Reference: PX4 v1.16.0 SITL, stream stopped in OFFBOARD: "Failsafe activated" and the
+    HEARTBEAT shows POSCTL (COM_OBL_RC_ACT = 0) about 1.5 s later; the vehicle holds."""
     vehicle = KinematicVehicle()
     start_flying(vehicle)
     last_setpoint_time = vehicle.state().time
@@ -199,9 +201,9 @@ def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t() -> None:
     with pytest.raises(VehicleFailsafe) as failsafe:
         vehicle.advance(0.1)
     assert failsafe.value.reason == "offboard setpoints lost for more than 1 s"
-    assert failsafe.value.action == "hold"
+    assert failsafe.value.action == "posctl"
     state = vehicle.state()
-    assert state.mode == "HOLD"
+    assert state.mode == "POSCTL"
     assert state.fault == "offboard setpoints lost for more than 1 s"
     assert not state.healthy
     assert state.time - last_setpoint_time == pytest.approx(1.05, abs=1e-6)

@@ -94,8 +94,9 @@ def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_
     assert s["status"].startswith("aborted: vehicle failsafe: autopilot heartbeat lost"), s["status"]
     assert "heartbeat lost" in s["failsafe"]["reason"]
     _assert_found_so_far_kept(out, s)
-    # PX4's side: the setpoint stream stopped with the link, so it flew its own failsafe (hold)
-    assert sims[0].vehicle.mode.value == "HOLD" and "offboard setpoints lost" in sims[0].vehicle.fault
+    # PX4's side: the setpoint stream stopped with the link, so it flew its own failsafe
+    # (Position mode, COM_OBL_RC_ACT = 0, as PX4 v1.16.0 SITL)
+    assert sims[0].vehicle.mode.value == "POSCTL" and "offboard setpoints lost" in sims[0].vehicle.fault
 
 
 @pytest.mark.slow
@@ -144,17 +145,16 @@ def test_in_process_failsafe_aborts_the_same_way(tmp_path, monkeypatch):
 
 
 def test_vehicle_options_are_checked(tmp_path, capsys):
+    """Refused before anything flies: status 2 and the flag named, no traceback."""
     base = ["inspect", "--out", str(tmp_path / "r")]
-    with pytest.raises(ValueError, match="--connection: the camera and LiDAR of a real vehicle"):
-        main([*base, "--connection", "udpin:127.0.0.1:14540"])
-    with pytest.raises(ValueError, match="--time-scale: must be in"):
-        main([*base, "--vehicle", "mavlink", "--time-scale", "10"])
-    with pytest.raises(ValueError, match="--time-scale: only applies to --vehicle mavlink"):
-        main([*base, "--time-scale", "2"])
-    with pytest.raises(ValueError, match="--sim-sensors: only applies with --connection"):
-        main([*base, "--vehicle", "mavlink", "--sim-sensors"])
-    with pytest.raises(ValueError, match="--signing-key: no such file"):
-        main([*base, "--vehicle", "mavlink", "--signing-key", str(tmp_path / "missing.key")])
+    for extra, message in (
+            (["--connection", "udpin:127.0.0.1:14540"], "--connection: the camera and LiDAR of a real vehicle"),
+            (["--vehicle", "mavlink", "--time-scale", "10"], "--time-scale: must be in"),
+            (["--time-scale", "2"], "--time-scale: only applies to --vehicle mavlink"),
+            (["--vehicle", "mavlink", "--sim-sensors"], "--sim-sensors: only applies with --connection"),
+            (["--vehicle", "mavlink", "--signing-key", str(tmp_path / "missing.key")], "--signing-key: no such file")):
+        assert main([*base, *extra]) == 2
+        assert message in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
 
 
@@ -244,3 +244,39 @@ def test_far_side_finds_owed_on_the_landing_side_are_inspected_before_landing(tm
     assert z_at_release > 1.5  # released in the air, above the landing point, not after touch-down
     touchdowns = np.flatnonzero((traj[1:, 1] < 0.05) & (traj[:-1, 1] >= 0.05))
     assert len(touchdowns) == 1 and traj[-1, 1] < 0.05  # one landing, at the end
+
+
+@pytest.mark.parametrize("command, result, expected", [
+    ("MAV_CMD_DO_SET_MODE", "MAV_RESULT_TEMPORARILY_REJECTED",
+     "MAV_CMD_DO_SET_MODE (OFFBOARD) refused by the vehicle: MAV_RESULT_TEMPORARILY_REJECTED"),
+    ("MAV_CMD_DO_SET_MODE", None, "MAV_CMD_DO_SET_MODE (OFFBOARD): no COMMAND_ACK after 3 tries of 1 s"),
+    ("MAV_CMD_COMPONENT_ARM_DISARM", "MAV_RESULT_DENIED",
+     "MAV_CMD_COMPONENT_ARM_DISARM (arm) refused by the vehicle: MAV_RESULT_DENIED"),
+])
+def test_a_refused_or_unanswered_command_aborts_cleanly_with_the_reason(tmp_path, monkeypatch, capsys,
+                                                                        command, result, expected):
+    """The simulated PX4 refuses (or, as PX4 does with gimbal commands, never answers) the
+    OFFBOARD switch after take-off, or arming: the run ends with status "aborted: vehicle
+    command failed: <command and result>", exit code 1, a report, no traceback; a vehicle in
+    the air is landed (NAV_LAND is not refused), one on the ground is left alone."""
+    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.mavlink.wire import mavlink2 as M
+
+    sims = []
+    original = SimulatedPx4.start
+
+    def start_with_fault(self):
+        self.set_command_fault(getattr(M, command), None if result is None else getattr(M, result))
+        sims.append(self)
+        return original(self)
+
+    monkeypatch.setattr(SimulatedPx4, "start", start_with_fault)
+    rc, out, s = _inspect(tmp_path, *MAVLINK)
+    assert rc == 1 and s["status"] == f"aborted: vehicle command failed: {expected}", s["status"]
+    assert s["state"] == "abort" and s["failsafe"] is None and (out / "trajectory.png").is_file()
+    assert "Traceback" not in capsys.readouterr().err
+    stats, landed, armed = sims[0].stats, *sims[0].with_vehicle(lambda v: (v.landed, v.armed))
+    if command == "MAV_CMD_DO_SET_MODE":  # refused in the air: the mission lands the vehicle
+        assert stats.commands.get("MAV_CMD_NAV_LAND") == 1 and landed
+    else:  # never armed: nothing more is commanded
+        assert "MAV_CMD_NAV_TAKEOFF" not in stats.commands and landed and not armed

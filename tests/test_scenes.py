@@ -10,7 +10,7 @@ from __future__ import annotations
 import copy
 import math
 import re
-import tomllib
+from insulator_rs._toml import tomllib
 from pathlib import Path
 from typing import Any
 

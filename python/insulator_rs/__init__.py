@@ -9,6 +9,7 @@ from __future__ import annotations
 from insulator_rs._core import (
     NEAR_LIMIT,
     NOISE,
+    BoundedLocalization,
     CameraModel,
     LineFit,
     Localization,
@@ -19,6 +20,7 @@ from insulator_rs._core import (
     deskew,
     deskew_points_in_boxes,
     localize,
+    localize_bounded,
     localize_defaults,
     pca,
     points_in_boxes,
@@ -30,6 +32,7 @@ from insulator_rs.calibration import load_camera_model
 __all__: list[str] = [
     "NEAR_LIMIT",
     "NOISE",
+    "BoundedLocalization",
     "CameraModel",
     "LineFit",
     "Localization",
@@ -41,6 +44,7 @@ __all__: list[str] = [
     "deskew_points_in_boxes",
     "load_camera_model",
     "localize",
+    "localize_bounded",
     "localize_defaults",
     "pca",
     "points_in_boxes",

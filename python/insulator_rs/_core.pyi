@@ -15,9 +15,12 @@ from insulator_rs.exceptions import InsulatorError
 _Points = NDArray[np.float32] | NDArray[np.float64]
 
 __all__ = [
+    "BoundedLocalization",
     "CameraModel",
     "LineFit",
     "Localization",
+    "LivoxScan",
+    "LivoxScanAssembler",
     "LocalizationError",
     "NEAR_LIMIT",
     "NOISE",
@@ -29,6 +32,15 @@ __all__ = [
     "deskew",
     "deskew_points_in_boxes",
     "localize",
+    "livox_decode_command",
+    "livox_discovery_request",
+    "livox_encode_command",
+    "livox_host_config_request",
+    "livox_parse_config_ack",
+    "livox_parse_discovery_ack",
+    "livox_parse_header",
+    "livox_work_mode_request",
+    "localize_bounded",
     "localize_defaults",
     "pca",
     "points_in_boxes",
@@ -161,6 +173,46 @@ def localize(
     seed: int = ...,
 ) -> Localization: ...
 def localize_defaults() -> dict[str, float | int]: ...
+@final
+class BoundedLocalization:
+    """Insulator centre and unit axis in B, the line from the LiDAR and the ends from the boxes."""
+
+    @property
+    def center(self) -> NDArray[np.float64]: ...
+    @property
+    def direction(self) -> NDArray[np.float64]: ...
+    @property
+    def n_points(self) -> int: ...
+    @property
+    def n_clusters(self) -> int: ...
+    @property
+    def n_nonfinite(self) -> int: ...
+    @property
+    def ends_from_image(self) -> int: ...
+    @property
+    def length(self) -> float | None: ...
+    @property
+    def views_used(self) -> int: ...
+    @property
+    def method(self) -> str: ...
+
+def localize_bounded(
+    points_b: _Points,
+    boxes: Any,
+    T_b_c: Any,
+    cam: CameraModel,
+    *,
+    insulator_length: float | None = None,
+    border_margin: float = ...,
+    max_extent: float = ...,
+    eps: float = ...,
+    min_points: int = ...,
+    tau: float = ...,
+    ransac_threshold: float = ...,
+    max_iterations: int = ...,
+    confidence: float = ...,
+    seed: int = ...,
+) -> BoundedLocalization: ...
 
 # --- scene ray casting (src/raycast.rs, the simulator's LiDAR and camera) ---
 
@@ -207,3 +259,61 @@ class RaycastScene:
         shadows: bool = True,
         max_range: float = 1000.0,
     ) -> tuple[NDArray[np.uint8], NDArray[np.int32], NDArray[np.float32]]: ...
+
+# --- Livox Mid-360 (SDK2 protocol): crates/livox_mid360 -------------------------------
+
+@final
+class LivoxScan:
+    """One 10 Hz scan in the sensor clock: points (N, 3) float32 in the LiDAR frame (m),
+    per-point times_ns (N,) uint64, reflectivity and tag (N,) uint8; the window
+    [start_ns, end_ns); packets that contributed; partial if the window was not covered."""
+
+    @property
+    def points(self) -> NDArray[np.float32]: ...
+    @property
+    def times_ns(self) -> NDArray[np.uint64]: ...
+    @property
+    def reflectivity(self) -> NDArray[np.uint8]: ...
+    @property
+    def tag(self) -> NDArray[np.uint8]: ...
+    @property
+    def start_ns(self) -> int: ...
+    @property
+    def end_ns(self) -> int: ...
+    @property
+    def packets(self) -> int: ...
+    @property
+    def partial(self) -> bool: ...
+    def __len__(self) -> int: ...
+
+@final
+class LivoxScanAssembler:
+    """Point-cloud / IMU datagrams in, 10 Hz scans out; every fault counted (``stats``)."""
+
+    def __new__(
+        cls,
+        *,
+        frame_period_s: float = 0.1,
+        reorder_grace_s: float = 0.005,
+        resync_gap_s: float = 1.0,
+        keep_zero_points: bool = False,
+        max_queued_scans: int = 16,
+    ) -> LivoxScanAssembler: ...
+    def push(self, datagram: bytes) -> str: ...
+    def pop_scan(self) -> LivoxScan | None: ...
+    def drain_imu(self) -> tuple[NDArray[np.uint64], NDArray[np.float32], NDArray[np.float32]]: ...
+    def flush(self) -> None: ...
+    @property
+    def pending_scans(self) -> int: ...
+    def stats(self) -> dict[str, int]: ...
+
+def livox_parse_header(datagram: bytes) -> dict[str, int]: ...
+def livox_encode_command(
+    cmd_id: int, seq_num: int, data: bytes = ..., *, cmd_type: int = 0, sender_type: int = 0
+) -> bytes: ...
+def livox_decode_command(frame: bytes) -> tuple[int, int, int, int, bytes]: ...
+def livox_discovery_request(seq_num: int) -> bytes: ...
+def livox_work_mode_request(seq_num: int, sampling: bool) -> bytes: ...
+def livox_host_config_request(seq_num: int, host_ip: str, point_port: int, imu_port: int) -> bytes: ...
+def livox_parse_discovery_ack(frame: bytes) -> dict[str, Any]: ...
+def livox_parse_config_ack(frame: bytes) -> tuple[int, int]: ...

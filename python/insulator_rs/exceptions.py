@@ -33,3 +33,19 @@ class BagError(InsulatorError, ValueError):
     """A recorded flight (MCAP file, rosbag2 folder, ROS 1 bag) cannot be read or replayed:
     missing or truncated file, a missing topic, a wrong message type, stamps out of order or
     jumping. The message names the file or topic and the time."""
+
+
+class ImageError(InsulatorError, ValueError):
+    """An image file cannot be used: missing, not decodable, truncated, or of an unsupported pixel depth.
+
+    The message names the file and which of those it is.
+    """
+
+
+class SensorError(InsulatorError):
+    """A live sensor could not be opened, configured or read (the message names the sensor
+    and the address, device or pipeline)."""
+
+
+class TimeSyncError(InsulatorError):
+    """A clock map was asked for before any time pair arrived."""

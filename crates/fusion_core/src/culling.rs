@@ -27,7 +27,7 @@ impl PixelBox {
         Ok(b)
     }
 
-    fn validate(&self, name: &'static str) -> Result<()> {
+    pub(crate) fn validate(&self, name: &'static str) -> Result<()> {
         let c = [self.x1, self.y1, self.x2, self.y2];
         if c.iter().any(|v| !v.is_finite()) {
             return Err(invalid(name, format!("corners must be finite, got {c:?}")));

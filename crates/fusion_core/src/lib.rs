@@ -4,6 +4,7 @@
 //! coordinates into frame a. Units: metres, radians, pixels.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+pub mod bounded;
 pub mod camera;
 pub mod culling;
 pub mod deskew;
@@ -14,6 +15,7 @@ pub mod points;
 pub mod projection;
 pub mod transform;
 
+pub use bounded::{localize_bounded, BoundedLocalization, BoundedParams, BoxView};
 pub use camera::{CameraModel, NEAR_LIMIT};
 pub use culling::{points_in_boxes, PixelBox};
 pub use dbscan::{dbscan, NOISE};

@@ -266,15 +266,55 @@ fn by_ransac(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Localizatio
     Ok(Localization { center, direction: fit.direction, n_points: s.len(), n_clusters: 1, n_nonfinite: 0 })
 }
 
-/// Method 3 (Algorithm 1): nearest cluster -> RANSAC line -> median projection of the
-/// RANSAC inliers within tau of the line.
-fn by_dbscan_ransac(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Localization> {
+/// The line of Algorithm 1 (nearest cluster -> RANSAC line) and the points S that belong
+/// to the insulator (the RANSAC inliers within tau of it).
+pub(crate) struct InsulatorLine {
+    /// A point of the line (the inliers' centroid) and its unit direction.
+    pub point: [f64; 3],
+    pub direction: [f64; 3],
+    /// The points of S.
+    pub members: Vec<[f64; 3]>,
+    /// Clusters found by DBSCAN.
+    pub n_clusters: usize,
+}
+
+impl InsulatorLine {
+    /// Scalar projections `t = d . (p - a)` of the points of S, ascending.
+    pub(crate) fn sorted_projections(&self) -> Vec<f64> {
+        let (a, d) = (&self.point, &self.direction);
+        let mut t: Vec<f64> =
+            self.members.iter().map(|p| (p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1] + (p[2] - a[2]) * d[2]).collect();
+        t.sort_by(f64::total_cmp);
+        t
+    }
+}
+
+/// Nearest DBSCAN cluster, its RANSAC line and the inliers within tau (Algorithm 1, lines 1-3).
+pub(crate) fn dbscan_ransac_line(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<InsulatorLine> {
     let (nearest, n_clusters) = nearest_cluster(coords, params)?;
     let sub: Vec<[f64; 3]> = nearest.iter().map(|&k| coords[k]).collect();
     let fit = ransac_line_finite(&sub, &params.ransac).map_err(no_line)?;
     let s = within_tau(&sub, &fit.inliers, &fit.point, &fit.direction, params.tau);
-    let center = median_projection(&sub, &s, &fit.point, &fit.direction)?;
-    Ok(Localization { center, direction: fit.direction, n_points: s.len(), n_clusters, n_nonfinite: 0 })
+    if s.is_empty() {
+        return Err(FusionError::NoInsulator("no points within tau of the line".into()));
+    }
+    let members = s.iter().map(|&k| sub[k]).collect();
+    Ok(InsulatorLine { point: fit.point, direction: fit.direction, members, n_clusters })
+}
+
+/// Method 3 (Algorithm 1): nearest cluster -> RANSAC line -> median projection of the
+/// RANSAC inliers within tau of the line.
+fn by_dbscan_ransac(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Localization> {
+    let line = dbscan_ransac_line(coords, params)?;
+    let all: Vec<usize> = (0..line.members.len()).collect();
+    let center = median_projection(&line.members, &all, &line.point, &line.direction)?;
+    Ok(Localization {
+        center,
+        direction: line.direction,
+        n_points: line.members.len(),
+        n_clusters: line.n_clusters,
+        n_nonfinite: 0,
+    })
 }
 
 /// Method 4 (Algorithm 2): PCA line of the nearest cluster; S = its points within tau;

@@ -16,15 +16,21 @@ from pathlib import Path
 
 import cv2
 
-from insulator_rs.detection.detector import Detections, Detector, as_bgr_uint8
-from insulator_rs.detection.evaluate import EVAL_CONF, coco_evaluate, load_split
+from insulator_rs.detection.detector import Detections, Detector
+from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_split
+from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
+from insulator_rs.detection.image_file import read_image
+from insulator_rs.detection.sanitize import DroppedDetections
+from insulator_rs.exceptions import ImageError
+from insulator_rs.mission import bounds
 
 
-def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None) -> Detector:
-    """A detector from a shipped model name or an ONNX path."""
+def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
+                  imgsz: int | None = None) -> Detector:
+    """A detector from a shipped model name or an ONNX path (``imgsz``: input size, default the model's)."""
     if model.endswith(".onnx") or Path(model).exists():
-        return Detector(model, conf=conf, iou=iou, threads=threads)
-    return Detector.from_name(model, conf=conf, iou=iou, threads=threads)
+        return Detector(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
+    return Detector.from_name(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
 
 
 def draw(image: cv2.typing.MatLike, det: Detections) -> cv2.typing.MatLike:
@@ -39,46 +45,74 @@ def draw(image: cv2.typing.MatLike, det: Detections) -> cv2.typing.MatLike:
 
 
 def run_images(args: argparse.Namespace) -> int:
+    """Detect in each image; a bad image is reported and skipped, the others still run and are saved."""
     detector = open_detector(args.model, conf=args.conf, iou=args.iou, threads=args.threads)
-    results = []
+    results: list[dict[str, object]] = []
+    failed = 0
+    dropped = DroppedDetections()
     for path in args.images:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            print(f"error: cannot read image {path}", file=sys.stderr)
-            return 2
+        try:
+            image = read_image(path)
+        except ImageError as exc:
+            failed += 1
+            print(f"error: {exc}", file=sys.stderr)
+            results.append({"image": str(path), "error": str(exc)})
+            continue
         det = detector(image)
+        dropped = dropped + det.dropped
         results.append({"image": str(path), "boxes": det.boxes.tolist(), "scores": det.scores.tolist(),
-                        "labels": det.labels})
+                        "labels": det.labels, "dropped_by_sanitiser": det.dropped.to_dict()})
         print(f"{path}: {len(det)} detection(s)" + "".join(
             f"\n  {lbl} {s:.3f} [{b[0]:.1f} {b[1]:.1f} {b[2]:.1f} {b[3]:.1f}]"
             for b, s, lbl in zip(det.boxes, det.scores, det.labels)))
+        if det.dropped.total:
+            print(f"  sanitiser dropped {det.dropped.total} invalid detection(s): {det.dropped.to_dict()}")
         if args.draw is not None:
             args.draw.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(args.draw / f"{Path(path).stem}_det.jpg"), draw(as_bgr_uint8(image), det))
+            cv2.imwrite(str(args.draw / f"{Path(path).stem}_det.jpg"), draw(image, det))
     if args.json is not None:
         args.json.write_text(json.dumps(results, indent=1) + "\n")
+    if failed:
+        print(f"error: {failed} of {len(args.images)} image(s) could not be used (see above)", file=sys.stderr)
+        return 2
     return 0
 
 
 def evaluate_split(args: argparse.Namespace) -> int:
-    detector = open_detector(args.model, conf=args.conf, iou=args.iou, threads=args.threads)
+    if (args.split is None) == (args.named_split is None):
+        print("error: give either a split folder or --split field-test", file=sys.stderr)
+        return 2
+    detector = open_detector(args.model, conf=args.conf, iou=args.iou, threads=args.threads, imgsz=args.imgsz)
+
+    def progress(i: int, n: int) -> None:
+        if i % 10 == 0 or i == n:
+            print(f"  evaluated {i}/{n} images", file=sys.stderr, flush=True)
+
+    if args.named_split is not None:
+        try:
+            metrics = evaluate_field_test(detector, args.field_photos, progress=progress)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        args.split = Path(f"{args.named_split} ({args.field_photos}, photos held back by photo)")
+        return _report_metrics(args, detector, metrics)
     samples = load_split(args.split, detector.names)
 
     def detect(image: cv2.typing.MatLike) -> tuple[object, object, list[str]]:
         det = detector(image)
         return det.boxes, det.scores, det.labels
 
-    def progress(i: int, n: int) -> None:
-        if i % 10 == 0 or i == n:
-            print(f"  evaluated {i}/{n} images", file=sys.stderr, flush=True)
+    return _report_metrics(args, detector, coco_evaluate(samples, detect, progress=progress))  # type: ignore[arg-type]
 
-    metrics = coco_evaluate(samples, detect, progress=progress)  # type: ignore[arg-type]
+
+def _report_metrics(args: argparse.Namespace, detector: Detector, metrics: CocoMetrics) -> int:
     print(f"{args.split}: {metrics.images} images, {metrics.instances} instances, "
           f"mAP50-95 {metrics.map50_95:.4f}, mAP50 {metrics.map50:.4f}, mAP75 {metrics.map75:.4f}, "
           f"AR100 {metrics.recall100:.4f}, {metrics.ms_per_image:.1f} ms/image")
     if args.json is not None:
         args.json.write_text(json.dumps({"model": args.model, "split": str(args.split), "conf": args.conf,
-                                         "iou": args.iou, **metrics.to_dict()}, indent=1) + "\n")
+                                         "iou": args.iou, "imgsz": list(detector.imgsz), **metrics.to_dict()},
+                                        indent=1) + "\n")
     return 0
 
 
@@ -91,7 +125,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         p.add_argument("--model", default="insulator-real", help="shipped model name or ONNX path")
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
-        p.add_argument("--threads", type=int, default=None, help="onnxruntime CPU threads")
+        p.add_argument("--threads", type=bounds.option("--threads"), default=None,
+                       help="onnxruntime CPU threads (bounded: mission/bounds.py)")
         p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
 
     run = sub.add_parser("run", help="detect insulators in images")
@@ -102,5 +137,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
     ev = sub.add_parser("eval", help="COCO mAP50-95/mAP50 on a labelled split (pycocotools)")
     common(ev, EVAL_CONF)
-    ev.add_argument("split", type=Path, help="VOC folder or YOLO images/<split> folder")
+    ev.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
+    ev.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
+                    help="a named split: field-test = the field photos held back from training (by photo)")
+    ev.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
+                    help="field-photo set for --split field-test (default %(default)s)")
+    ev.add_argument("--imgsz", type=int, default=None, help="network input size (default: the model's own)")
     ev.set_defaults(func=evaluate_split)

@@ -22,7 +22,8 @@ import numpy as np
 import onnxruntime as ort
 
 from insulator_rs.detection.letterbox import LetterboxGeometry, letterbox, to_network_input
-from insulator_rs.detection.postprocess import decode_yolo
+from insulator_rs.detection.postprocess import RawDetections, suppress, yolo_candidates
+from insulator_rs.detection.sanitize import DroppedDetections, clip_to_image, drop_invalid
 from insulator_rs.exceptions import ModelError
 
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider")
@@ -38,6 +39,7 @@ class Detections:
     scores: np.ndarray  # (M,) float64 in [0, 1]
     class_ids: np.ndarray  # (M,) int64
     names: dict[int, str]
+    dropped: DroppedDetections = DroppedDetections()  # what the sanitiser removed (sanitize.py)
 
     def __len__(self) -> int:
         return int(self.boxes.shape[0])
@@ -239,9 +241,19 @@ class Detector:
     def detect(self, image: np.ndarray) -> Detections:
         """Detect objects in one BGR uint8 image (gray and BGRA are converted)."""
         out, geo = self.raw(image)
-        raw = decode_yolo(out, conf=self.conf, iou=self.iou, max_det=self.max_det, agnostic=self.agnostic)
-        boxes = geo.to_original(raw.boxes).astype(np.float64)
-        return Detections(boxes, raw.scores.astype(np.float64), raw.class_ids, self.names)
+        cands = yolo_candidates(out, conf=self.conf)
+        # The detector's edge (sanitize.py): NaN/Inf/inverted boxes and bad scores go before NMS,
+        # where they could survive or suppress a valid box; then NMS as Ultralytics does it.
+        valid, dropped = drop_invalid(cands.boxes, cands.scores)
+        cands = RawDetections(cands.boxes[valid], cands.scores[valid], cands.class_ids[valid])
+        kept = suppress(cands, iou=self.iou, max_det=self.max_det, agnostic=self.agnostic)
+        with np.errstate(over="ignore"):
+            mapped = geo.to_original(kept.boxes, clip=False)
+        h, w = geo.orig_hw
+        boxes, inside, small = clip_to_image(mapped, w, h)
+        dropped = dropped + small
+        kept = RawDetections(boxes, kept.scores[inside].astype(np.float64), kept.class_ids[inside])
+        return Detections(kept.boxes, kept.scores, kept.class_ids, self.names, dropped)
 
     __call__ = detect
 

@@ -62,10 +62,16 @@ def load_split(path: Path, names: dict[int, str] | None = None) -> list[Labelled
     images = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not images:
         raise ValueError(f"path: no image in {path}")
+    return load_images(images, names, yolo_labels=path.parent.parent / "labels" / path.name)
+
+
+def load_images(images: list[Path], names: dict[int, str] | None = None, *,
+                yolo_labels: Path | None = None, voc_dir: Path | None = None) -> list[LabelledImage]:
+    """Labelled images from image paths: a same-stem VOC ``.xml`` (beside each image, or in ``voc_dir``),
+    else a YOLO label in ``yolo_labels``."""
     out = []
-    yolo_labels = path.parent.parent / "labels" / path.name
     for img_path in images:
-        xml = img_path.with_suffix(".xml")
+        xml = voc_dir / f"{img_path.stem}.xml" if voc_dir is not None else img_path.with_suffix(".xml")
         shape = cv2.imread(str(img_path), cv2.IMREAD_UNCHANGED)
         if shape is None:
             raise ValueError(f"path: cannot decode {img_path}")
@@ -74,7 +80,7 @@ def load_split(path: Path, names: dict[int, str] | None = None) -> list[Labelled
             voc = parse_voc(xml)
             boxes = np.array([[b.xmin, b.ymin, b.xmax, b.ymax] for b in voc], dtype=np.float64).reshape(-1, 4)
             labels = tuple(b.name for b in voc)
-        elif (yolo_labels / f"{img_path.stem}.txt").is_file():
+        elif yolo_labels is not None and (yolo_labels / f"{img_path.stem}.txt").is_file():
             if names is None:
                 raise ValueError("names: needed to read YOLO labels (class id -> name)")
             rows = np.loadtxt(yolo_labels / f"{img_path.stem}.txt", ndmin=2).reshape(-1, 5)
@@ -147,3 +153,20 @@ def coco_evaluate(
     return CocoMetrics(map50_95=float(stats[0]), map50=float(stats[1]), map75=float(stats[2]),
                        recall100=float(stats[8]), images=len(samples), instances=len(gt["annotations"]),
                        detections=len(dets), ms_per_image=1000 * seconds / len(samples))
+
+
+def evaluate_field_test(detector: object, field_photos: Path,
+                        progress: Callable[[int, int], None] | None = None) -> CocoMetrics:
+    """COCO figures of ``detector`` (a :class:`Detector`) on the held-back field photos, full frames letterboxed.
+
+    The split is :func:`field_dataset.field_test_images` (the one training held back, by photo).
+    """
+    from insulator_rs.detection.field_dataset import field_test_images
+
+    samples = load_images(field_test_images(field_photos), voc_dir=Path(field_photos) / "labels")
+
+    def detect(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        det = detector(image)  # type: ignore[operator]
+        return det.boxes, det.scores, det.labels
+
+    return coco_evaluate(samples, detect, progress=progress)

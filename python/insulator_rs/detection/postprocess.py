@@ -69,19 +69,16 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarr
     return np.asarray(keep, dtype=np.int64)
 
 
-def decode_yolo(
-    output: np.ndarray,
-    *,
-    conf: float,
-    iou: float,
-    max_det: int = 300,
-    agnostic: bool = False,
-) -> RawDetections:
-    """Turn one image's head output ``[1, 4 + nc, N]`` (or ``[4 + nc, N]``) into kept boxes."""
+def yolo_candidates(output: np.ndarray, *, conf: float) -> RawDetections:
+    """Anchors of one image's head output ``[1, 4 + nc, N]`` (or ``[4 + nc, N]``) worth keeping, before NMS.
+
+    Kept: best class score strictly above ``conf`` (Ultralytics), and also any
+    non-finite score, so that the sanitiser can count it instead of it
+    vanishing silently (NaN compares false) or winning NMS (+Inf). At most
+    ``MAX_NMS`` by score.
+    """
     if not 0.0 <= conf <= 1.0:
         raise ValueError(f"conf must be in [0, 1], got {conf}")
-    if max_det < 1:
-        raise ValueError(f"max_det must be >= 1, got {max_det}")
     pred = np.asarray(output)
     if pred.ndim == 3:
         if pred.shape[0] != 1:
@@ -91,16 +88,47 @@ def decode_yolo(
         raise ValueError(f"output must be [1, 4 + nc, N] with nc >= 1, got {np.shape(output)}")
     pred = pred.T  # (N, 4 + nc)
     cls = pred[:, 4:]
-    best = cls.argmax(axis=1)
-    score = cls[np.arange(cls.shape[0]), best]
-    cand = np.flatnonzero(score > conf)
-    empty = RawDetections(np.zeros((0, 4), pred.dtype), np.zeros(0, pred.dtype), np.zeros(0, np.int64))
+    with np.errstate(invalid="ignore"):
+        best = np.nan_to_num(cls, nan=-np.inf).argmax(axis=1)
+        score = cls[np.arange(cls.shape[0]), best]
+        cand = np.flatnonzero((score > conf) | ~np.isfinite(score))
     if cand.size == 0:
-        return empty
+        return RawDetections(np.zeros((0, 4), pred.dtype), np.zeros(0, pred.dtype), np.zeros(0, np.int64))
     if cand.size > MAX_NMS:
-        cand = cand[np.argsort(-score[cand], kind="stable")[:MAX_NMS]]
-    boxes = xywh_to_xyxy(pred[cand, :4])
-    scores, class_ids = score[cand], best[cand].astype(np.int64)
-    offset = (0 if agnostic else MAX_WH) * class_ids.astype(boxes.dtype)
-    keep = nms(boxes + offset[:, None], scores, iou)[:max_det]
-    return RawDetections(boxes[keep], scores[keep], class_ids[keep])
+        cand = cand[np.argsort(-np.nan_to_num(score[cand], nan=np.inf), kind="stable")[:MAX_NMS]]
+    with np.errstate(invalid="ignore", over="ignore"):
+        boxes = xywh_to_xyxy(pred[cand, :4])
+    return RawDetections(boxes, score[cand], best[cand].astype(np.int64))
+
+
+def suppress(cands: RawDetections, *, iou: float, max_det: int = 300, agnostic: bool = False) -> RawDetections:
+    """Class-aware (or agnostic) NMS over candidates, at most ``max_det`` kept, by descending score."""
+    if max_det < 1:
+        raise ValueError(f"max_det must be >= 1, got {max_det}")
+    if cands.boxes.shape[0] == 0:
+        return cands
+    offset = (0 if agnostic else MAX_WH) * cands.class_ids.astype(cands.boxes.dtype)
+    keep = nms(cands.boxes + offset[:, None], cands.scores, iou)[:max_det]
+    return RawDetections(cands.boxes[keep], cands.scores[keep], cands.class_ids[keep])
+
+
+def decode_yolo(
+    output: np.ndarray,
+    *,
+    conf: float,
+    iou: float,
+    max_det: int = 300,
+    agnostic: bool = False,
+) -> RawDetections:
+    """Turn one image's head output ``[1, 4 + nc, N]`` (or ``[4 + nc, N]``) into kept boxes.
+
+    No sanitising: this is Ultralytics' decode (parity tests); the detector
+    sanitises candidates in image pixels between :func:`yolo_candidates` and
+    :func:`suppress`.
+    """
+    if max_det < 1:
+        raise ValueError(f"max_det must be >= 1, got {max_det}")
+    cands = yolo_candidates(output, conf=conf)
+    finite = np.isfinite(cands.scores)
+    cands = RawDetections(cands.boxes[finite], cands.scores[finite], cands.class_ids[finite])
+    return suppress(cands, iou=iou, max_det=max_det, agnostic=agnostic)

@@ -88,8 +88,11 @@ class TrainConfig:
     threads: int = 2
     seed: int = 0
     patience: int = 100
-    cache: bool = True
+    cache: bool | str = True
     plots: bool = False
+    start_weights: Path | None = None  # a .pt checkpoint or a shipped .onnx (warm start); None: from scratch
+    uav_augment: bool = False  # blur, haze, sun flare on top of Ultralytics' own (uav_augment.py)
+    resume: Path | None = None  # an Ultralytics last.pt of an interrupted run: continue it
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -114,7 +117,14 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
 
     if not cfg.model_cfg.endswith((".yaml", ".yml")):
         raise ValueError(f"model_cfg must be an architecture .yaml (no pretrained weights offline), got {cfg.model_cfg}")
-    model = YOLO(cfg.model_cfg, task="detect")
+    pretrained = False
+    if cfg.resume is not None:
+        model = YOLO(str(cfg.resume), task="detect")
+    elif cfg.start_weights is None:
+        model = YOLO(cfg.model_cfg, task="detect")
+    else:
+        model = YOLO(str(_warm_start_checkpoint(cfg)), task="detect")
+        pretrained = True
     if on_epoch is not None:
         model.add_callback("on_fit_epoch_end", lambda tr: on_epoch(tr.epoch + 1, tr.epochs))
     args: dict[str, Any] = dict(
@@ -125,7 +135,7 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
         workers=cfg.workers,
         device="cpu",
         amp=False,
-        pretrained=False,
+        pretrained=pretrained,
         seed=cfg.seed,
         deterministic=True,
         patience=cfg.patience,
@@ -139,6 +149,15 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
     if cfg.hours is not None:
         args["time"] = cfg.hours
     args.update(cfg.extra)
+    if cfg.uav_augment:
+        from insulator_rs.detection.uav_augment import uav_trainer_class
+
+        args["trainer"] = uav_trainer_class()
+    if cfg.resume is not None:
+        # Ultralytics restores every argument from the checkpoint; only these may change on resume
+        # (data: the dataset may have been rebuilt at another path).
+        args = {k: v for k, v in args.items() if k in ("trainer", "workers", "device", "cache", "batch", "data")}
+        args["resume"] = str(cfg.resume)
     t0 = time.monotonic()
     model.train(**args)
     seconds = time.monotonic() - t0
@@ -149,6 +168,22 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
     metrics = {k: float(v) for k, v in (trainer.metrics or {}).items() if isinstance(v, (int, float))}
     return TrainResult(weights=weights, run_dir=Path(trainer.save_dir), epochs_run=int(trainer.epoch) + 1,
                        seconds=seconds, val_metrics=metrics)
+
+
+def _warm_start_checkpoint(cfg: TrainConfig) -> Path:
+    """``cfg.start_weights`` as a ``.pt`` Ultralytics can train from (ONNX files are unfused first)."""
+    start = Path(cfg.start_weights)  # type: ignore[arg-type]
+    if not start.is_file():
+        raise ValueError(f"start_weights: {start} is not a file")
+    if start.suffix == ".pt":
+        return start
+    if start.suffix != ".onnx":
+        raise ValueError(f"start_weights: {start} must be a .pt checkpoint or an Ultralytics .onnx export")
+    from insulator_rs.detection.warm_start import model_from_onnx, save_checkpoint
+
+    names = {0: "insulator"}
+    model = model_from_onnx(start, cfg.model_cfg, nc=len(names))
+    return save_checkpoint(model, cfg.out_dir / f"warm_start_{start.stem}.pt", source=start, names=names)
 
 
 def export_onnx(weights: Path, imgsz: int, out_path: Path, *, dynamic: bool = False) -> Path:

@@ -113,6 +113,39 @@ def package_model(
     return card
 
 
+PAPER_MAP = 0.17  # the paper's real-photo detector figure that issue 12 compares against
+
+
+def field_comparison(onnx_path: Path, field_photos: Path, before: str | None, *,
+                     threads: int | None = None) -> dict[str, Any]:
+    """Field-geometry figures (held-back photos, full frames letterboxed) of the new model and of ``before``.
+
+    ``before`` (a shipped model name or ONNX path, the starting point) is scored
+    at its own input size and at the new model's, so the gain from the input
+    size and the gain from training are told apart.
+    """
+    from insulator_rs.detection.commands import open_detector
+    from insulator_rs.detection.evaluate import EVAL_CONF, evaluate_field_test
+
+    new = open_detector(str(onnx_path), conf=EVAL_CONF, threads=threads)
+    out: dict[str, Any] = {
+        "evaluator": "pycocotools COCOeval (bbox), onnxruntime detector, conf 0.001, iou 0.7, full frames letterboxed",
+        "split": f"field-test: photos of {field_photos} held back by photo (field_dataset.field_test_images)",
+        "command": f"insulator-rs detect eval --split field-test --model {onnx_path.stem}",
+        "paper_map": PAPER_MAP,
+        "after": {"imgsz": list(new.imgsz), **evaluate_field_test(new, field_photos).to_dict()},
+    }
+    if before is not None:
+        own = open_detector(before, conf=EVAL_CONF, threads=threads)
+        out["before"] = {"model": before, "imgsz": list(own.imgsz),
+                         **evaluate_field_test(own, field_photos).to_dict()}
+        if own.imgsz != new.imgsz:
+            same = open_detector(before, conf=EVAL_CONF, threads=threads, imgsz=new.imgsz[0])
+            out["before_at_new_imgsz"] = {"model": before, "imgsz": list(same.imgsz),
+                                          **evaluate_field_test(same, field_photos).to_dict()}
+    return out
+
+
 def run_train(args: argparse.Namespace) -> int:
     try:
         from insulator_rs.detection.train import TrainConfig, export_onnx, prepare_offline, result_dict, train_yolo
@@ -124,7 +157,18 @@ def run_train(args: argparse.Namespace) -> int:
     prepare_offline(out / "ultralytics_cfg", threads=args.threads)
     t_start = time.time()
     dataset: dict[str, object]
-    if args.data.suffix in (".yaml", ".yml"):
+    if args.field_photos is not None:
+        from insulator_rs.detection.field_dataset import build_field_dataset
+
+        print(f"building the field-geometry dataset {args.field_photos} -> {out / 'data'} (split by photo)", flush=True)
+        fsum = build_field_dataset(args.field_photos, out / "data", export_root=args.data, with_export=args.with_export,
+                                   seed=args.seed)
+        data_yaml, dataset = fsum.yaml_path, fsum.to_dict()
+        split = ("field photos split by photo (hash rank, seed %d): 75/10/15 %%; export copies matched to their photo "
+                 "by file-name stem (checked on pixels) and kept on its side" % args.seed)
+        test_split = out / "data" / "images" / "test"
+        print(f"  photos per split {fsum.photos}, export copies in train {fsum.export_copies_in_train}", flush=True)
+    elif args.data.suffix in (".yaml", ".yml"):
         data_yaml, dataset = args.data, describe_yolo_dataset(args.data)
         split = "as laid out in the given data.yaml"
         test_split = args.data.parent / "images" / "test"
@@ -139,7 +183,8 @@ def run_train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(data_yaml=data_yaml, out_dir=out, name="run", model_cfg=args.model_cfg, epochs=args.epochs,
                       hours=args.hours, imgsz=args.imgsz, batch=args.batch, workers=args.workers,
                       threads=args.threads, seed=args.seed, patience=args.patience,
-                      extra={"close_mosaic": args.close_mosaic, **({"cache": args.cache} if args.cache else {})})
+                      start_weights=_resolve_start(args.start_weights), uav_augment=args.uav_augment, resume=args.resume,
+                      extra={"close_mosaic": args.close_mosaic, "warmup_epochs": args.warmup_epochs, **({"cache": args.cache} if args.cache else {})})
 
     def on_epoch(epoch: int, epochs: int) -> None:
         print(f"[train] epoch {epoch}/{epochs} done at {time.time() - t_start:.0f} s", flush=True)
@@ -149,7 +194,11 @@ def run_train(args: argparse.Namespace) -> int:
     curves = plot_training_curves(result.run_dir / "results.csv", out / f"{args.name}_training.png")
     card = {
         "name": args.name,
-        "architecture": f"{args.model_cfg} (Ultralytics), trained from scratch: no pretrained weights",
+        "architecture": f"{args.model_cfg} (Ultralytics), " + (
+            f"fine-tuned from {args.start_weights} (ONNX weights unfused, warm_start.py)" if args.start_weights
+            else "trained from scratch: no pretrained weights"),
+        "augmentation": "Ultralytics defaults (mosaic, scale, HSV, flips)" + (
+            " + blur/haze/sun flare (uav_augment.py)" if args.uav_augment else ""),
         "data": dataset,
         "split": split,
         "epochs": result.epochs_run,
@@ -164,12 +213,27 @@ def run_train(args: argparse.Namespace) -> int:
         "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "func"},
         "train_result": result_dict(result),
     }
+    if args.field_photos is not None:
+        card["field_geometry_metrics"] = field_comparison(onnx_path, args.field_photos, args.start_weights,
+                                                          threads=args.threads)
     card = package_model(onnx_path=onnx_path, test_split=test_split, card=card, threads=args.threads)
     tm = card.get("test_metrics")
     if tm:
         print(f"test split: mAP50-95 {tm['map50_95']:.4f}, mAP50 {tm['map50']:.4f} on {tm['images']} images")
     print(f"model: {onnx_path}\ncard: {onnx_path.with_suffix('.json')}")
     return 0
+
+
+def _resolve_start(value: str | None) -> Path | None:
+    """A shipped model name (``insulator-real``) or a path to a .pt/.onnx file."""
+    if value is None:
+        return None
+    path = Path(value)
+    if path.suffix in (".pt", ".onnx"):
+        return path
+    from insulator_rs.models import model_path
+
+    return model_path(value)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -194,5 +258,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
                    metavar=("TRAIN", "VALID", "TEST"), help="source-photo fractions when re-splitting")
     p.add_argument("--static", action="store_true",
                    help="export a fixed input size (default: dynamic height/width, metadata imgsz = --imgsz)")
+    p.add_argument("--field-photos", type=Path, default=None,
+                   help="field photos (images/ + labels/ VOC, full frames): train/test on them, split by photo; "
+                        "--data is then the Roboflow export whose copies are matched to the photos")
+    p.add_argument("--with-export", action="store_true",
+                   help="with --field-photos: add the export's copies of training photos to the training split")
+    p.add_argument("--start-weights", default=None,
+                   help="shipped model name or .pt/.onnx to fine-tune from (default: from scratch)")
+    p.add_argument("--warmup-epochs", type=float, default=3.0,
+                   help="learning-rate warm-up (Ultralytics default 3; short fine-tunes want less)")
+    p.add_argument("--uav-augment", action="store_true", help="add blur, haze and sun flare augmentation")
+    p.add_argument("--resume", type=Path, default=None, help="continue an interrupted run from its last.pt")
     p.add_argument("--limit-per-split", type=int, default=None, help="keep only N images per split (smoke runs)")
     p.set_defaults(func=run_train)

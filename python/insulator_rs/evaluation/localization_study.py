@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from insulator_rs.mission import bounds
+
 METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca")
 METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
                  "dbscan+pca": "DBSCAN + PCA"}
@@ -527,11 +529,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--events", type=_positive_int, default=150,
                         help="localization events per cell (default 150, as the paper)")
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=bounds.option("--seed"), default=0)
     parser.add_argument("--box-jitter", type=float, default=StudyConfig.box_jitter,
                         help="detector stand-in: box edge noise, fraction of the box size")
     parser.add_argument("--miss-rate", type=float, default=StudyConfig.miss_rate)
-    parser.add_argument("--false-positives", type=float, default=StudyConfig.false_positives,
+    parser.add_argument("--false-positives", type=bounds.option("--false-positives"),
+                        default=StudyConfig.false_positives,
                         help="detector stand-in: mean false boxes per image")
     parser.add_argument("--odom-noise", type=float, default=StudyConfig.odom_position_noise,
                         help="odometry position noise, m (1 sigma)")

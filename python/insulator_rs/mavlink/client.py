@@ -1,27 +1,33 @@
 """The offboard client: the ``Vehicle`` interface over MAVLink 2 to PX4 (pymavlink).
 
-What it does, as PX4's offboard documentation asks:
+What it does, as PX4's offboard documentation asks, one job per module:
 
-* connects over UDP (``udpin:HOST:PORT``, ``udpout:HOST:PORT``) or serial
-  (``/dev/ttyTHS1:921600``), sends its own HEARTBEAT at 1 Hz (as an onboard
-  computer), waits for the autopilot's heartbeat, requests its telemetry with
-  SET_MESSAGE_INTERVAL and keeps one consistent state: mode, armed, landed
-  state, local position/velocity (NED converted to ENU here and only here),
-  attitude, global position, home, battery;
-* streams SET_POSITION_TARGET_LOCAL_NED (position + velocity feed-forward +
-  yaw; type_mask ignores acceleration and yaw rate) from a background thread
-  at ``setpoint_rate_hz`` (20 Hz) before and during offboard;
-* arms with MAV_CMD_COMPONENT_ARM_DISARM, switches with MAV_CMD_DO_SET_MODE
-  (custom main mode 6 = OFFBOARD), takes off, lands, returns; every
-  COMMAND_ACK is read (with retransmission per the MAVLink command protocol)
-  and a refusal raises ``CommandRejected`` naming the command and result;
-* triggers the camera with MAV_CMD_IMAGE_START_CAPTURE and records the pose;
-* failsafes on our side: autopilot heartbeat lost, a mode change we did not
-  command (the pilot took over: setpoint streaming stops at once, in the
-  receiving thread), stale local position (-> HOLD), low battery (-> RTL or
-  HOLD). ``advance`` raises ``VehicleFailsafe`` once with the reason and the
-  action taken; ``state().fault`` keeps the reason;
-* MAVLink 2 signing with a 32-byte key (see ``signing.load_signing_key``).
+* ``link``: connects over UDP (``udpin:HOST:PORT``, ``udpout:HOST:PORT``) or
+  serial (``/dev/ttyTHS1:921600``), accepts only the autopilot it connected to
+  (system, component, address), parses each datagram on its own and counts
+  what it drops;
+* ``telemetry``: requests telemetry with SET_MESSAGE_INTERVAL and keeps one
+  consistent state: mode, armed, landed state, local position/velocity (NED
+  converted to ENU there and only there), attitude, global position, home,
+  battery;
+* ``commands``: arms with MAV_CMD_COMPONENT_ARM_DISARM, switches with
+  MAV_CMD_DO_SET_MODE (custom main mode 6 = OFFBOARD), takes off, lands,
+  returns; every COMMAND_ACK is read (with retransmission) and a refusal raises
+  ``CommandRejected`` naming the command and result; a mode is only believed
+  once the HEARTBEAT shows it (PX4 may ACCEPT a mode and not enter it);
+* ``failsafes``: heartbeat lost, a mode change we did not command, stale
+  position, low battery; ``advance`` raises ``VehicleFailsafe`` once with the
+  reason and the action taken; ``state().fault`` keeps the reason;
+* this module: the two threads (receiving; sending our HEARTBEAT at 1 Hz as an
+  onboard computer and streaming SET_POSITION_TARGET_LOCAL_NED at
+  ``setpoint_rate_hz``, 20 Hz of vehicle time, before and during offboard) and
+  the ``Vehicle`` methods;
+* MAVLink 2 signing with a 32-byte key (``signing``: signature checked before
+  any stream state changes).
+
+The inspection photo is not the autopilot's business: the camera is the
+companion computer's own (the ``Sensors`` port); PX4 answers
+MAV_CMD_IMAGE_START_CAPTURE with UNSUPPORTED, so the client never sends it.
 
 W is PX4's local frame converted to ENU, shifted by ``local_origin_w`` (the
 position of PX4's local origin in W; zero when they coincide, as in the sim).
@@ -31,34 +37,26 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from insulator_rs.exceptions import VehicleError
 from insulator_rs.mavlink import px4_modes
-from insulator_rs.mavlink.frames import (
-    attitude_ned_frd_to_enu_flu,
-    enu_to_ned,
-    ned_to_enu,
-    yaw_enu_to_ned,
-    yaw_ned_to_enu,
-)
+from insulator_rs.mavlink.commands import CommandProtocol, CommandRejected
+from insulator_rs.mavlink.failsafes import FailsafeMonitor, FailsafeSettings
+from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned
+from insulator_rs.mavlink.link import AutopilotLink, LinkStats, open_connection
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
-from insulator_rs.mavlink.wire import command_name, mavlink2, mavutil, result_name
-from insulator_rs.sim.kinematics import (
-    CapturedImage,
-    FlightMode,
-    VehicleFailsafe,
-    as_finite,
-    as_vector3,
-    require_positive,
-)
+from insulator_rs.mavlink.telemetry import REQUESTED_RATES_HZ, Telemetry, TelemetryStore
+from insulator_rs.mavlink.wire import mavlink2
+from insulator_rs.sim.kinematics import FlightMode, VehicleFailsafe, as_finite, as_vector3, require_positive
 from insulator_rs.vehicle import VehicleState
+
+__all__ = ["CommandRejected", "FailsafeSettings", "LinkStats", "MavlinkVehicle", "Telemetry", "VehicleFailsafe",
+           "connect_vehicle", "open_connection"]
 
 M = mavlink2
 # MAV_COMP_ID_ONBOARD_COMPUTER: we are the companion computer of the vehicle.
@@ -69,82 +67,19 @@ TYPE_MASK_IGNORE_ACCEL = (M.POSITION_TARGET_TYPEMASK_AX_IGNORE | M.POSITION_TARG
 TYPE_MASK_POS_VEL_YAW = TYPE_MASK_IGNORE_ACCEL | M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 TYPE_MASK_IGNORE_VEL = (M.POSITION_TARGET_TYPEMASK_VX_IGNORE | M.POSITION_TARGET_TYPEMASK_VY_IGNORE
                         | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE)
-# Telemetry the client asks for (Hz).
-REQUESTED_RATES_HZ: dict[int, float] = {
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
-    M.MAVLINK_MSG_ID_ATTITUDE: 20.0,
-    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
-    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
-    M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-    M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
-    M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
-}
 UNSIGNED_ALLOWED = frozenset({M.MAVLINK_MSG_ID_RADIO_STATUS})
-_SERIAL = re.compile(r"^(?P<device>(/|COM|com)[^:]*):(?P<baud>\d+)$")
+# Wall seconds one receive poll may wait: the failsafe checks run at least this often.
+RECEIVE_POLL_S = 0.05
 
-
-class CommandRejected(VehicleError):
-    """The autopilot answered a command with something other than ACCEPTED."""
-
-    def __init__(self, command: str, result: str, detail: str = "") -> None:
-        what = f"{command} ({detail})" if detail else command
-        super().__init__(f"{what} refused by the vehicle: {result}")
-        self.command = command
-        self.result = result
-
-
-@dataclass(frozen=True)
-class Telemetry:
-    """Everything the client knows about the vehicle, read under one lock.
-
-    ``attitude`` is R_w_b (3x3, body FLU -> W ENU); ``global_position`` and
-    ``home_global`` are (latitude deg, longitude deg, altitude m AMSL); ``home``
-    is the home position in W (m). None where the autopilot has not sent it.
-    """
-
-    state: VehicleState
-    attitude: np.ndarray | None
-    global_position: tuple[float, float, float] | None
-    home_global: tuple[float, float, float] | None
-    home: np.ndarray | None
-    landed_state: str
-
-
-@dataclass(frozen=True)
-class FailsafeSettings:
-    """Client-side failsafe thresholds (wall seconds; battery as a fraction)."""
-
-    link_loss_timeout: float = 3.0
-    position_stale_timeout: float = 1.0
-    low_battery_fraction: float = 0.2
-    low_battery_action: str = "return"  # "return" (RTL) or "hold"
-
-    def __post_init__(self) -> None:
-        for name in ("link_loss_timeout", "position_stale_timeout"):
-            require_positive(getattr(self, name), name)
-        if not 0.0 <= self.low_battery_fraction < 1.0:
-            raise ValueError(f"low_battery_fraction must be in [0, 1), got {self.low_battery_fraction!r}")
-        if self.low_battery_action not in ("return", "hold"):
-            raise ValueError(f"low_battery_action must be 'return' or 'hold', got {self.low_battery_action!r}")
-
-
-def open_connection(connection: str, *, source_system: int, source_component: int) -> Any:
-    """A pymavlink connection for ``udpin:``/``udpout:``/``udp:``/``tcp:`` strings or ``DEVICE:BAUD``."""
-    if not isinstance(connection, str) or not connection:
-        raise TypeError(f"connection must be a non-empty string, got {connection!r}")
-    serial = _SERIAL.match(connection)
-    if serial:
-        return mavutil.mavlink_connection(serial["device"], baud=int(serial["baud"]),
-                                          source_system=source_system, source_component=source_component)
-    if not connection.startswith(("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")):
-        raise ValueError("connection must be udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
-                         f"or DEVICE:BAUD, got {connection!r}")
-    return mavutil.mavlink_connection(connection, source_system=source_system,
-                                      source_component=source_component)
+Setpoint = tuple[np.ndarray, "np.ndarray | None", "float | None"]
 
 
 class MavlinkVehicle:
-    """The ``Vehicle`` interface on a PX4 autopilot over MAVLink 2."""
+    """The ``Vehicle`` interface on a PX4 autopilot over MAVLink 2.
+
+    ``target_system`` pins the autopilot's system id (default: the first autopilot
+    heartbeat's; PX4 SITL instance N is system N + 1).
+    """
 
     def __init__(
         self,
@@ -160,13 +95,10 @@ class MavlinkVehicle:
         source_system: int = 1,
         source_component: int = ONBOARD_COMPONENT_ID,
         local_origin_w: object = (0.0, 0.0, 0.0),
-        camera_component: int = 1,
+        target_system: int | None = None,
     ) -> None:
         heartbeat_timeout = require_positive(heartbeat_timeout, "heartbeat_timeout")
-        self.command_timeout = require_positive(command_timeout, "command_timeout")
-        if not isinstance(command_retries, int) or command_retries < 1:
-            raise ValueError(f"command_retries must be an int >= 1, got {command_retries!r}")
-        self.command_retries = command_retries
+        command_timeout = require_positive(command_timeout, "command_timeout")
         self.setpoint_rate_hz = as_finite(setpoint_rate_hz, "setpoint_rate_hz")
         if self.setpoint_rate_hz < 20.0:
             raise ValueError(f"setpoint_rate_hz must be >= 20 (PX4 offboard), got {setpoint_rate_hz!r}")
@@ -174,52 +106,31 @@ class MavlinkVehicle:
         self.failsafes = failsafes or FailsafeSettings()
         self.local_origin_w = as_vector3(local_origin_w, "local_origin_w")
         self.connection = connection
-        if not isinstance(camera_component, int) or not 0 <= camera_component <= 255:
-            raise ValueError(f"camera_component must be a MAVLink component id, got {camera_component!r}")
-        # 1: the autopilot's camera trigger (PX4); 100+: a MAVLink camera component.
-        self.camera_component = camera_component
-        self.captures: list[CapturedImage] = []
-        self.camera_feedback: list[Any] = []
         self.simulator: Any = None  # set by connect_vehicle when it started the sim
 
         self._lock = threading.Condition()
-        self._send_lock = threading.Lock()
         self._stop = threading.Event()
-        self._acks: dict[int, Any] = {}
-        self._target = (1, 1)
-        self._heartbeat: Any = None
-        self._heartbeat_wall = -math.inf
-        self._local: Any = None
-        self._local_wall = -math.inf
-        self._attitude: Any = None
-        self._global: Any = None
-        self._home: Any = None
-        self._landed_state = M.MAV_LANDED_STATE_UNDEFINED
-        self._battery = 1.0
-        self._setpoint: tuple[np.ndarray, np.ndarray | None, float | None] | None = None
-        self._offboard_engaged = False
-        self._commanding_stopped: str | None = None
-        self._expected_mode: str | None = None
-        self._fault: str | None = None
-        self._pending_failsafe: tuple[str, str] | None = None
-        self._raised_failsafes: set[str] = set()
-        self._image_sequence = 0
-
-        self._conn = open_connection(connection, source_system=source_system, source_component=source_component)
+        self._telemetry = TelemetryStore()
+        self._monitor = FailsafeMonitor(self.failsafes)
+        self._setpoint: Setpoint | None = None
+        self._link = AutopilotLink(connection, source_system=source_system, source_component=source_component,
+                                   target_system=target_system)
+        self._commands = CommandProtocol(self._link, self._lock, self._stop, timeout=command_timeout,
+                                         retries=command_retries)
         if signing_key is not None:
-            configure_signing(self._conn.mav, signing_key, link_id=1, allow_unsigned=UNSIGNED_ALLOWED)
+            configure_signing(self._link.mav, signing_key, link_id=1, allow_unsigned=UNSIGNED_ALLOWED)
         self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
         self._receiver.start()
         self._sender.start()
         try:
-            self._wait_for(lambda: self._heartbeat is not None, heartbeat_timeout,
+            self._wait_for(lambda: self._telemetry.heartbeat is not None, heartbeat_timeout,
                            f"no autopilot heartbeat on {connection} within {heartbeat_timeout:g} s")
             for message_id, rate in REQUESTED_RATES_HZ.items():
                 self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, 1e6 / rate,
                               detail=M.mavlink_map[message_id].msgname)
-            self._wait_for(lambda: self._local is not None and self._home is not None, heartbeat_timeout,
-                           "no LOCAL_POSITION_NED/HOME_POSITION from the autopilot")
+            self._wait_for(lambda: self._telemetry.local is not None and self._telemetry.home is not None,
+                           heartbeat_timeout, "no LOCAL_POSITION_NED/HOME_POSITION from the autopilot")
         except BaseException:
             self.close()
             raise
@@ -229,40 +140,22 @@ class MavlinkVehicle:
     def state(self) -> VehicleState:
         """The latest telemetry as one snapshot in W (ENU)."""
         with self._lock:
-            local, heartbeat, attitude = self._local, self._heartbeat, self._attitude
-            if local is None or heartbeat is None:
-                raise VehicleError("no telemetry from the autopilot yet")
-            position = ned_to_enu([local.x, local.y, local.z]) + self.local_origin_w
-            velocity = ned_to_enu([local.vx, local.vy, local.vz])
-            yaw = yaw_ned_to_enu(attitude.yaw) if attitude is not None else 0.0
-            return VehicleState(
-                time=local.time_boot_ms / 1000.0,
-                position=position,
-                velocity=velocity,
-                yaw=yaw,
-                armed=bool(heartbeat.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED),
-                mode=px4_modes.decode_custom_mode(heartbeat.custom_mode),
-                landed=self._landed_state == M.MAV_LANDED_STATE_ON_GROUND,
-                battery_fraction=self._battery,
-                healthy=self._fault is None,
-                fault=self._fault,
-            )
+            return self._telemetry.vehicle_state(self.local_origin_w, self._monitor.fault)
 
     def telemetry(self) -> Telemetry:
-        """State plus attitude, global position and home, as one consistent snapshot."""
+        """State plus attitude, global position, home and the link's counts, as one snapshot."""
         with self._lock:
-            state = self.state()
-            att, gpos, home = self._attitude, self._global, self._home
-            landed = M.enums["MAV_LANDED_STATE"][self._landed_state].name
-            return Telemetry(
-                state=state,
-                attitude=None if att is None else attitude_ned_frd_to_enu_flu(att.roll, att.pitch, att.yaw),
-                global_position=None if gpos is None else (gpos.lat * 1e-7, gpos.lon * 1e-7, gpos.alt * 1e-3),
-                home_global=None if home is None else (home.latitude * 1e-7, home.longitude * 1e-7,
-                                                       home.altitude * 1e-3),
-                home=None if home is None else ned_to_enu([home.x, home.y, home.z]) + self.local_origin_w,
-                landed_state=landed,
-            )
+            return self._telemetry.snapshot(self.local_origin_w, self._monitor.fault, self._link.stats.as_dict())
+
+    @property
+    def link_stats(self) -> LinkStats:
+        """What the link received and dropped, by reason (a live object: read, do not keep)."""
+        return self._link.stats
+
+    @property
+    def autopilot(self) -> tuple[int, int] | None:
+        """(system id, component id) of the autopilot this client accepts."""
+        return self._link.autopilot
 
     def set_world_origin(self, latitude: float, longitude: float, altitude: float) -> np.ndarray:
         """Place W's origin at a geodetic point (deg, deg, m AMSL), e.g. the tower base.
@@ -280,7 +173,7 @@ class MavlinkVehicle:
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
             raise ValueError(f"latitude/longitude out of range: {lat!r}, {lon!r}")
         with self._lock:
-            home = self._home
+            home = self._telemetry.home
             if home is None:
                 raise VehicleError("no HOME_POSITION from the autopilot yet")
             home_w = np.array(pymap3d.geodetic2enu(home.latitude * 1e-7, home.longitude * 1e-7,
@@ -301,8 +194,8 @@ class MavlinkVehicle:
         """DO_SET_MODE custom main mode 6; the setpoint stream must already be running."""
         self._set_mode(FlightMode.OFFBOARD)
         with self._lock:
-            self._offboard_engaged = True
-            self._commanding_stopped = None
+            self._monitor.offboard_engaged = True
+            self._monitor.commanding_stopped = None
 
     def hold(self) -> None:
         """Switch to HOLD (AUTO_LOITER) and stop streaming setpoints."""
@@ -315,7 +208,7 @@ class MavlinkVehicle:
         if not self.state().armed:
             raise VehicleError("takeoff refused: vehicle is disarmed")
         with self._lock:
-            home_amsl = self._home.altitude / 1000.0
+            home_amsl = self._telemetry.home.altitude / 1000.0
         self._stop_streaming()
         self._command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home_amsl + altitude,
                       detail=f"{altitude:g} m")
@@ -328,8 +221,8 @@ class MavlinkVehicle:
               None if velocity is None else as_vector3(velocity, "velocity"),
               None if yaw is None else as_finite(yaw, "yaw"))
         with self._lock:
-            if self._commanding_stopped is not None:
-                raise VehicleFailsafe(self._commanding_stopped, "offboard commanding stopped")
+            if self._monitor.commanding_stopped is not None:
+                raise VehicleFailsafe(self._monitor.commanding_stopped, "offboard commanding stopped")
             first = self._setpoint is None
             self._setpoint = sp
         if first:
@@ -346,20 +239,11 @@ class MavlinkVehicle:
         wall_limit = dt / self.time_scale + self.failsafes.link_loss_timeout + 1.0
         deadline = time.monotonic() + wall_limit
         with self._lock:
-            while (self._local.time_boot_ms / 1000.0 < start + dt - 1e-6 and self._pending_failsafe is None
-                   and time.monotonic() < deadline):
+            while (self._telemetry.local.time_boot_ms / 1000.0 < start + dt - 1e-6
+                   and self._monitor.pending is None and time.monotonic() < deadline):
                 self._lock.wait(timeout=0.05)
         self._check_failsafes()
         return self.state()
-
-    def capture_image(self) -> None:
-        """MAV_CMD_IMAGE_START_CAPTURE (one image); the pose at the trigger goes into ``captures``."""
-        state = self.state()
-        self._image_sequence += 1
-        self._command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, self._image_sequence, detail="1 image",
-                      component=self.camera_component)
-        self.captures.append(CapturedImage(index=len(self.captures), time=state.time,
-                                           position=state.position, yaw=state.yaw))
 
     def land(self) -> None:
         self._stop_streaming()
@@ -377,10 +261,9 @@ class MavlinkVehicle:
         for thread in (getattr(self, "_receiver", None), getattr(self, "_sender", None)):
             if thread is not None and thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
-        try:
-            self._conn.close()
-        except (OSError, AttributeError):
-            pass
+        link = getattr(self, "_link", None)
+        if link is not None:
+            link.close()
         if self.simulator is not None:
             self.simulator.stop()
             self.simulator = None
@@ -393,45 +276,21 @@ class MavlinkVehicle:
 
     # -- commands ----------------------------------------------------------------
 
+    def _command(self, command: int, *params: float, detail: str = "") -> None:
+        self._commands.send(command, *params, detail=detail)
+
     def _set_mode(self, mode: FlightMode) -> None:
         main, sub = px4_modes.main_sub_modes(mode)
         with self._lock:
-            self._expected_mode = mode.value
+            self._monitor.expected_mode = mode.value
         self._command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub, detail=mode.value)
         self._wait_mode(mode)
 
     def _wait_mode(self, mode: FlightMode) -> None:
-        # The heartbeat (1 Hz of vehicle time) confirms the switch.
+        # PX4 may ACCEPT a mode it then does not enter: the heartbeat (1 Hz of
+        # vehicle time) is what confirms the switch.
         self._wait_for(lambda: self.state().mode == mode.value, 2.0 / self.time_scale + 1.0,
                        f"vehicle accepted mode {mode.value} but its heartbeat never showed it")
-
-    def _command(self, command: int, *params: float, detail: str = "", component: int | None = None) -> None:
-        """COMMAND_LONG with retransmission; raise unless the ACK says ACCEPTED."""
-        padded = [float(p) for p in params] + [0.0] * (7 - len(params))
-        name = command_name(command)
-        for confirmation in range(self.command_retries):
-            with self._lock:
-                self._acks.pop(command, None)
-            with self._send_lock:
-                target_component = self._target[1] if component is None else component
-                self._conn.mav.command_long_send(self._target[0], target_component, command, confirmation,
-                                                 *padded)
-            deadline = time.monotonic() + self.command_timeout
-            with self._lock:
-                while True:
-                    ack = self._acks.get(command)
-                    if ack is not None and ack.result != M.MAV_RESULT_IN_PROGRESS:
-                        break
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or self._stop.is_set():
-                        break
-                    self._lock.wait(timeout=remaining)
-            if ack is not None and ack.result != M.MAV_RESULT_IN_PROGRESS:
-                if ack.result != M.MAV_RESULT_ACCEPTED:
-                    raise CommandRejected(name, result_name(ack.result), detail)
-                return
-        raise VehicleError(f"{name}{f' ({detail})' if detail else ''}: no COMMAND_ACK after "
-                           f"{self.command_retries} tries of {self.command_timeout:g} s")
 
     def _wait_for(self, predicate: Any, timeout: float, message: str) -> None:
         deadline = time.monotonic() + timeout
@@ -452,9 +311,9 @@ class MavlinkVehicle:
     def _stop_streaming(self) -> None:
         with self._lock:
             self._setpoint = None
-            self._offboard_engaged = False
+            self._monitor.offboard_engaged = False
 
-    def _send_setpoint(self, sp: tuple[np.ndarray, np.ndarray | None, float | None]) -> None:
+    def _send_setpoint(self, sp: Setpoint) -> None:
         position, velocity, yaw = sp
         mask = TYPE_MASK_POS_VEL_YAW
         if velocity is None:
@@ -465,15 +324,15 @@ class MavlinkVehicle:
         if yaw is None:
             mask |= M.POSITION_TARGET_TYPEMASK_YAW_IGNORE
         position_ned = enu_to_ned(position - self.local_origin_w)
-        with self._send_lock:
-            self._conn.mav.set_position_target_local_ned_send(
-                self._boot_ms(), self._target[0], self._target[1], M.MAV_FRAME_LOCAL_NED, mask,
-                *position_ned, *velocity_ned, 0.0, 0.0, 0.0,
-                0.0 if yaw is None else yaw_enu_to_ned(yaw), 0.0)
+        system, component = self._link.autopilot or (1, 1)
+        self._link.send("set_position_target_local_ned", self._boot_ms(), system, component,
+                        M.MAV_FRAME_LOCAL_NED, mask, *position_ned, *velocity_ned, 0.0, 0.0, 0.0,
+                        0.0 if yaw is None else yaw_enu_to_ned(yaw), 0.0)
 
     def _boot_ms(self) -> int:
         with self._lock:
-            return 0 if self._local is None else int(self._local.time_boot_ms)
+            local = self._telemetry.local
+            return 0 if local is None else int(local.time_boot_ms)
 
     def _send_loop(self) -> None:
         period = 1.0 / (self.setpoint_rate_hz * self.time_scale)
@@ -481,108 +340,48 @@ class MavlinkVehicle:
         next_setpoint = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
-            try:
-                if now >= next_heartbeat:
-                    with self._send_lock:
-                        self._conn.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID,
-                                                      0, 0, M.MAV_STATE_ACTIVE)
-                    next_heartbeat = now + 1.0
-                with self._lock:
-                    sp = self._setpoint if self._commanding_stopped is None else None
-                if sp is not None and now >= next_setpoint:
-                    self._send_setpoint(sp)
-                    next_setpoint = max(next_setpoint + period, now)
-            except OSError:
-                pass  # no route yet (udpin before the first packet): keep trying
+            if now >= next_heartbeat:
+                self._link.send("heartbeat", M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0,
+                                M.MAV_STATE_ACTIVE)
+                next_heartbeat = now + 1.0
+            with self._lock:
+                sp = self._setpoint if self._monitor.commanding_stopped is None else None
+            if sp is not None and now >= next_setpoint:
+                self._send_setpoint(sp)
+                next_setpoint = max(next_setpoint + period, now)
             self._stop.wait(min(period, 0.05) / 2)
 
     # -- receiving and failsafes --------------------------------------------------
 
     def _receive_loop(self) -> None:
         while not self._stop.is_set():
-            try:
-                msg = self._conn.recv_match(blocking=True, timeout=0.05)
-            except (OSError, ValueError):
-                if self._stop.is_set():
-                    return
-                continue
+            messages = self._link.receive(RECEIVE_POLL_S)
             now = time.monotonic()
             with self._lock:
-                if msg is not None:
+                for msg in messages:
                     self._update(msg, now)
-                self._detect_failsafes(now)
+                if self._monitor.check(self._telemetry, now):
+                    self._setpoint = None  # heartbeat lost: the autopilot flies its own failsafe
                 self._lock.notify_all()
 
     def _update(self, msg: Any, now: float) -> None:
         kind = msg.get_type()
         if kind == "HEARTBEAT":
-            if msg.autopilot == M.MAV_AUTOPILOT_INVALID or msg.get_srcComponent() != 1:
-                return  # another GCS or companion, not the autopilot
-            previous = self._heartbeat
-            self._target = (msg.get_srcSystem(), msg.get_srcComponent())
-            self._heartbeat, self._heartbeat_wall = msg, now
-            mode = px4_modes.decode_custom_mode(msg.custom_mode)
-            was = None if previous is None else px4_modes.decode_custom_mode(previous.custom_mode)
-            if self._offboard_engaged and was == FlightMode.OFFBOARD.value and mode != was \
-                    and self._expected_mode != mode:
-                # The pilot (or PX4's own failsafe) took the vehicle: stop at once.
-                reason = f"mode changed from OFFBOARD to {mode} outside our control"
-                self._commanding_stopped = reason
-                self._setpoint = None
-                self._offboard_engaged = False
-                self._raise_failsafe(reason, "offboard commanding stopped")
-        elif kind == "LOCAL_POSITION_NED":
-            self._local, self._local_wall = msg, now
-        elif kind == "ATTITUDE":
-            self._attitude = msg
-        elif kind == "GLOBAL_POSITION_INT":
-            self._global = msg
-        elif kind == "HOME_POSITION":
-            self._home = msg
-        elif kind == "EXTENDED_SYS_STATE":
-            self._landed_state = msg.landed_state
-        elif kind in ("SYS_STATUS", "BATTERY_STATUS"):
-            if msg.battery_remaining >= 0:
-                self._battery = msg.battery_remaining / 100.0
+            if msg.autopilot == M.MAV_AUTOPILOT_INVALID:
+                return
+            previous = self._telemetry.mode
+            self._telemetry.set_heartbeat(msg, now)
+            if self._monitor.on_mode(previous, px4_modes.decode_custom_mode(msg.custom_mode)):
+                self._setpoint = None  # the pilot (or PX4's own failsafe) took the vehicle: stop at once
         elif kind == "COMMAND_ACK":
-            self._acks[msg.command] = msg
-        elif kind == "CAMERA_IMAGE_CAPTURED":
-            self.camera_feedback.append(msg)
-
-    def _raise_failsafe(self, reason: str, action: str) -> None:
-        if reason in self._raised_failsafes:
-            return
-        self._raised_failsafes.add(reason)
-        self._fault = reason
-        self._pending_failsafe = (reason, action)
-
-    def _detect_failsafes(self, now: float) -> None:
-        if self._heartbeat is None:
-            return
-        fs = self.failsafes
-        silent = now - self._heartbeat_wall
-        if silent > fs.link_loss_timeout:
-            self._setpoint = None
-            self._raise_failsafe(f"autopilot heartbeat lost for more than {fs.link_loss_timeout:g} s",
-                                 "setpoints stopped; the autopilot flies its own failsafe")
-            return
-        armed = bool(self._heartbeat.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
-        # Stale position only while the link is provably alive: a heartbeat came
-        # more than the stale timeout after the last position. A heartbeat that
-        # merely happened to be the link's last message must not turn a silent
-        # link into a stale-position hold (the heartbeat failsafe above owns that).
-        if armed and now - self._local_wall > fs.position_stale_timeout \
-                and self._heartbeat_wall - self._local_wall > fs.position_stale_timeout:
-            self._raise_failsafe(f"local position stale for more than {fs.position_stale_timeout:g} s", "hold")
-        elif armed and self._battery < fs.low_battery_fraction \
-                and self._landed_state != M.MAV_LANDED_STATE_ON_GROUND:
-            self._raise_failsafe(f"battery low ({self._battery:.0%} < {fs.low_battery_fraction:.0%})",
-                                 fs.low_battery_action)
+            self._commands.on_ack(msg)
+        else:
+            self._telemetry.update(msg, now)
 
     def _check_failsafes(self) -> None:
         """Run a pending failsafe's action (commands need this thread) and raise it."""
         with self._lock:
-            pending, self._pending_failsafe = self._pending_failsafe, None
+            pending = self._monitor.take_pending()
         if pending is None:
             return
         reason, action = pending

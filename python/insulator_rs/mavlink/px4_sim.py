@@ -6,20 +6,26 @@ and the rules, and the MAVLink surface of PX4:
 
 * HEARTBEAT with MAV_AUTOPILOT_PX4, MAV_TYPE_QUADROTOR and PX4's custom_mode;
 * COMMAND_ACK for arm/disarm, DO_SET_MODE, NAV_TAKEOFF, NAV_LAND,
-  NAV_RETURN_TO_LAUNCH, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE,
-  IMAGE_START_CAPTURE, with the result PX4's Commander gives:
-  TEMPORARILY_REJECTED for a refused mode change or arming, ACCEPTED for arming
-  an armed vehicle, UNSUPPORTED for what it does not handle;
+  NAV_RETURN_TO_LAUNCH, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE with the results
+  PX4 v1.16.0 SITL gives (measured against it, see tests/test_px4_sitl.py):
+  TEMPORARILY_REJECTED for a refused arming or disarming in the air, ACCEPTED
+  for arming an armed vehicle, ACCEPTED for an unknown mode (the HEARTBEAT shows
+  it did not switch), TEMPORARILY_REJECTED, when armed, for OFFBOARD without a
+  setpoint stream and for POSCTL/MANUAL (no RC) (ACCEPTED without switching
+  when disarmed), FAILED for
+  SET_MESSAGE_INTERVAL of a message it does not stream, UNSUPPORTED for what it
+  does not handle (MAV_CMD_IMAGE_START_CAPTURE included: no camera on the
+  autopilot), and no answer at all to gimbal/mount commands;
 * SET_POSITION_TARGET_LOCAL_NED with PX4's type_mask semantics (ignored fields
   become NaN = not controlled on that axis; yaw or yaw rate or hold);
 * telemetry at configurable rates (SET_MESSAGE_INTERVAL changes them):
   LOCAL_POSITION_NED, ATTITUDE, GLOBAL_POSITION_INT (pymap3d from a geodetic
   origin), HOME_POSITION, EXTENDED_SYS_STATE, SYS_STATUS, BATTERY_STATUS,
-  SYSTEM_TIME, and CAMERA_IMAGE_CAPTURED after each capture;
+  SYSTEM_TIME;
 * MAVLink 2 signing: with a key, anything not correctly signed is dropped
   (RADIO_STATUS excepted, as PX4 does);
 * fault injection: packet loss, delay, a lost link, a pilot's mode change, a
-  GPS glitch, loss of the position estimate.
+  GPS glitch, loss of the position estimate, a command refused or unanswered.
 
 Time: the vehicle's clock (``time_boot_ms``) runs ``time_scale`` times faster
 than the wall clock; telemetry rates and PX4's timeouts (COM_OF_LOSS_T...) are
@@ -70,6 +76,9 @@ MAX_DATAGRAM = 65535
 # Most vehicle time one loop iteration may simulate (s).
 MAX_STEP_VEHICLE_S = 0.05
 UNSIGNED_ALLOWED = frozenset({M.MAVLINK_MSG_ID_RADIO_STATUS})
+# Commands PX4 SITL (SIH) leaves without any COMMAND_ACK: its gimbal/mount modules do not run.
+UNANSWERED_COMMANDS = frozenset({M.MAV_CMD_DO_MOUNT_CONTROL, M.MAV_CMD_DO_MOUNT_CONFIGURE,
+                                 M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, M.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE})
 
 # Telemetry PX4 streams on an onboard link, in Hz of vehicle time.
 DEFAULT_RATES_HZ: dict[str, float] = {
@@ -187,7 +196,10 @@ class SimulatedPx4:
         self._sequence = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._image_count = 0
+        # No RC transmitter in SITL: PX4 refuses the manual modes over MAVLink. The pilot's
+        # switch (``pilot_mode_change``) models a transmitter and bypasses this.
+        self.rc_connected = False
+        self._command_faults: dict[int, int | None] = {}
 
     # -- lifecycle ---------------------------------------------------------------
 
@@ -242,6 +254,16 @@ class SimulatedPx4:
         with self._lock:
             self.rates_hz[message] = float(rate_hz)
             self._next_send[message] = 0.0
+
+    def set_command_fault(self, command: int, result: int | None) -> None:
+        """From now on answer ``command`` (a MAV_CMD) with ``result`` (a MAV_RESULT) without
+        acting on it, or, with None, leave it unanswered (as PX4 does with gimbal commands)."""
+        if command not in M.enums["MAV_CMD"]:
+            raise ValueError(f"command must be a MAV_CMD, got {command!r}")
+        if result is not None and result not in M.enums["MAV_RESULT"]:
+            raise ValueError(f"result must be a MAV_RESULT or None, got {result!r}")
+        with self._lock:
+            self._command_faults[command] = result
 
     def pilot_mode_change(self, mode: FlightMode | str = FlightMode.POSCTL) -> None:
         """The pilot flips the RC mode switch (no MAVLink involved)."""
@@ -379,7 +401,12 @@ class SimulatedPx4:
         vehicle = self.vehicle
         result = M.MAV_RESULT_ACCEPTED
         try:
-            if command == M.MAV_CMD_COMPONENT_ARM_DISARM:
+            if command in self._command_faults:
+                faulty = self._command_faults[command]
+                if faulty is None:
+                    return
+                result = faulty
+            elif command == M.MAV_CMD_COMPONENT_ARM_DISARM:
                 action = round(p[0])
                 if action == 1:
                     vehicle.arm()
@@ -406,12 +433,9 @@ class SimulatedPx4:
                 result = self._send_requested(int(p[0]))
             elif command == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 self._send_autopilot_version()
-            elif command == M.MAV_CMD_IMAGE_START_CAPTURE:
-                if round(p[2]) != 1:  # only single captures (param3 total images = 1)
-                    result = M.MAV_RESULT_UNSUPPORTED
-                else:
-                    self._capture()
-            else:
+            elif command in UNANSWERED_COMMANDS:
+                return  # PX4 routes these to a gimbal module SITL does not run: no COMMAND_ACK at all
+            else:  # MAV_CMD_IMAGE_START_CAPTURE included: PX4 answers UNSUPPORTED
                 result = M.MAV_RESULT_UNSUPPORTED
         except CommandRefused as refusal:
             result = M.MAV_RESULT_TEMPORARILY_REJECTED if refusal.temporary else M.MAV_RESULT_DENIED
@@ -420,18 +444,28 @@ class SimulatedPx4:
             command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
 
     def _set_mode(self, base_mode: int, main: int, sub: int) -> int:
-        if not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            return M.MAV_RESULT_UNSUPPORTED
+        """PX4 1.16's answers (measured on the SITL): an unknown main mode or a request
+        without the custom-mode flag is ACCEPTED and nothing changes (only the HEARTBEAT
+        tells). A mode it cannot enter now (POSCTL/MANUAL without RC, OFFBOARD without a
+        setpoint stream) is TEMPORARILY_REJECTED when armed, ACCEPTED without switching
+        when disarmed (PX4 also answered OFFBOARD-without-stream in the air ACCEPTED,
+        without switching, in one of three runs: the client trusts the HEARTBEAT)."""
         mode = px4_modes.mode_from_set_mode(main, sub)
-        if mode is None:
-            return M.MAV_RESULT_UNSUPPORTED
-        self.vehicle.set_mode(mode)
+        if mode is None or not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return M.MAV_RESULT_ACCEPTED
+        try:
+            if mode in (FlightMode.POSCTL, FlightMode.MANUAL) and not self.rc_connected:
+                raise CommandRefused(f"set mode {mode.value}", "no RC")
+            self.vehicle.set_mode(mode)
+        except CommandRefused:
+            if self.vehicle.armed:
+                raise
         return M.MAV_RESULT_ACCEPTED
 
     def _set_interval(self, message_id: int, interval_us: float) -> int:
         name = next((n for n in self.rates_hz if getattr(M, f"MAVLINK_MSG_ID_{n}") == message_id), None)
         if name is None:
-            return M.MAV_RESULT_UNSUPPORTED
+            return M.MAV_RESULT_FAILED  # PX4: FAILED for a message it cannot stream
         if interval_us == -1:
             self.rates_hz[name] = 0.0
         elif interval_us == 0:
@@ -564,18 +598,6 @@ class SimulatedPx4:
                         | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT)
         self._send(M.MAVLink_autopilot_version_message(
             capabilities, 0, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, self.system_id))
-
-    def _capture(self) -> None:
-        v = self.vehicle
-        v.capture_image()
-        image = v.captures[-1]
-        lat, lon, alt = self._geodetic(image.position)
-        yaw_ned = yaw_enu_to_ned(image.yaw)
-        quaternion = [math.cos(yaw_ned / 2), 0.0, 0.0, math.sin(yaw_ned / 2)]
-        self._send(M.MAVLink_camera_image_captured_message(
-            int(image.time * 1000) & 0xFFFFFFFF, int(time.time() * 1e6), 0,
-            int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
-            int(round((image.position[2] - v.home[2]) * 1000)), quaternion, image.index, 1, b""))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,15 +7,22 @@ line, as QGroundControl and MAVProxy print it) or as 32 raw bytes.
 from __future__ import annotations
 
 import hashlib
+import hmac
 import os
+import struct
 import time
+import types
 from pathlib import Path
+from typing import Any
 
 from insulator_rs.exceptions import ConfigError
 
 KEY_LENGTH = 32
 # MAVLink signing timestamps count 10 us units since 2015-01-01 00:00 UTC.
 SIGNING_EPOCH_UNIX_S = 1420070400
+# A new stream may start at most one minute behind our own timestamp (MAVLink signing spec).
+NEW_STREAM_TOLERANCE = 6000 * 1000
+_TIMESTAMP = struct.Struct("<IH")  # 48-bit timestamp: low 32 bits, high 16 bits
 
 
 def load_signing_key(path: str | os.PathLike[str]) -> bytes:
@@ -58,3 +65,35 @@ def configure_signing(mav: object, key: bytes, *, link_id: int, allow_unsigned: 
     signing.link_id = link_id
     signing.timestamp = signing_timestamp_now()
     signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in allow_unsigned
+    # pymavlink's own check stores the stream's timestamp before it compares the signature,
+    # so one forged datagram with a future timestamp would lock the genuine stream out.
+    mav.check_signature = types.MethodType(check_signature_first, mav)  # type: ignore[attr-defined]
+
+
+def check_signature_first(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """MAVLink 2 signature check that changes no state unless the signature is valid.
+
+    Same rules as pymavlink's ``MAVLink.check_signature`` (the MAVLink signing spec:
+    SHA-256 of key + frame, first 6 bytes; per-stream (link, system, component)
+    timestamps strictly increase; a new stream at most one minute behind us), in the
+    safe order: the signature first, then the timestamp, and only then are the
+    stream's timestamp and our own updated.
+    """
+    signing = mav.signing
+    frame = bytes(msgbuf)
+    if len(frame) < 13 or signing.secret_key is None:
+        return False
+    digest = hashlib.sha256(bytes(signing.secret_key) + frame[:-6]).digest()[:6]
+    if not hmac.compare_digest(digest, frame[-6:]):
+        return False
+    low, high = _TIMESTAMP.unpack(frame[-12:-6])
+    timestamp = low + (high << 32)
+    stream = (frame[-13], src_system, src_component)
+    last = signing.stream_timestamps.get(stream)
+    if last is not None and timestamp <= last:
+        return False  # a replay, or out of order
+    if last is None and timestamp + NEW_STREAM_TOLERANCE < signing.timestamp:
+        return False  # a new stream from the past
+    signing.stream_timestamps[stream] = timestamp
+    signing.timestamp = max(signing.timestamp, timestamp)
+    return True

@@ -2,7 +2,9 @@
 
 A mission file is TOML (``.toml``) or YAML (``.yaml``/``.yml``) with the tables
 below; every error names the file and the field, and is raised before anything
-flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``)::
+flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``). Every number is
+checked against its physical or mission limit in :mod:`insulator_rs.mission.bounds` (the
+message gives the range and the reason)::
 
     [tower]                       # the inspected tower (WGS-84, degrees / m)
     lat = 50.0
@@ -51,7 +53,9 @@ import numpy as np
 import yaml
 
 from insulator_rs.exceptions import ConfigError
+from insulator_rs.mission import bounds
 from insulator_rs.mission.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
+from insulator_rs.textfile import read_config_text
 
 
 @dataclass(frozen=True)
@@ -146,8 +150,11 @@ class _Reader:
             return default
         value = table[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(field, f"expected a number, got {value!r}")
-        value = float(value)
+            raise self.fail(field, f"expected a number, got {_short(value)}")
+        try:
+            value = float(value)
+        except OverflowError:  # a YAML integer such as 10**400
+            raise self.fail(field, f"must be finite, got an integer of {len(str(value))} digits") from None
         if not math.isfinite(value):
             raise self.fail(field, f"must be finite, got {value}")
         if positive and value <= 0:
@@ -156,15 +163,24 @@ class _Reader:
             raise self.fail(field, f"must be >= 0, got {value}")
         if lo is not None and value < lo or hi is not None and value > hi:
             raise self.fail(field, f"must lie in [{lo}, {hi}], got {value}")
+        self.within_limit(field, value)
         return value
+
+    def within_limit(self, field: str, value: float) -> None:
+        """The field's limit in :data:`bounds.MISSION`, if it has one."""
+        limit = bounds.field_limit(bounds.MISSION, field)
+        problem = limit.problem(value) if limit is not None else None
+        if problem is not None:
+            raise self.fail(field, problem)
 
     def integer(self, table: dict[str, Any], prefix: str, key: str, *, default: int, lo: int) -> int:
         field = f"{prefix}.{key}"
         value = table.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(field, f"expected an integer, got {value!r}")
+            raise self.fail(field, f"expected an integer, got {_short(value)}")
         if value < lo:
             raise self.fail(field, f"must be >= {lo}, got {value}")
+        self.within_limit(field, value)
         return value
 
     def geo(self, table: dict[str, Any], prefix: str) -> GeoPoint:
@@ -175,9 +191,35 @@ class _Reader:
         )
 
     def unknown(self, table: dict[str, Any], prefix: str, allowed: set[str]) -> None:
-        extra = sorted(set(table) - allowed)
+        # str(): YAML keys may be numbers, dates or None, which do not sort against strings.
+        extra = sorted(str(k) for k in table if k not in allowed)
         if extra:
             raise self.fail(f"{prefix}.{extra[0]}", f"unknown field (allowed: {', '.join(sorted(allowed))})")
+
+
+def _short(value: Any) -> str:
+    """repr of a bad value, cut short (a YAML document can put a whole table in a field)."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _check_placement(r: _Reader, tower: GeoPoint, neighbours: list[GeoPoint],
+                     takeoff: GeoPoint | None) -> None:
+    """Neighbours a span away, the take-off point near the tower (:mod:`bounds`)."""
+    for i, nb in enumerate(neighbours):
+        e, n, _ = gps_to_enu(nb, tower)
+        problem = bounds.SPAN.problem(float(math.hypot(e, n)))
+        if problem is not None:
+            raise r.fail(f"neighbours[{i}]", f"horizontal distance from the tower {problem}")
+    if takeoff is None:
+        return
+    e, n, _ = gps_to_enu(takeoff, tower)
+    problem = bounds.TAKEOFF_DISTANCE.problem(float(math.hypot(e, n)))
+    if problem is not None:
+        raise r.fail("takeoff", f"horizontal distance from the tower {problem}")
+    problem = bounds.TAKEOFF_HEIGHT.problem(takeoff.alt - tower.alt)
+    if problem is not None:
+        raise r.fail("takeoff.alt", f"height above the tower base {problem}")
 
 
 def parse_mission(data: Any, source: str = "<mission>") -> Mission:
@@ -249,6 +291,7 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
         mission.line()
     except ValueError as exc:
         raise r.fail("neighbours", str(exc)) from exc
+    _check_placement(r, tower, neighbours, takeoff)
     return mission
 
 
@@ -256,18 +299,16 @@ def load_mission(path: str | Path) -> Mission:
     """Read and validate a TOML or YAML mission file."""
     p = Path(path)
     source = str(p)
-    if not p.is_file():
-        raise ConfigError(f"{source}: <file>: no such file")
-    text = p.read_text(encoding="utf-8")
+    text = read_config_text(p, f"{source}: <file>")
     suffix = p.suffix.lower()
+    if suffix not in (".toml", ".yaml", ".yml"):
+        raise ConfigError(f"{source}: <file>: unknown mission file type {suffix!r} "
+                          f"(use .toml, .yaml or .yml)")
     try:
-        if suffix == ".toml":
-            data: Any = tomllib.loads(text)
-        elif suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(text)
-        else:
-            raise ConfigError(f"{source}: <file>: unknown mission file type {suffix!r} "
-                              f"(use .toml, .yaml or .yml)")
+        data: Any = tomllib.loads(text) if suffix == ".toml" else yaml.safe_load(text)
     except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
         raise ConfigError(f"{source}: <file>: cannot parse: {exc}") from exc
+    except (ValueError, OverflowError, RecursionError) as exc:
+        # PyYAML's constructors: a date such as 2001-02-30, a too deeply nested document.
+        raise ConfigError(f"{source}: <file>: cannot parse: {type(exc).__name__}: {exc}") from exc
     return parse_mission(data, source)

@@ -46,6 +46,17 @@ def enu_to_gps(enu: np.ndarray, origin: GeoPoint) -> GeoPoint:
     return GeoPoint(float(lat), float(lon), float(alt))
 
 
+def enu_to_geodetic(enu: np.ndarray, origin: GeoPoint) -> np.ndarray:
+    """WGS-84 (lat deg, lon deg, alt m) of ENU points (N, 3) relative to ``origin``: (N, 3), vectorised
+    (the array form of :func:`enu_to_gps`, for flown paths of thousands of samples)."""
+    p = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros((0, 3))
+    lat, lon, alt = pymap3d.enu2geodetic(p[:, 0], p[:, 1], p[:, 2], origin.lat, origin.lon, origin.alt)
+    return np.stack([np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64),
+                     np.asarray(alt, dtype=np.float64)], axis=-1).reshape(-1, 3)
+
+
 @dataclass(frozen=True)
 class LineFrame:
     """The tower's line frame in W.

@@ -44,16 +44,18 @@ import insulator_rs as ir
 from insulator_rs.detection.commands import open_detector
 from insulator_rs.detection.detector import Detector
 from insulator_rs.exceptions import ConfigError, VehicleError
+from insulator_rs.mission import bounds
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
+from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.minsnap import TIME_ALLOCATIONS, MinSnapTrajectory, plan_min_snap_safe
 from insulator_rs.mission.perception import OnboardPerception
 from insulator_rs.mission.registry import Insulator, InsulatorRegistry
-from insulator_rs.mission.report import ReportWriter
 from insulator_rs.mission.state_machine import POLICIES, InspectionStateMachine, PlanItem, State
 from insulator_rs.mission.two_flight import route
 from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.report import FlightClock, ReportWriter, check_out_folder, parse_out_folder
 from insulator_rs.sim.camera_render import Camera, Lighting, default_camera_model, default_T_b_c
 from insulator_rs.sim.detector_standin import DetectorStandin
 from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits, VehicleFailsafe
@@ -163,7 +165,7 @@ class InspectionRun:
     def __init__(self, mission: Mission, tower: Tower, out: Path, *, method: str, policy: str,
                  seed: int, detect_period: float, detect_scale: float, photo_scale: float,
                  max_flight_time: float, quiet: bool = False, vehicle: Vehicle | None = None,
-                 detector: Detector | None = None, time_allocation: str = "pmm",
+                 detector: Detector | None = None, time_allocation: str = "pmm", overwrite: bool = False,
                  recorder: Any = None) -> None:
         self.mission = mission
         self.tower = tower
@@ -193,7 +195,9 @@ class InspectionRun:
         self.fov = 2 * math.atan((self.photo_model.height / 2) / self.photo_model.fy)
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints, policy=policy,
                                          cost=self._cost)
-        self.report = ReportWriter(out)
+        self.report = ReportWriter(out, origin=GeoPoint(mission.tower.lat, mission.tower.lon, mission.tower.alt),
+                                   overwrite=overwrite)
+        self.clock = FlightClock(self.vehicle.state().time)  # re-anchored at take-off
         self.out = out
         self.seed = seed
         self.photos: list[dict[str, Any]] = []
@@ -442,19 +446,21 @@ class InspectionRun:
                        and np.linalg.norm(st.velocity) < PHOTO_SPEED_TOLERANCE)
             if settled or st.time - t0 > PHOTO_SETTLE_TIMEOUT:
                 break
-        self.vehicle.capture_image()
         cam = Camera(self.photo_model, _gimballed_T_b_c(wp.gimbal_pitch))
         frame = cam.render(self.tower.mesh, self._sensor_T_w_b(st), seed=self.seed + len(self.photos),
                            time=st.time)
         n = sum(1 for p in self.photos if p["insulator_id"] == wp.insulator_id)
-        name = f"insulator_{wp.insulator_id:02d}_{n + 1}.png"
-        self.report.save_image(name, frame.rgb)
+        name = f"insulator_{wp.insulator_id:02d}_{n + 1}.jpg"
+        record = self.report.save_photo(name, np.ascontiguousarray(frame.rgb[:, :, ::-1]),
+                                        time_utc=self.clock.at(st.time), position_enu=st.position,
+                                        yaw_enu=st.yaw, gimbal_pitch=wp.gimbal_pitch,
+                                        description=f"insulator {wp.insulator_id}, photo {n + 1}")
         gt = int(np.argmin([np.linalg.norm(t.center - wp.target) for t in self.tower.insulators]))
         gt_id = self.tower.insulators[gt].instance_id
         box = frame.boxes.get(gt_id)
         w, h = self.photo_model.width, self.photo_model.height
         whole = box is not None and box[0] > 0 and box[1] > 0 and box[2] < w and box[3] < h
-        self.photos.append({"file": f"images/{name}", "insulator_id": wp.insulator_id,
+        self.photos.append({**record, "insulator_id": wp.insulator_id,
                             "time_s": st.time - self.t_start, "position": st.position, "yaw": st.yaw,
                             "gimbal_pitch": wp.gimbal_pitch, "gt_instance_id": gt_id,
                             "insulator_visible": box is not None, "insulator_whole_in_frame": whole})
@@ -468,6 +474,7 @@ class InspectionRun:
         self.vehicle.send_setpoint(target, None, st.yaw)
         self.vehicle.arm()
         self.t_start = st.time
+        self.clock = FlightClock(st.time)
         self.vehicle.takeoff(MIN_PASS_HEIGHT)
         yaw = st.yaw
         while st.time - self.t_start < TAKEOFF_TIMEOUT:
@@ -480,10 +487,30 @@ class InspectionRun:
         self.sm.start(self.vehicle.state().time)
         self._print_transitions()
 
+    def on_command_failure(self, exc: VehicleError) -> None:
+        """The vehicle refused a command or never answered it (arm, take-off, a mode switch):
+        reported, and the mission aborts (then lands, see :meth:`land`)."""
+        self.abort_reason = f"vehicle command failed: {exc}"
+        self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
+        if self.sm.state != State.ABORT:
+            self.sm.abort(self.abort_reason, self.vehicle.state().time)
+        self.write_summary()
+
     def land(self) -> None:
         if self.failsafe is not None:
             return  # the autopilot flies its failsafe (or the pilot flies): command nothing
-        self.vehicle.land()
+        st = self.vehicle.state()
+        if st.landed and not st.armed:
+            return  # never took off (e.g. arming was refused)
+        try:
+            self.vehicle.land()
+        except VehicleFailsafe as exc:
+            self.on_failsafe(exc)
+            return
+        except VehicleError as exc:  # refused or unanswered: PX4's own failsafes keep the vehicle
+            self.abort_reason = f"{self.abort_reason or 'mission aborted'}; landing command failed: {exc}"
+            self.say(f"[{self.now():7.1f} s] landing command failed: {exc}")
+            return
         st = self.vehicle.state()
         t0 = st.time
         while not st.landed and st.time - t0 < LAND_TIMEOUT:
@@ -496,8 +523,27 @@ class InspectionRun:
 
     def fly(self) -> None:
         self.say(f"inspecting {self.tower.spec.name} ({len(self.tower.insulators)} insulators in the scene) "
-                 f"with mission {self.mission.source}; report -> {self.out}")
-        self.takeoff()
+                 f"with mission {self.mission.source}; report -> {self.out}"
+                 + (f" (written in {self.report.layout.path}, replaces the old report when the run ends)"
+                    if self.report.layout.staged else ""))
+        for left in self.report.layout.leftovers():
+            self.say(f"note: {left} is what an earlier run killed mid-way left (kept; delete it when done)")
+        try:
+            self.takeoff()
+            self._fly_plan()
+        except VehicleFailsafe as exc:  # raised by a command rather than during a tick
+            self.on_failsafe(exc)
+        except VehicleError as exc:
+            self.on_command_failure(exc)
+        if self.sm.state == State.ABORT:
+            self.land()
+            self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
+        else:
+            self.status = "finished"
+        self._print_transitions()
+
+    def _fly_plan(self) -> None:
+        """Fly the state machine's plan until it is done (finished or aborted)."""
         while not self.sm.done:
             if self.sm.state == State.HOLD:
                 self.hold()
@@ -524,12 +570,6 @@ class InspectionRun:
                 if it.kind == "inspect":
                     break
             self.fly_segment(items)
-        if self.sm.state == State.ABORT:
-            self.land()
-            self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
-        else:
-            self.status = "finished"
-        self._print_transitions()
 
     # -- report --------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
@@ -602,11 +642,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="built-in scene name (tower_a, tower_b) or a scene TOML file (default tower_a)")
     p.add_argument("--mission", type=Path, default=None,
                    help="mission file (TOML/YAML); default: the example mission of a built-in scene")
-    p.add_argument("--out", type=Path, default=Path("inspection_report"), help="report folder (created)")
+    p.add_argument("--out", type=parse_out_folder, default=Path("inspection_report"),
+                   help="report folder (created; one that holds files is refused unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the report in --out: the new run is written beside it and swapped in "
+                        "when it ends, so the old report stays whole until then")
     p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=bounds.option("--seed"), default=0)
     p.add_argument("--detector", default=None,
                    help="a shipped model name (e.g. insulator-sim) or an ONNX file: run that YOLO network "
                         "on the rendered detection images (default: the detector stand-in on the "
@@ -614,14 +658,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--time-allocation", default="pmm", choices=TIME_ALLOCATIONS,
                    help="min-snap segment times: pmm (point-mass proportions, default) or snap "
                         "(redistributed to minimise snap, Richter et al.; slower to plan)")
-    p.add_argument("--detect-period", type=float, default=1.0, help="s between detection events (default 1)")
-    p.add_argument("--detect-scale", type=float, default=0.25,
+    p.add_argument("--detect-period", type=bounds.option("--detect-period"), default=1.0, help="s between detection events (default 1)")
+    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=0.25,
                    help="detection camera resolution as a fraction of the 1280x960 camera (default 0.25)")
-    p.add_argument("--photo-scale", type=float, default=1.0,
+    p.add_argument("--photo-scale", type=bounds.option("--photo-scale"), default=1.0,
                    help="inspection photo resolution as a fraction of 1280x960 (default 1)")
-    p.add_argument("--v-max", type=float, default=None, help="override the mission's velocity limits (m/s)")
-    p.add_argument("--a-max", type=float, default=None, help="override the mission's acceleration limits (m/s^2)")
-    p.add_argument("--max-flight-time", type=float, default=1800.0, help="abort after this many s of flight")
+    p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s)")
+    p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
+    p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--record", type=Path, default=None,
                    help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
@@ -672,17 +716,9 @@ def _vehicle_kind(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    for name in ("detect_period", "detect_scale", "photo_scale", "max_flight_time"):
-        value = getattr(args, name)
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"--{name.replace('_', '-')}: must be > 0, got {value}")
-    if args.detect_scale > 1 or args.photo_scale > 1:
-        raise ValueError("--detect-scale/--photo-scale: must be <= 1")
-    for flag, value in (("--v-max", args.v_max), ("--a-max", args.a_max)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{flag}: must be > 0, got {value}")
-    mavlink = _vehicle_kind(args) == "mavlink"
+    # The numeric options were checked by argparse against insulator_rs.mission.bounds.
     try:
+        mavlink = _vehicle_kind(args) == "mavlink"
         tower = load_tower(args.scene)
         mission_path = args.mission
         if mission_path is None:
@@ -691,6 +727,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
         mission = load_mission(mission_path)
         MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
+        check_out_folder(args.out, overwrite=args.overwrite)
         detector = load_detector(args.detector)
     except (ConfigError, ValueError) as exc:
         print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
@@ -724,7 +761,8 @@ def run(args: argparse.Namespace) -> int:
                                detect_period=args.detect_period, detect_scale=args.detect_scale,
                                photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
                                quiet=args.quiet, vehicle=vehicle, detector=detector,
-                               time_allocation=args.time_allocation, recorder=recorder)
+                               time_allocation=args.time_allocation, overwrite=args.overwrite,
+                               recorder=recorder)
         code = 0
         try:
             runner.fly()

@@ -123,7 +123,9 @@ class OdometryNoise:
 class AutopilotParameters:
     """PX4 parameters the vehicle honours (PX4 names in brackets, PX4 defaults).
 
-    offboard_loss_timeout [COM_OF_LOSS_T] s; disarm_land_delay [COM_DISARM_LAND]
+    offboard_loss_timeout [COM_OF_LOSS_T] s; offboard_loss_mode [COM_OBL_RC_ACT]
+    the mode PX4 falls back to when the offboard stream stops (PX4's default 0,
+    "Position mode": the SITL's HEARTBEAT then shows POSCTL); disarm_land_delay [COM_DISARM_LAND]
     s; preflight_disarm_delay [COM_DISARM_PRFLT] s; takeoff_speed [MPC_TKO_SPEED]
     m/s; land_speed [MPC_LAND_SPEED] m/s; return_altitude [RTL_RETURN_ALT] m
     above home; takeoff_altitude [MIS_TAKEOFF_ALT] m above home, when a takeoff
@@ -135,6 +137,7 @@ class AutopilotParameters:
     """
 
     offboard_loss_timeout: float = 1.0
+    offboard_loss_mode: str = "POSCTL"
     disarm_land_delay: float = 2.0
     preflight_disarm_delay: float = 10.0
     takeoff_speed: float = 1.5
@@ -150,6 +153,8 @@ class AutopilotParameters:
             require_positive(getattr(self, name), name)
         for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude", "battery_drain_per_s"):
             require_non_negative(getattr(self, name), name)
+        if self.offboard_loss_mode not in ("POSCTL", "HOLD", "LAND", "RTL"):
+            raise ValueError(f"offboard_loss_mode must be POSCTL, HOLD, LAND or RTL, got {self.offboard_loss_mode!r}")
         if not 0.0 <= self.battery_floor <= 1.0:
             raise ValueError(f"battery_floor must be in [0, 1], got {self.battery_floor!r}")
         if not 0.0 <= self.battery_critical < 1.0:
@@ -639,7 +644,7 @@ class KinematicVehicle:
                     and self.mode not in (FlightMode.RTL, FlightMode.LAND)):
                 self._failsafe(FlightMode.RTL, f"battery critical ({self.battery_fraction:.0%})")
             if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():
-                self._failsafe(FlightMode.HOLD,
+                self._failsafe(FlightMode(p.offboard_loss_mode),
                                f"offboard setpoints lost for more than {p.offboard_loss_timeout:g} s")
         self.model.step(h, self._active_setpoint() if self.armed else None)
         if self.armed and self.mode == FlightMode.TAKEOFF and self._takeoff_target is not None \

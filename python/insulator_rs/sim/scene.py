@@ -10,6 +10,8 @@ new TOML file, not new code.
 
 Every error raised while loading names the file and the dotted field, e.g.
 ``tower_a.toml: field 'cross_arms[1].height': must be below body.height (28.0 m), got 31.0``.
+Every number is also checked against its physical limit in :mod:`insulator_rs.mission.bounds`
+(a lattice tower of 1e8 panels would hang the mesh builder).
 """
 
 from __future__ import annotations
@@ -21,11 +23,15 @@ from pathlib import Path
 from typing import Any, Literal
 
 from insulator_rs.exceptions import ConfigError
+from insulator_rs.mission import bounds
+from insulator_rs.textfile import read_config_text
 
 InsulatorKind = Literal["strain", "suspension"]
 INSULATOR_KINDS: tuple[str, ...] = ("strain", "suspension")
 
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+#: Most meshed cylinder segments per conductor span (80 m of 1 m segments in the built-in scenes).
+MAX_CONDUCTOR_SEGMENTS = 2000
 
 
 class SceneError(ConfigError):
@@ -156,6 +162,13 @@ class _Fields:
     def error(self, name: str, reason: str) -> SceneError:
         return SceneError(f"{self.source}: field '{self.prefix}{name}': {reason}")
 
+    def within_limit(self, name: str, value: float) -> None:
+        """The field's limit in :data:`bounds.SCENE`, if it has one."""
+        limit = bounds.field_limit(bounds.SCENE, f"{self.prefix}{name}")
+        problem = limit.problem(value) if limit is not None else None
+        if problem is not None:
+            raise self.error(name, problem)
+
     def _raw(self, name: str, default: Any) -> Any:
         if name in self.table:
             return self.table[name]
@@ -168,13 +181,17 @@ class _Fields:
         value = self._raw(name, default)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(name, f"must be a number, got {value!r}")
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # an integer beyond float range
+            raise self.error(name, f"must be finite, got an integer of {len(str(value))} digits") from None
         if not math.isfinite(value):
             raise self.error(name, f"must be finite, got {value}")
         if positive and value <= 0.0:
             raise self.error(name, f"must be > 0, got {value}")
         if minimum is not None and value < minimum:
             raise self.error(name, f"must be >= {minimum}, got {value}")
+        self.within_limit(name, value)
         return value
 
     def integer(self, name: str, *, minimum: int) -> int:
@@ -183,6 +200,7 @@ class _Fields:
             raise self.error(name, f"must be an integer, got {value!r}")
         if value < minimum:
             raise self.error(name, f"must be >= {minimum}, got {value}")
+        self.within_limit(name, value)
         return value
 
     def string(self, name: str, *, choices: tuple[str, ...] | None = None) -> str:
@@ -203,6 +221,9 @@ class _Fields:
         value = self._raw(name, None)
         if not isinstance(value, list) or not value or not all(isinstance(v, dict) for v in value):
             raise self.error(name, "must be a non-empty array of tables ([[...]])")
+        if len(value) > bounds.MAX_CROSS_ARMS:
+            raise self.error(name, f"at most {bounds.MAX_CROSS_ARMS} tables (the tallest "
+                                   f"double-circuit towers carry 6 cross-arms), got {len(value)}")
         return [_Fields(v, self.source, f"{self.prefix}{name}[{i}].") for i, v in enumerate(value)]
 
     def point(self, value: Any, name: str) -> tuple[float, float, float]:
@@ -210,13 +231,17 @@ class _Fields:
                 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in value)
                 or not all(math.isfinite(float(c)) for c in value)):
             raise self.error(name, f"must be [x, y, z] of 3 finite numbers, got {value!r}")
+        for c in value:
+            problem = bounds.SCENE_NEIGHBOUR.problem(float(c))
+            if problem is not None:
+                raise self.error(name, f"each coordinate {problem}")
         return (float(value[0]), float(value[1]), float(value[2]))
 
     def reject_unknown(self, known: tuple[str, ...]) -> None:
         # A typo in an optional field would otherwise silently use the default.
         for key in self.table:
             if key not in known:
-                raise self.error(key, f"unknown field (known: {', '.join(known)})")
+                raise self.error(str(key), f"unknown field (known: {', '.join(known)})")
 
 
 def _parse_body(f: _Fields) -> BodySpec:
@@ -302,11 +327,17 @@ def _parse_conductors(f: _Fields) -> ConductorSpec:
     if cond.segment_length > cond.modelled_length:
         raise f.error("segment_length", f"must not exceed modelled_length ({cond.modelled_length} m), "
                                         f"got {cond.segment_length}")
+    if cond.modelled_length / cond.segment_length > MAX_CONDUCTOR_SEGMENTS:
+        raise f.error("segment_length", f"modelled_length / segment_length must be at most "
+                                        f"{MAX_CONDUCTOR_SEGMENTS} segments per span (each is meshed), "
+                                        f"got {cond.modelled_length / cond.segment_length:.0f}")
     return cond
 
 
 def parse_scene(data: dict[str, Any], source: str) -> SceneSpec:
     """Validate a parsed TOML document (``source`` names it in errors) and build a :class:`SceneSpec`."""
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: expected a table at the top level, got {type(data).__name__}")
     root = _Fields(data, source, "")
     root.reject_unknown(("name", "neighbours", "ground_size", "body", "cross_arms", "insulators",
                          "conductors"))
@@ -354,11 +385,12 @@ def load_scene(path: str | Path) -> SceneSpec:
     p = Path(path)
     if not p.exists() and not p.suffix and (SCENES_DIR / f"{p.name}.toml").exists():
         p = SCENES_DIR / f"{p.name}.toml"
-    if not p.is_file():
+    if not p.exists():
         raise SceneError(f"{p}: scene file not found (built-in scenes: "
                          f"{', '.join(sorted(q.stem for q in SCENES_DIR.glob('*.toml')))})")
+    text = read_config_text(p, str(p), error=SceneError)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
+        data = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise SceneError(f"{p.name}: invalid TOML: {exc}") from exc
     return parse_scene(data, p.name)

@@ -1,0 +1,334 @@
+"""Livox Mid-360 driver: UDP receive thread, control commands, scans in the vehicle clock.
+
+Data path: the point-cloud (host port 56301) and IMU (56401) sockets are read by one
+thread; every datagram goes to the Rust :class:`~insulator_rs._core.LivoxScanAssembler`,
+which validates it (length, version, type, CRC-32), counts every fault, and assembles
+10 Hz scans with per-point times. Finished scans are mapped to the vehicle clock here and
+kept (the newest ``keep_scans``) for :meth:`LivoxMid360.lidar_scan`.
+
+Time: a packet's stamp is the sensor's clock (time since power-on, or PTP/GPS time). The
+driver pairs each valid packet's last-point stamp with the vehicle time of its arrival
+(``now()``, the vehicle clock as the caller knows it: simulated time, or the host clock
+through MAVLink TIMESYNC) in a :class:`~insulator_rs.timesync.OneWaySync`, and maps all
+point times through it; a ``time_map`` given by the caller (a known or externally
+estimated map, sensor seconds -> vehicle seconds) replaces that estimate.
+
+Control (``lidar_ip`` given): discovery broadcast to port 56000 is available through
+:func:`discover`; :meth:`LivoxMid360.start` sends the host configuration (where to send
+point and IMU data) and "work mode = sampling" to the LiDAR's command port 56100 and
+waits for both acks; :meth:`close` sends "work mode = idle".
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from insulator_rs._core import (
+    LivoxScan,
+    LivoxScanAssembler,
+    livox_decode_command,
+    livox_discovery_request,
+    livox_host_config_request,
+    livox_parse_config_ack,
+    livox_parse_discovery_ack,
+    livox_work_mode_request,
+)
+from insulator_rs.exceptions import SensorError
+from insulator_rs.sensors import LidarScan
+from insulator_rs.timesync import OneWaySync
+
+PORT_DISCOVERY = 56000
+PORT_COMMAND = 56100
+HOST_PORT_COMMAND = 56101
+HOST_PORT_POINT = 56301
+HOST_PORT_IMU = 56401
+MAX_DATAGRAM = 2048
+#: Kernel receive buffer asked for (a second of Mid-360 data is 2.9 MB).
+RECEIVE_BUFFER_BYTES = 8 << 20
+#: How long a read waits before checking for shutdown (s).
+POLL_S = 0.05
+
+TimeMap = Callable[[np.ndarray], np.ndarray]
+
+
+def parse_url(url: str) -> tuple[str, int | None]:
+    """``mid360://HOST[:POINT_PORT]`` -> (HOST, port or None); HOST is the LiDAR's IP, or
+    ``listen`` / an empty host to only listen (no control commands)."""
+    prefix = "mid360://"
+    if not url.startswith(prefix):
+        raise SensorError(f"--lidar: expected mid360://HOST[:PORT], got {url!r}")
+    rest = url[len(prefix):].rstrip("/")
+    host, _, port = rest.partition(":")
+    if port:
+        if not port.isdigit() or not (0 <= int(port) < 65536):
+            raise SensorError(f"--lidar: port must be 0..65535 (0: any free port), got {port!r} in {url!r}")
+        return host, int(port)
+    return host, None
+
+
+@dataclass(frozen=True)
+class ImuBatch:
+    """IMU samples: ``times`` (M,) vehicle clock (s), ``gyro`` (M, 3) rad/s, ``acc`` (M, 3) g."""
+
+    times: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+
+
+def discover(*, timeout: float = 1.0, broadcast: str = "255.255.255.255",
+             bind_ip: str = "0.0.0.0", port: int = PORT_DISCOVERY) -> list[dict[str, object]]:
+    """Broadcasts a discovery request (cmd 0x0000) to port 56000; returns every ack."""
+    acks: list[dict[str, object]] = []
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        sock.bind((bind_ip, 0))
+        sock.sendto(livox_discovery_request(1), (broadcast, port))
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            ready, _, _ = select.select([sock], [], [], left)
+            if not ready:
+                break
+            data, _ = sock.recvfrom(MAX_DATAGRAM)
+            try:
+                acks.append(livox_parse_discovery_ack(data))
+            except ValueError:
+                continue  # not a discovery ack: ignore
+    return acks
+
+
+class LivoxMid360:
+    """A live Mid-360 (or our emitter) as a LiDAR source in the vehicle clock.
+
+    ``now``: the vehicle time (s) of "now", called on each datagram's arrival.
+    ``T_b_l``: the LiDAR's extrinsics (4x4). ``lidar_ip``: the sensor's address for
+    control commands (None: only listen). ``time_map``: sensor s -> vehicle s, replacing
+    the arrival-based estimate.
+    """
+
+    def __init__(self, *, now: Callable[[], float], T_b_l: np.ndarray, host_ip: str = "0.0.0.0",
+                 point_port: int = HOST_PORT_POINT, imu_port: int | None = HOST_PORT_IMU,
+                 lidar_ip: str | None = None, lidar_command_port: int = PORT_COMMAND,
+                 announce_ip: str | None = None,
+                 time_map: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
+                 reorder_grace_s: float = 0.005, command_timeout: float = 1.0) -> None:
+        T = np.asarray(T_b_l, np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"T_b_l: expected a finite 4x4 matrix, got shape {T.shape}")
+        if keep_scans < 1:
+            raise ValueError(f"keep_scans: must be >= 1, got {keep_scans}")
+        self.T_b_l = T
+        self._now = now
+        self.host_ip = host_ip
+        self.lidar_ip = lidar_ip or None
+        self.lidar_command_port = int(lidar_command_port)
+        self.announce_ip = announce_ip
+        self.command_timeout = float(command_timeout)
+        self._time_map = time_map
+        self.clock = OneWaySync()
+        self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s)
+        self._scans: deque[LidarScan] = deque(maxlen=keep_scans)
+        self._imu: deque[ImuBatch] = deque(maxlen=64)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._seq = 0
+        self.unmapped_scans = 0
+        self.receive_errors = 0
+        self.sockets: list[socket.socket] = []
+        self._point_sock = self._bind(point_port, "point data")
+        self._imu_sock = self._bind(imu_port, "IMU data") if imu_port is not None else None
+        self._cmd_sock: socket.socket | None = None
+
+    @property
+    def point_address(self) -> tuple[str, int]:
+        return self._point_sock.getsockname()
+
+    @property
+    def imu_address(self) -> tuple[str, int] | None:
+        return None if self._imu_sock is None else self._imu_sock.getsockname()
+
+    def _bind(self, port: int, what: str) -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+            sock.bind((self.host_ip, port))
+        except OSError as err:
+            sock.close()
+            for s in self.sockets:
+                s.close()
+            raise SensorError(f"Mid-360: cannot bind the {what} port {self.host_ip}:{port}: {err}") from err
+        self.sockets.append(sock)
+        return sock
+
+    # -- control -----------------------------------------------------------------
+
+    def _command(self, frame: bytes, what: str) -> None:
+        assert self.lidar_ip is not None
+        if self._cmd_sock is None:
+            # Any host port will do (the LiDAR answers to the sender); 56101 is only a suggestion.
+            self._cmd_sock = self._bind(0, "command")
+        sock = self._cmd_sock
+        seq = self._seq
+        sock.sendto(frame, (self.lidar_ip, self.lidar_command_port))
+        deadline = time.monotonic() + self.command_timeout
+        while (left := deadline - time.monotonic()) > 0:
+            ready, _, _ = select.select([sock], [], [], left)
+            if not ready:
+                break
+            data, _ = sock.recvfrom(MAX_DATAGRAM)
+            try:
+                cmd_id, ack_seq, _, _, _ = livox_decode_command(data)
+                if cmd_id != 0x0100 or ack_seq != seq:
+                    continue
+                ret, key = livox_parse_config_ack(data)
+            except ValueError:
+                continue
+            if ret != 0:
+                raise SensorError(f"Mid-360 {self.lidar_ip}: {what} refused (ret_code {ret:#04x}, key {key:#06x})")
+            return
+        raise SensorError(f"Mid-360 {self.lidar_ip}:{self.lidar_command_port}: no ack to {what} within {self.command_timeout} s")
+
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFFFFFFFF
+        return self._seq
+
+    def configure(self) -> None:
+        """Point the LiDAR's data at our sockets and start sampling."""
+        if self.lidar_ip is None:
+            return
+        host = self.announce_ip or self.host_ip
+        if host in ("0.0.0.0", ""):
+            raise SensorError("Mid-360: announce_ip is needed to tell the LiDAR where to send data")
+        imu_port = self.imu_address[1] if self.imu_address else HOST_PORT_IMU
+        self._command(livox_host_config_request(self._next_seq(), host, self.point_address[1], imu_port),
+                      "host configuration")
+        self._command(livox_work_mode_request(self._next_seq(), True), "start sampling")
+
+    # -- receive -----------------------------------------------------------------
+
+    def start(self) -> LivoxMid360:
+        self.configure()
+        self._thread = threading.Thread(target=self._run, name="livox-mid360", daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        socks = [s for s in (self._point_sock, self._imu_sock) if s is not None]
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select(socks, [], [], POLL_S)
+                for sock in ready:
+                    data = sock.recv(MAX_DATAGRAM)
+                    self._on_datagram(data, self._now())
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return
+                self.receive_errors += 1
+
+    def _on_datagram(self, data: bytes, arrival: float) -> None:
+        kind = self._assembler.push(data)
+        if kind in ("points", "imu", "late") and len(data) >= 36:
+            # Validated: stamp of the packet's last sample (timestamp + time_interval).
+            ts = int.from_bytes(data[28:36], "little") + 100 * int.from_bytes(data[3:5], "little")
+            self.clock.add(ts * 1e-9, arrival)
+        if kind == "imu":
+            self._take_imu()
+        while (scan := self._assembler.pop_scan()) is not None:
+            self._take(scan)
+
+    def _map(self, sensor_s: np.ndarray) -> np.ndarray | None:
+        if self._time_map is not None:
+            return np.asarray(self._time_map(sensor_s), np.float64)
+        if not self.clock.ready():
+            return None
+        return self.clock.to_target(sensor_s)
+
+    def _take(self, scan: LivoxScan) -> None:
+        times = self._map(scan.times_ns.astype(np.float64) * 1e-9)
+        if times is None:
+            self.unmapped_scans += 1
+            return
+        lidar = LidarScan(points_l=scan.points, times=times, T_b_l=self.T_b_l,
+                          intensity=scan.reflectivity)
+        with self._lock:
+            self._scans.append(lidar)
+
+    def _take_imu(self) -> None:
+        t, gyro, acc = self._assembler.drain_imu()
+        times = self._map(t.astype(np.float64) * 1e-9)
+        if times is not None and len(t):
+            with self._lock:
+                self._imu.append(ImuBatch(times=times, gyro=gyro, acc=acc))
+
+    # -- the Sensors side --------------------------------------------------------
+
+    def lidar_scan(self, now: float) -> LidarScan | None:
+        """The newest complete scan ending at or before ``now`` (vehicle clock)."""
+        with self._lock:
+            for scan in reversed(self._scans):
+                if len(scan) and scan.time_end <= now:
+                    return scan
+        return None
+
+    def imu(self) -> list[ImuBatch]:
+        """IMU batches received since the last call."""
+        with self._lock:
+            out = list(self._imu)
+            self._imu.clear()
+        return out
+
+    def health(self) -> dict[str, object]:
+        stats: dict[str, object] = dict(self._assembler.stats())
+        stats["receive_errors"] = self.receive_errors
+        stats["unmapped_scans"] = self.unmapped_scans
+        if self.clock.ready() and self._time_map is None:
+            fit = self.clock.fit
+            stats["clock_drift_ppm"] = fit.drift * 1e6
+            stats["clock_offset_s"] = fit.offset
+        return stats
+
+    def flush(self) -> None:
+        """Closes the scan being assembled (end of a recording or test)."""
+        self._assembler.flush()
+        while (scan := self._assembler.pop_scan()) is not None:
+            self._take(scan)
+
+    def close(self) -> None:
+        if self.lidar_ip is not None and self._cmd_sock is not None:
+            try:
+                self._command(livox_work_mode_request(self._next_seq(), False), "stop sampling")
+            except (SensorError, OSError):
+                pass  # closing anyway: the sensor may already be gone
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        for s in self.sockets:
+            s.close()
+        self.sockets.clear()
+
+    def __enter__(self) -> LivoxMid360:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, poll: float = 0.005) -> bool:
+    """Polls ``predicate`` until it holds or ``timeout`` (s) passes."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll)
+    return bool(predicate())
+
+
+__all__ = ["ImuBatch", "LivoxMid360", "discover", "parse_url", "wait_for"]
