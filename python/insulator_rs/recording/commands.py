@@ -46,6 +46,7 @@ class ReplayOptions:
     max_gap: float = 2.0
     rerun: bool = False
     progress: bool = False
+    overwrite: bool = False
 
 
 def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dict[str, Any]:
@@ -75,31 +76,23 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
         settings = ReplaySettings(method=options.method, deskew=options.deskew, detect_period=options.detect_period,
                                   progress=options.progress)
         with FlightBag(path, options.topics, max_gap=options.max_gap) as bag:
-            rerun = None
-            if options.rerun:
-                from insulator_rs.recording.rerun_log import RerunLog
-
-                rerun = RerunLog(out / "replay.rrd", name=path.name)
-            try:
-                summary = ReplayRun(bag, out, mission=mission, detector=detector, settings=settings,
-                                    ground_truth=truth, rerun=rerun).run()
-            finally:
-                if rerun is not None:
-                    rerun.close()
+            summary = ReplayRun(bag, out, mission=mission, detector=detector, settings=settings,
+                                ground_truth=truth, rerun=options.rerun, overwrite=options.overwrite).run()
         summary["scene"] = scene
         summary["tower"] = f"{mission.tower.lat:.6f},{mission.tower.lon:.6f}"  # the tower's GPS names it
-        if rerun is not None:
-            summary["rerun"] = str(out / "replay.rrd")
         return summary
     except (BagError, ConfigError, ModelError, ValueError) as exc:
         return _failed(path, out, str(exc))
 
 
 def _failed(path: Path, out: Path, error: str) -> dict[str, Any]:
+    """The summary of a replay that could not start; written to ``out`` when that is free
+    (never over another run's report)."""
     summary = {"status": f"failed: {error}", "error": error, "recording": str(path), "insulators_found": 0,
                "insulators": []}
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    if not out.exists() or (out.is_dir() and not any(out.iterdir())):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
@@ -161,6 +154,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--address", default=None, help="Ray cluster address to join (default: a local Ray)")
     p.add_argument("--rerun", action="store_true", help="log the replay to Rerun: OUT/replay.rrd (no viewer)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier insulator_rs report in --out (swapped in when the replay ends)")
     p.set_defaults(func=run)
 
 
@@ -176,7 +171,7 @@ def _options(args: argparse.Namespace) -> ReplayOptions:
                     body_frame=args.body_frame, lidar_frame=args.lidar_frame, camera_frame=args.camera_frame)
     return ReplayOptions(topics=topics, detector=args.detector, method=args.method, deskew=not args.no_deskew,
                          detect_period=args.detect_period, mission=args.mission, scene=args.scene,
-                         max_gap=args.max_gap, rerun=args.rerun, progress=not args.quiet)
+                         max_gap=args.max_gap, rerun=args.rerun, progress=not args.quiet, overwrite=args.overwrite)
 
 
 def run(args: argparse.Namespace) -> int:

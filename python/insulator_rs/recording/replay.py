@@ -29,10 +29,11 @@ import numpy as np
 import insulator_rs as ir
 from insulator_rs.exceptions import BagError
 from insulator_rs.mission.config import Mission
+from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.perception import OnboardPerception
 from insulator_rs.mission.registry import InsulatorRegistry
-from insulator_rs.mission.report import ReportWriter
+from insulator_rs.report.writer import ReportWriter
 from insulator_rs.recording.reader import FlightBag, Item
 from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 
@@ -40,6 +41,7 @@ from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 PAIRING_WINDOW = 0.1
 # s of poses kept behind the oldest pending scan.
 POSE_KEEP = 2.0
+RERUN_FILE = "replay.rrd"
 # m: a localized insulator this close to a true one counts as finding it.
 MATCH_DISTANCE = 1.5
 
@@ -102,7 +104,7 @@ class ReplayRun:
 
     def __init__(self, bag: FlightBag, out: Path, *, mission: Mission, detector: Any,
                  settings: ReplaySettings = ReplaySettings(), ground_truth: list[Any] | None = None,
-                 rerun: Any = None) -> None:
+                 rerun: bool = False, overwrite: bool = False) -> None:
         self.bag = bag
         self.out = Path(out)
         self.mission = mission
@@ -110,11 +112,16 @@ class ReplayRun:
         self.detector = detector
         self.settings = settings
         self.ground_truth = ground_truth
-        self.rerun = rerun
         self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate,
                                           mission.inspection.confirmations)
         self.perception: OnboardPerception | None = None
-        self.report = ReportWriter(self.out)
+        self.report = ReportWriter(self.out, origin=GeoPoint(mission.tower.lat, mission.tower.lon, mission.tower.alt),
+                                   overwrite=overwrite)
+        self.rerun: Any = None
+        if rerun:  # inside the report folder being written (swapped in with it)
+            from insulator_rs.recording.rerun_log import RerunLog
+
+            self.rerun = RerunLog(self.report.layout.path / RERUN_FILE, name=bag.path.name)
         self.poses = _Poses()
         self.scans: deque[LidarScan] = deque(maxlen=8)
         self.pending: deque[CameraFrame] = deque()
@@ -275,9 +282,12 @@ class ReplayRun:
             "insulators_matched": len(matched) if self.ground_truth else None,
             "mean_error_m": float(np.mean(errors)) if errors else None,
             "insulators": insulators,
+            "rerun": RERUN_FILE if self.rerun is not None else None,
         }
 
     def finish(self) -> dict[str, Any]:
+        if self.rerun is not None:
+            self.rerun.close()
         self.report.flush()
         summary = self.summary()
         self.report.write_summary(summary)
