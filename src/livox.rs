@@ -7,22 +7,15 @@ use std::net::Ipv4Addr;
 use std::sync::{Mutex, MutexGuard};
 
 use livox_mid360::control::{self, CommandFrame, ConfigAck, DiscoveryAck, WorkMode};
-use livox_mid360::{parse_packet, Accepted, AssemblerConfig, ControlError, PacketError, ScanAssembler};
+use livox_mid360::{parse_packet, Accepted, AssemblerConfig, PacketError, ScanAssembler};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
+use crate::errors::to_pyerr;
 use crate::pyutils::frozen_array;
-
-fn packet_error(err: PacketError) -> PyErr {
-    PyValueError::new_err(err.to_string())
-}
-
-fn control_error(err: ControlError) -> PyErr {
-    PyValueError::new_err(err.to_string())
-}
 
 /// The counter name a malformed datagram is filed under (same names as `stats()`).
 fn error_kind(err: &PacketError) -> &'static str {
@@ -204,7 +197,7 @@ impl LivoxScanAssembler {
 /// The header of a point/IMU datagram after every check (CRC included), as a dict.
 #[pyfunction]
 fn livox_parse_header<'py>(py: Python<'py>, datagram: &[u8]) -> PyResult<Bound<'py, PyDict>> {
-    let h = parse_packet(datagram).map_err(packet_error)?.header;
+    let h = parse_packet(datagram).map_err(|e| to_pyerr(py, e))?.header;
     let d = PyDict::new(py);
     d.set_item("version", h.version)?;
     d.set_item("length", h.length)?;
@@ -231,18 +224,18 @@ fn livox_encode_command<'py>(
     sender_type: u8,
 ) -> PyResult<Bound<'py, PyBytes>> {
     let frame = CommandFrame { seq_num, cmd_id, cmd_type, sender_type, data: data.to_vec() };
-    Ok(PyBytes::new(py, &frame.encode().map_err(control_error)?))
+    Ok(PyBytes::new(py, &frame.encode().map_err(|e| to_pyerr(py, e))?))
 }
 
 /// (cmd_id, seq_num, cmd_type, sender_type, data) of a checked control frame.
 #[pyfunction]
 fn livox_decode_command<'py>(py: Python<'py>, frame: &[u8]) -> PyResult<(u16, u32, u8, u8, Bound<'py, PyBytes>)> {
-    let f = CommandFrame::decode(frame).map_err(control_error)?;
+    let f = CommandFrame::decode(frame).map_err(|e| to_pyerr(py, e))?;
     Ok((f.cmd_id, f.seq_num, f.cmd_type, f.sender_type, PyBytes::new(py, &f.data)))
 }
 
 fn frame_bytes<'py>(py: Python<'py>, frame: CommandFrame) -> PyResult<Bound<'py, PyBytes>> {
-    Ok(PyBytes::new(py, &frame.encode().map_err(control_error)?))
+    Ok(PyBytes::new(py, &frame.encode().map_err(|e| to_pyerr(py, e))?))
 }
 
 /// Discovery request (cmd 0x0000), to broadcast to port 56000.
@@ -276,8 +269,8 @@ fn livox_host_config_request<'py>(
 /// The discovery ack: ret_code, dev_type (9 = Mid-360), serial_number, lidar_ip, cmd_port.
 #[pyfunction]
 fn livox_parse_discovery_ack<'py>(py: Python<'py>, frame: &[u8]) -> PyResult<Bound<'py, PyDict>> {
-    let f = CommandFrame::decode(frame).map_err(control_error)?;
-    let ack = DiscoveryAck::parse(&f).map_err(control_error)?;
+    let f = CommandFrame::decode(frame).map_err(|e| to_pyerr(py, e))?;
+    let ack = DiscoveryAck::parse(&f).map_err(|e| to_pyerr(py, e))?;
     let d = PyDict::new(py);
     d.set_item("ret_code", ack.ret_code)?;
     d.set_item("dev_type", ack.dev_type)?;
@@ -289,9 +282,9 @@ fn livox_parse_discovery_ack<'py>(py: Python<'py>, frame: &[u8]) -> PyResult<Bou
 
 /// (ret_code, error_key) of the ack to a 0x0100 configuration.
 #[pyfunction]
-fn livox_parse_config_ack(frame: &[u8]) -> PyResult<(u8, u16)> {
-    let f = CommandFrame::decode(frame).map_err(control_error)?;
-    let ack = ConfigAck::parse(&f).map_err(control_error)?;
+fn livox_parse_config_ack(py: Python<'_>, frame: &[u8]) -> PyResult<(u8, u16)> {
+    let f = CommandFrame::decode(frame).map_err(|e| to_pyerr(py, e))?;
+    let ack = ConfigAck::parse(&f).map_err(|e| to_pyerr(py, e))?;
     Ok((ack.ret_code, ack.error_key))
 }
 

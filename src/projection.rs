@@ -33,7 +33,7 @@ fn project_points<'py>(
     let camera = cam.inner;
     let view = cloud.view()?;
     let projection = detach(py, move || {
-        Ok(with_cloud!(view, p => fusion_core::project_points(&p, &t_c_l, &camera)))
+        Ok::<_, fusion_core::FusionError>(with_cloud!(view, p => fusion_core::project_points(&p, &t_c_l, &camera)))
     })?;
     let n = projection.valid.len();
     let uv = Array2::from_shape_vec((n, 2), projection.uv.into_flattened())

@@ -1,7 +1,7 @@
 //! Bindings of `scene_raycast`: `RaycastScene` (build, `cast`, `render`) and
 //! its `RaycastHits` result. Arrays are extracted and validated here, the
-//! kernels run with the GIL released; every `RaycastError` is an argument error
-//! and becomes a `ValueError` whose message starts with the argument's name.
+//! kernels run with the GIL released through `errors::detach`, which maps every
+//! `RaycastError` (an argument error) to a `ValueError` starting with the argument's name.
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use numpy::ndarray::{Array2, Array3};
@@ -11,13 +11,10 @@ use numpy::{
 };
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use scene_raycast::{render, Lighting, RaycastError, Scene};
+use scene_raycast::{render, Lighting, Scene};
 
+use crate::errors::detach;
 use crate::pyutils::{extract_cloud, extract_rigid, frozen_array, Cloud, Count};
-
-fn value_error(err: RaycastError) -> PyErr {
-    PyValueError::new_err(err.to_string())
-}
 
 /// A (N, 3) float64 or float32 array (validated by `pyutils::extract_cloud`) as rows (copied).
 fn rows3(name: &'static str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[f64; 3]>> {
@@ -197,9 +194,7 @@ impl RaycastScene {
         let vertices = rows3("vertices", vertices)?;
         let triangles = triangle_rows(triangles)?;
         let ids = instance_rows(instance_ids)?;
-        let scene = py
-            .detach(|| Scene::new(&vertices, &triangles, &ids))
-            .map_err(value_error)?;
+        let scene = detach(py, || Scene::new(&vertices, &triangles, &ids))?;
         Ok(Self { scene })
     }
 
@@ -220,9 +215,7 @@ impl RaycastScene {
     ) -> PyResult<RaycastHits> {
         let origins = rows3("origins", origins)?;
         let directions = rows3("directions", directions)?;
-        let hits = py
-            .detach(|| self.scene.cast(&origins, &directions, max_range))
-            .map_err(value_error)?;
+        let hits = detach(py, || self.scene.cast(&origins, &directions, max_range))?;
         let n = hits.len();
         let normal = Array2::from_shape_vec((n, 3), hits.normal.into_iter().flatten().collect())
             .map_err(|e| PyValueError::new_err(format!("normal: {e}")))?;
@@ -297,8 +290,7 @@ impl RaycastScene {
             shadows,
             max_range,
         };
-        let image = py
-            .detach(|| {
+        let image = detach(py, || {
                 render(
                     &self.scene,
                     &rotation,
@@ -309,8 +301,7 @@ impl RaycastScene {
                     &albedo,
                     &lighting,
                 )
-            })
-            .map_err(value_error)?;
+            })?;
         let shape_error =
             |e: numpy::ndarray::ShapeError| PyValueError::new_err(format!("image: {e}"));
         let rgb = Array3::from_shape_vec((height, width, 3), image.rgb).map_err(shape_error)?;

@@ -85,3 +85,23 @@ def test_bad_sources_raise_sensor_error_naming_them(tmp_path: Path) -> None:
         OpenCvCamera("97", camera=cam(), T_b_c=np.eye(4), now=lambda: 0.0)
     with pytest.raises(ValueError, match="T_b_c"):
         OpenCvCamera(0, camera=cam(), T_b_c=np.eye(3), now=lambda: 0.0)
+
+
+def test_frames_before_the_vehicle_clock_exists_are_counted_not_fatal(tmp_path: Path) -> None:
+    from insulator_rs.exceptions import TimeSyncError
+
+    path = tmp_path / "clip.avi"
+    write_video(path, 10)
+    calls = itertools.count()
+
+    def now() -> float:
+        if next(calls) < 4:
+            raise TimeSyncError("time sync: no vehicle telemetry yet")
+        return 1.0
+
+    with OpenCvCamera(str(path), camera=cam(), T_b_c=np.eye(4), now=now, keep_frames=10) as source:
+        source.start()
+        deadline = time.monotonic() + 10
+        while not source.ended and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert (source.unstamped, source.frames) == (4, 6)

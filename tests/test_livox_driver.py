@@ -78,7 +78,7 @@ class Rig:
             time.sleep(0.003)
 
     def settle(self) -> dict[str, object]:
-        assert wait_for(lambda: self.driver.health()["datagrams"] == self.sent, 10.0), self.driver.health()
+        assert wait_for(lambda: self.driver.received() == self.sent, 10.0), self.driver.health()
         self.driver.flush()
         return self.driver.health()
 
@@ -334,3 +334,59 @@ def test_parse_url() -> None:
         parse_url("velodyne://x")
     with pytest.raises(SensorError, match="port"):
         parse_url("mid360://h:99999")
+
+
+def test_only_the_lidar_is_heard() -> None:
+    """A stranger's valid packets (another source port) are counted and never parsed,
+    once the first valid sender has been locked onto."""
+    sim = frames(1)
+    emitter = LivoxEmitter(clock=CLOCK)
+    emitter.start_at(sim[0].t_start)
+    datagrams = emitter.add_frame(sim[0])
+    rig = Rig(time_map=CLOCK.to_vehicle)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        rig.feed(datagrams[:10])
+        assert wait_for(lambda: rig.driver.health()["point_packets"] == 10, 5.0)
+        forged = LivoxEmitter(clock=SensorClock(offset_s=5000.0 + 0.002, drift=30e-6))
+        forged.start_at(sim[0].t_start)
+        for d in forged.add_frame(sim[0])[:20]:
+            stranger.sendto(d, rig.driver.point_address)
+        rig.feed(datagrams[10:])
+        assert wait_for(lambda: rig.driver.health()["foreign_datagrams"] == 20, 5.0)
+        assert wait_for(lambda: rig.driver.health()["point_packets"] == len(datagrams), 5.0)
+        health = rig.driver.health()
+    finally:
+        stranger.close()
+        rig.close()
+    assert health["duplicates"] == 0 and health["reordered"] == 0 and health["lost"] == 0
+
+
+def test_datagrams_before_the_vehicle_clock_exists_are_counted_not_fatal() -> None:
+    from insulator_rs.exceptions import TimeSyncError
+
+    sim = frames(1)
+    emitter = LivoxEmitter(clock=CLOCK)
+    emitter.start_at(sim[0].t_start)
+    datagrams = emitter.add_frame(sim[0])
+    calls = {"n": 0}
+
+    def now() -> float:
+        calls["n"] += 1
+        if calls["n"] <= 5:
+            raise TimeSyncError("time sync: no vehicle telemetry yet")
+        return 0.0
+
+    driver = LivoxMid360(now=now, T_b_l=np.eye(4), host_ip="127.0.0.1", point_port=0, imu_port=None,
+                         time_map=CLOCK.to_vehicle).start()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for d in datagrams[:20]:
+            sock.sendto(d, driver.point_address)
+            time.sleep(0.001)
+        assert wait_for(lambda: driver.receive_errors + driver.health()["point_packets"] == 20, 5.0)
+        assert driver.receive_errors == 5
+        assert driver._thread is not None and driver._thread.is_alive()
+    finally:
+        sock.close()
+        driver.close()

@@ -20,8 +20,9 @@ import pytest
 
 from insulator_rs.exceptions import VehicleError
 from insulator_rs.mavlink import connect_vehicle
+from insulator_rs.sim.px4 import connect_simulated_px4
 from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle, VehicleFailsafe
-from insulator_rs.mavlink.px4_sim import SimulatedPx4
+from insulator_rs.sim.px4 import SimulatedPx4
 from insulator_rs.mavlink.signing import key_from_passphrase
 from insulator_rs.mavlink.wire import mavlink2 as M
 from insulator_rs.mavlink.wire import mavutil
@@ -33,7 +34,7 @@ DT = 0.05
 
 @pytest.fixture
 def vehicle() -> Iterator[MavlinkVehicle]:
-    client = connect_vehicle(None, time_scale=TIME_SCALE)
+    client = connect_simulated_px4(time_scale=TIME_SCALE)
     try:
         yield client
     finally:
@@ -229,7 +230,7 @@ def test_link_loss_just_after_a_heartbeat_is_reported_as_link_loss(vehicle: Mavl
 
 def test_commands_survive_packet_loss_and_delay() -> None:
     """20 % loss each way and 30 ms latency: retransmission gets every command through."""
-    client = connect_vehicle(None, time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
+    client = connect_simulated_px4(time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
     try:
         sim = sim_of(client)
         sim.set_packet_loss(0.2)
@@ -273,7 +274,7 @@ def test_world_origin_from_geodetic_tower_position() -> None:
 
     tower = (47.3977, 8.5456, 500.0)
     px4_origin = pymap3d.enu2geodetic(30.0, 40.0, 0.0, *tower)
-    client = connect_vehicle(None, time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
+    client = connect_simulated_px4(time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
     try:
         np.testing.assert_allclose(client.state().position, [0.0, 0.0, 0.0], atol=1e-6)
         offset = client.set_world_origin(*tower)
@@ -300,7 +301,7 @@ def test_signing_rejects_unsigned_and_wrongly_signed_commands(tmp_path) -> None:
     key = key_from_passphrase("insulator tower 42")
     key_file = tmp_path / "mavlink.key"
     key_file.write_text(key.hex())
-    client = connect_vehicle(None, time_scale=TIME_SCALE, signing_key=str(key_file))
+    client = connect_simulated_px4(time_scale=TIME_SCALE, signing_key=str(key_file))
     try:
         sim = sim_of(client)
         host, port = sim.address
@@ -382,8 +383,12 @@ def test_bad_connection_strings(connection, error, match) -> None:
         MavlinkVehicle(connection)  # type: ignore[arg-type]
 
 
-def test_sim_options_with_a_real_connection_are_refused() -> None:
-    with pytest.raises(ValueError, match="sim_options only apply when connection is None"):
+def test_the_mavlink_package_starts_no_simulator() -> None:
+    """The simulated PX4 is the simulator's adapter: ``mavlink.connect_vehicle`` needs a real
+    connection and says where the simulated one is."""
+    with pytest.raises(TypeError, match="insulator_rs.sim.px4.connect_simulated_px4"):
+        connect_vehicle(None)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="sim_options"):
         connect_vehicle("udpin:127.0.0.1:14540", sim_options={"time_scale": 2.0})
 
 
@@ -397,8 +402,8 @@ def test_bad_setpoints_name_the_argument(vehicle: MavlinkVehicle) -> None:
 
 
 def test_standalone_simulator_entry_point(capsys) -> None:
-    """``python -m insulator_rs.mavlink.px4_sim`` runs, listens, reports and stops."""
-    from insulator_rs.mavlink.px4_sim import main
+    """``python -m insulator_rs.sim.px4`` runs, listens, reports and stops."""
+    from insulator_rs.sim.px4 import main
 
     assert main(["--port", "0", "--remote", "", "--duration", "0.3"]) == 0
     out = capsys.readouterr().out

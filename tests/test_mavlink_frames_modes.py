@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.mavlink import frames, px4_modes
-from insulator_rs.mavlink.px4_sim import setpoint_from_target_local_ned
+from insulator_rs.sim.px4 import setpoint_from_target_local_ned
 from insulator_rs.mavlink.signing import KEY_LENGTH, key_from_passphrase, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2 as M
 from insulator_rs.sim.kinematics import FlightMode
@@ -184,7 +184,7 @@ def test_simulated_px4_survives_garbage_datagrams() -> None:
     import socket
     import time
 
-    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.sim.px4 import SimulatedPx4
     from insulator_rs.mavlink.wire import mavutil
 
     with SimulatedPx4() as sim, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:

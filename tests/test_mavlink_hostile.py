@@ -19,10 +19,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from insulator_rs.mavlink import connect_vehicle
+from insulator_rs.sim.px4 import connect_simulated_px4
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.link import AutopilotLink
-from insulator_rs.mavlink.px4_sim import SimulatedPx4
+from insulator_rs.sim.px4 import SimulatedPx4
 from insulator_rs.mavlink.signing import configure_signing, key_from_passphrase
 from insulator_rs.mavlink.wire import mavlink2 as M
 
@@ -71,7 +71,7 @@ def _fly_a_little(vehicle: MavlinkVehicle, seconds: float) -> None:
 
 @pytest.fixture
 def signed():
-    vehicle = connect_vehicle(None, time_scale=4.0, signing_key=KEY)
+    vehicle = connect_simulated_px4(time_scale=4.0, signing_key=KEY)
     try:
         yield vehicle
     finally:
@@ -135,7 +135,7 @@ def test_signature_is_checked_before_the_stream_timestamp() -> None:
 
 @pytest.fixture
 def vehicle():
-    client = connect_vehicle(None, time_scale=4.0)
+    client = connect_simulated_px4(time_scale=4.0)
     try:
         yield client
     finally:

@@ -28,7 +28,7 @@ from mavsdk.plugins.telemetry import Telemetry
 from mavsdk.plugins import telemetry_server as ts
 
 from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle
-from insulator_rs.mavlink.px4_sim import SimulatedPx4
+from insulator_rs.sim.px4 import SimulatedPx4
 
 TIME_SCALE = 2.0
 

@@ -166,7 +166,7 @@ def test_a_given_connection_flies_in_the_towers_frame(tmp_path):
     import numpy as np
     import pymap3d
 
-    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.sim.px4 import SimulatedPx4
     from insulator_rs.mission.config import load_mission
     from insulator_rs.mission.geometry import MissionGeometry
 
@@ -259,7 +259,7 @@ def test_a_refused_or_unanswered_command_aborts_cleanly_with_the_reason(tmp_path
     OFFBOARD switch after take-off, or arming: the run ends with status "aborted: vehicle
     command failed: <command and result>", exit code 1, a report, no traceback; a vehicle in
     the air is landed (NAV_LAND is not refused), one on the ground is left alone."""
-    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.sim.px4 import SimulatedPx4
     from insulator_rs.mavlink.wire import mavlink2 as M
 
     sims = []

@@ -95,7 +95,7 @@ def _answers(connection: str) -> dict[str, int | None]:
 def test_px4_answers_commands_as_the_simulated_px4_does(px4) -> None:
     """Reference: PX4 v1.16.0 itself. Our simulated PX4 must give the same COMMAND_ACK results
     on the ground (disarmed, then armed and disarmed again), None meaning no ACK at all."""
-    from insulator_rs.mavlink.px4_sim import SimulatedPx4
+    from insulator_rs.sim.px4 import SimulatedPx4
 
     real = _answers(px4.connection)
     with SimulatedPx4(system_id=2) as sim:

@@ -4,7 +4,7 @@ Checked against the built module by ``python -m mypy.stubtest insulator_rs._core
 Frames and units: see the docstrings; metres, pixels, radians.
 """
 
-from typing import Any, Final, final
+from typing import Any, Final, Literal, final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -13,6 +13,8 @@ from insulator_rs.exceptions import InsulatorError
 
 # A point cloud: (N, 3) float32 or float64, any strides.
 _Points = NDArray[np.float32] | NDArray[np.float64]
+# The methods of ``localize`` (fusion_core's ``Method``; any other string raises ValueError).
+_LocalizeMethod = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 
 __all__ = [
     "BoundedLocalization",
@@ -127,7 +129,7 @@ class Localization:
     @property
     def n_nonfinite(self) -> int: ...
     @property
-    def method(self) -> str: ...
+    def method(self) -> _LocalizeMethod: ...
 
 def chain_transforms(T_c_b: Any, T_b_l: Any) -> NDArray[np.float64]: ...
 def project_points(
@@ -162,7 +164,7 @@ def ransac_line(
 def pca(points: _Points) -> Pca: ...
 def localize(
     points_b: _Points,
-    method: str = "dbscan+ransac",  # "dbscan" | "ransac" | "dbscan+ransac" | "dbscan+pca"
+    method: _LocalizeMethod = "dbscan+ransac",
     *,
     eps: float = ...,
     min_points: int = ...,

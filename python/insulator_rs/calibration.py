@@ -32,6 +32,7 @@ import yaml  # type: ignore[import-untyped]
 
 from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import ConfigError
+from insulator_rs.textfile import read_config_text
 
 __all__ = ["load_camera_model", "load_opencv_yaml", "load_ros_camera_info"]
 
@@ -40,6 +41,10 @@ __all__ = ["load_camera_model", "load_opencv_yaml", "load_ros_camera_info"]
 _ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 _N_DIST = 5
 _Dist = tuple[float, float, float, float, float]  # (k1, k2, p1, p2, k3)
+# Most elements of an !!opencv-matrix we read: a 3x3 camera matrix, at most 14 distortion
+# coefficients. Checked before OpenCV allocates the matrix (a file claiming 100000 x 100000
+# would make it try 80 GB).
+_MAX_MATRIX_SIDE = 14
 
 
 def load_camera_model(path: str | Path) -> CameraModel:
@@ -67,8 +72,10 @@ def load_opencv_yaml(
     import cv2  # local: cv2 is heavy and only this loader needs it
 
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"{path}: calibration file not found")
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a directory, not a file")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # OpenCV raises SystemError on parse failures
@@ -103,6 +110,11 @@ def load_ros_camera_info(path: str | Path) -> CameraModel:
         doc = yaml.safe_load(_read_text(path))
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    except (ValueError, OverflowError, RecursionError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        # PyYAML's constructors: a date such as 2001-02-30, a too deeply nested document.
+        raise ConfigError(f"{path}: not valid YAML ({type(exc).__name__}: {exc})") from exc
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{path}: expected a YAML mapping at the top level")
 
@@ -152,19 +164,34 @@ def load_ros_camera_info(path: str | Path) -> CameraModel:
 
 
 def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: calibration file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read calibration file ({exc})") from exc
+    if not path.exists() and not path.is_symlink():
+        raise FileNotFoundError(f"{path}: calibration file not found")
+    return read_config_text(path, str(path))
 
 
 def _opencv_matrix(storage: Any, path: Path, field: str) -> np.ndarray:
     node = storage.getNode(field)
     if node.isNone():
         raise ConfigError(f"{path}: missing field '{field}'")
-    mat = node.mat() if node.isMap() else None
+    if not node.isMap():
+        raise ConfigError(f"{path}: field '{field}' is not an !!opencv-matrix node")
+    rows, cols, data = node.getNode("rows"), node.getNode("cols"), node.getNode("data")
+    if not (rows.isInt() and cols.isInt()):
+        raise ConfigError(f"{path}: field '{field}' needs integer 'rows' and 'cols'")
+    n_rows, n_cols = int(rows.real()), int(cols.real())
+    if not (1 <= n_rows <= _MAX_MATRIX_SIDE and 1 <= n_cols <= _MAX_MATRIX_SIDE):
+        raise ConfigError(f"{path}: field '{field}' is {n_rows} x {n_cols}; a camera matrix is 3 x 3 "
+                          f"and distortion has at most 14 coefficients")
+    if not data.isSeq() or data.size() != n_rows * n_cols:
+        got = data.size() if data.isSeq() else "no list"
+        raise ConfigError(f"{path}: field '{field}' declares {n_rows} x {n_cols} = {n_rows * n_cols} "
+                          f"elements but its 'data' holds {got}")
+    import cv2
+
+    try:
+        mat = node.mat()
+    except cv2.error as exc:  # e.g. a 'dt' OpenCV does not know
+        raise ConfigError(f"{path}: field '{field}' is not a readable !!opencv-matrix ({exc})") from exc
     if mat is None:
         raise ConfigError(f"{path}: field '{field}' is not an !!opencv-matrix node")
     return np.asarray(mat, dtype=np.float64)
@@ -259,7 +286,7 @@ def _float_array(path: Path, field: str, raw: Any) -> np.ndarray:
         raise ConfigError(f"{path}: field '{field}' must be a list of numbers")
     try:
         values = [float(x) for x in raw if not isinstance(x, (bool, str, bytes))]
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise ConfigError(f"{path}: field '{field}' must be a list of numbers ({exc})") from exc
     if len(values) != len(raw):
         raise ConfigError(f"{path}: field '{field}' must be a list of numbers")

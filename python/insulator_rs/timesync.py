@@ -16,8 +16,7 @@ Two kinds of pairs:
   :class:`TimesyncExchange` speaks the message fields (ns);
 * one-way stamps (a LiDAR packet stamped by the sensor, received here): arrival =
   send time + a latency that is never negative, so the map is the lower envelope of
-  the pairs: within each of ``ONE_WAY_BINS`` time bins the pair of least latency is
-  kept, and the line is fitted through those.
+  the pairs (the line under all of them with the least summed latency, drift bounded).
 
 Everything is in seconds (float64). Before the first pair the map is undefined
 (:meth:`ClockMap.ready` is False); with one pair (or all pairs at one instant) drift is 0.
@@ -26,7 +25,10 @@ Everything is in seconds (float64). Before the first pair the map is undefined
 from __future__ import annotations
 
 import math
+import threading
+import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,8 +39,8 @@ from insulator_rs.exceptions import TimeSyncError
 REJECT_MAD = 3.0
 #: Floor of the rejection threshold (s): below this residuals are noise, never outliers.
 REJECT_FLOOR_S = 50e-6
-#: Lower-envelope bins of a one-way fit.
-ONE_WAY_BINS = 16
+#: Pairs kept (the least latency of each bin) before a one-way fit's hull.
+ONE_WAY_BINS = 256
 
 
 @dataclass(frozen=True)
@@ -173,25 +175,73 @@ class TwoWaySync(ClockMap):
 
 
 class OneWaySync(ClockMap):
-    """Sender clock -> our clock from (sender stamp, arrival) pairs: the latency envelope."""
+    """Sender clock -> our clock from (sender stamp, arrival) pairs: the latency envelope.
 
-    def __init__(self, *, window: int = 2048, refit_every: int = 64) -> None:
+    Arrival = map(sent) + latency, latency >= 0, so the map is the line under every pair
+    that hugs them closest: the lower convex hull edge (or a slope bound through a hull
+    vertex) minimising the summed latencies, a linear programme whose optimum lies on the
+    hull (the classic one-way clock-skew estimate). The slope is bounded to
+    ``1 +- max_drift``: a single burst of pairs that all arrived at once (no span of
+    arrivals to read a rate from) then yields drift 0, not a collapsed clock. Pairs are
+    first reduced to the least-latency one of each of ``ONE_WAY_BINS`` bins.
+    """
+
+    def __init__(self, *, window: int = 2048, refit_every: int = 64, max_drift: float = 1e-3) -> None:
         super().__init__(window=window, refit_every=refit_every)
+        if not (math.isfinite(max_drift) and 0 <= max_drift < 0.5):
+            raise ValueError(f"max_drift: must be in [0, 0.5), got {max_drift}")
+        self.max_drift = float(max_drift)
 
     def add(self, sent: float, received: float) -> None:
         self._add(sent, received)
 
     def _refit(self) -> ClockFit:
         x, y, _ = self._arrays()
-        if len(x) < 2 * ONE_WAY_BINS:
-            i = int(np.argmin(y - x))
-            return ClockFit(source_ref=float(x[i]), target_ref=float(y[i]), drift=0.0, rms=0.0, n=1)
-        edges = np.linspace(x.min(), x.max(), ONE_WAY_BINS + 1)
-        bins = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, ONE_WAY_BINS - 1)
-        lat = y - x
-        picks = [np.flatnonzero(bins == b)[np.argmin(lat[bins == b])] for b in range(ONE_WAY_BINS)
-                 if np.any(bins == b)]
-        return robust_line(x[picks], y[picks])
+        x0 = float(x.min())
+        dx = x - x0
+        d = y - x  # offset + drift * x + latency
+        span = float(dx.max())
+        if span > 0 and len(x) > ONE_WAY_BINS:
+            bins = np.minimum((dx / span * ONE_WAY_BINS).astype(np.int64), ONE_WAY_BINS - 1)
+            order = np.lexsort((d, bins))
+            first = np.r_[True, bins[order][1:] != bins[order][:-1]]
+            keep = order[first]
+            hx, hd = dx[keep], d[keep]
+        else:
+            hx, hd = dx, d
+        hull = _lower_hull(hx, hd)
+        vx, vd = hx[hull], hd[hull]
+        slopes = [0.0, -self.max_drift, self.max_drift]
+        if len(vx) > 1:
+            edge = np.diff(vd) / np.maximum(np.diff(vx), 1e-12)
+            slopes += [float(e) for e in edge if abs(e) <= self.max_drift]
+        best: tuple[float, float, float] | None = None
+        for slope in slopes:
+            a = float(np.min(vd - slope * vx))  # the line through the support vertex
+            cost = float(np.sum(d - (a + slope * dx)))
+            if best is None or cost < best[0]:
+                best = (cost, a, slope)
+        assert best is not None
+        _, a, slope = best
+        resid = d - (a + slope * dx)
+        return ClockFit(source_ref=x0, target_ref=x0 + a, drift=slope, rms=float(np.sqrt(np.mean(resid**2))),
+                        n=len(x))
+
+
+def _lower_hull(x: np.ndarray, y: np.ndarray) -> list[int]:
+    """Indices of the lower convex hull of the points, left to right (monotone chain)."""
+    order = np.lexsort((y, x))
+    hull: list[int] = []
+    for i in order.tolist():
+        while len(hull) >= 2:
+            i1, i2 = hull[-2], hull[-1]
+            cross = (x[i2] - x[i1]) * (y[i] - y[i1]) - (y[i2] - y[i1]) * (x[i] - x[i1])
+            if cross <= 0:
+                hull.pop()
+            else:
+                break
+        hull.append(i)
+    return hull
 
 
 class TimesyncExchange:
@@ -231,3 +281,68 @@ class ChainedClock:
     def __call__(self, sensor_s: float | np.ndarray) -> np.ndarray:
         host = self.sensor_to_host.to_target(sensor_s)
         return host if self.host_to_vehicle is None else self.host_to_vehicle.to_target(host)
+
+
+class TelemetryClock:
+    """The vehicle clock *now*, for a host that only sees the vehicle's telemetry.
+
+    A thread polls ``vehicle_time()`` (the stamp of the newest telemetry, e.g.
+    ``MavlinkVehicle.state().time``, PX4's ``time_boot_ms``) every ``poll_s`` and pairs
+    each new stamp with the host clock at the poll: that pair is (send, arrival) with a
+    latency >= 0, so the :class:`OneWaySync` lower envelope maps vehicle -> host, and its
+    inverse gives the vehicle time of any host instant. Drivers stamp arrivals with
+    :meth:`now`. With an autopilot that answers MAVLink TIMESYNC,
+    :class:`TimesyncExchange` is the tighter alternative (it measures the round trip).
+    """
+
+    def __init__(self, vehicle_time: Callable[[], float], *, poll_s: float = 0.002,
+                 host_clock: Callable[[], float] = time.monotonic, window: int = 2048) -> None:
+        if not (math.isfinite(poll_s) and poll_s > 0):
+            raise ValueError(f"poll_s: must be a finite number > 0, got {poll_s}")
+        self._vehicle_time = vehicle_time
+        self._host = host_clock
+        self.poll_s = float(poll_s)
+        self.sync = OneWaySync(window=window, refit_every=16)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last: float | None = None
+        self.errors = 0
+
+    def start(self) -> TelemetryClock:
+        self._thread = threading.Thread(target=self._run, name="telemetry-clock", daemon=True)
+        self._thread.start()
+        return self
+
+    def poll(self) -> None:
+        """One poll (the thread calls this; tests may call it directly)."""
+        try:
+            stamp = float(self._vehicle_time())
+        except Exception:  # a vehicle that is closing or not yet connected: try again later
+            self.errors += 1
+            return
+        host = self._host()
+        if stamp != self._last and math.isfinite(stamp):
+            self._last = stamp
+            with self._lock:
+                self.sync.add(stamp, host)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            self.poll()
+
+    def ready(self) -> bool:
+        return self.sync.ready()
+
+    def now(self) -> float:
+        """The vehicle time (s) of this instant; raises TimeSyncError before any stamp."""
+        host = self._host()
+        with self._lock:
+            if not self.sync.ready():
+                raise TimeSyncError("time sync: no vehicle telemetry yet")
+            return float(self.sync.fit.inverse(host))
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)

@@ -9,7 +9,6 @@ pub mod camera;
 pub mod culling;
 pub mod deskew;
 pub mod dbscan;
-mod dbscan_grid;
 pub mod error;
 pub mod points;
 pub mod projection;

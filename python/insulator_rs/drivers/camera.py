@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from insulator_rs._core import CameraModel
-from insulator_rs.exceptions import SensorError
+from insulator_rs.exceptions import InsulatorError, SensorError
 from insulator_rs.sensors import CameraFrame
 
 
@@ -77,6 +77,7 @@ class OpenCvCamera:
         self.frames = 0
         self.read_failures = 0
         self.size_mismatch = 0
+        self.unstamped = 0
         self.ended = False
 
     def start(self) -> OpenCvCamera:
@@ -99,7 +100,11 @@ class OpenCvCamera:
                 time.sleep(min(0.5, 0.01 * failures_in_row))
                 continue
             failures_in_row = 0
-            stamp = self._now() - self.latency_s
+            try:
+                stamp = self._now() - self.latency_s
+            except InsulatorError:  # no vehicle time yet (before the first telemetry)
+                self.unstamped += 1
+                continue
             self._take(image, stamp)
             if period:
                 next_t += period
@@ -127,7 +132,7 @@ class OpenCvCamera:
 
     def health(self) -> dict[str, object]:
         return {"camera_source": str(self.source), "camera_kind": self.kind, "camera_frames": self.frames,
-                "camera_read_failures": self.read_failures, "camera_size_mismatch": self.size_mismatch,
+                "camera_read_failures": self.read_failures, "camera_size_mismatch": self.size_mismatch, "camera_unstamped": self.unstamped,
                 "camera_ended": self.ended}
 
     def close(self) -> None:

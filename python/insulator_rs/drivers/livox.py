@@ -41,7 +41,7 @@ from insulator_rs._core import (
     livox_parse_discovery_ack,
     livox_work_mode_request,
 )
-from insulator_rs.exceptions import SensorError
+from insulator_rs.exceptions import InsulatorError, SensorError
 from insulator_rs.sensors import LidarScan
 from insulator_rs.timesync import OneWaySync
 
@@ -118,7 +118,7 @@ class LivoxMid360:
                  lidar_ip: str | None = None, lidar_command_port: int = PORT_COMMAND,
                  announce_ip: str | None = None,
                  time_map: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
-                 reorder_grace_s: float = 0.005, command_timeout: float = 1.0) -> None:
+                 reorder_grace_s: float = 0.005, resync_gap_s: float = 1.0, command_timeout: float = 1.0) -> None:
         T = np.asarray(T_b_l, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"T_b_l: expected a finite 4x4 matrix, got shape {T.shape}")
@@ -133,7 +133,8 @@ class LivoxMid360:
         self.command_timeout = float(command_timeout)
         self._time_map = time_map
         self.clock = OneWaySync()
-        self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s)
+        self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s,
+                                             resync_gap_s=resync_gap_s)
         self._scans: deque[LidarScan] = deque(maxlen=keep_scans)
         self._imu: deque[ImuBatch] = deque(maxlen=64)
         self._lock = threading.Lock()
@@ -142,6 +143,8 @@ class LivoxMid360:
         self._seq = 0
         self.unmapped_scans = 0
         self.receive_errors = 0
+        self.foreign_datagrams = 0
+        self._sources: dict[int, tuple[str, int]] = {}
         self.sockets: list[socket.socket] = []
         self._point_sock = self._bind(point_port, "point data")
         self._imu_sock = self._bind(imu_port, "IMU data") if imu_port is not None else None
@@ -226,14 +229,28 @@ class LivoxMid360:
             try:
                 ready, _, _ = select.select(socks, [], [], POLL_S)
                 for sock in ready:
-                    data = sock.recv(MAX_DATAGRAM)
-                    self._on_datagram(data, self._now())
-            except (OSError, ValueError):
+                    data, peer = sock.recvfrom(MAX_DATAGRAM)
+                    self._receive(sock, data, peer)
+            except (OSError, ValueError, InsulatorError):
+                # A socket error, or no vehicle time yet (now() before the first telemetry):
+                # that datagram is lost, counted; the thread keeps going.
                 if self._stop.is_set():
                     return
                 self.receive_errors += 1
 
-    def _on_datagram(self, data: bytes, arrival: float) -> None:
+    def _receive(self, sock: socket.socket, data: bytes, peer: tuple[str, int]) -> None:
+        """Takes a datagram from the LiDAR only: from ``lidar_ip`` when configured, else
+        from the first address (IP and port) that sent a valid packet to this socket.
+        Anything else is counted in ``foreign_datagrams`` and never parsed."""
+        source = self._sources.get(sock.fileno())
+        if (self.lidar_ip is not None and peer[0] != self.lidar_ip) or (source is not None and peer != source):
+            self.foreign_datagrams += 1
+            return
+        kind = self._on_datagram(data, self._now())
+        if source is None and kind in ("points", "imu"):
+            self._sources[sock.fileno()] = peer
+
+    def _on_datagram(self, data: bytes, arrival: float) -> str:
         kind = self._assembler.push(data)
         if kind in ("points", "imu", "late") and len(data) >= 36:
             # Validated: stamp of the packet's last sample (timestamp + time_interval).
@@ -243,6 +260,7 @@ class LivoxMid360:
             self._take_imu()
         while (scan := self._assembler.pop_scan()) is not None:
             self._take(scan)
+        return kind
 
     def _map(self, sensor_s: np.ndarray) -> np.ndarray | None:
         if self._time_map is not None:
@@ -285,10 +303,15 @@ class LivoxMid360:
             self._imu.clear()
         return out
 
+    def received(self) -> int:
+        """Datagrams read so far, from the LiDAR or not."""
+        return int(self._assembler.stats()["datagrams"]) + self.foreign_datagrams
+
     def health(self) -> dict[str, object]:
         stats: dict[str, object] = dict(self._assembler.stats())
         stats["receive_errors"] = self.receive_errors
         stats["unmapped_scans"] = self.unmapped_scans
+        stats["foreign_datagrams"] = self.foreign_datagrams
         if self.clock.ready() and self._time_map is None:
             fit = self.clock.fit
             stats["clock_drift_ppm"] = fit.drift * 1e6

@@ -1,10 +1,10 @@
-"""MAVLink 2 link to PX4: the offboard client, a simulated PX4, frame and mode conversions.
+"""MAVLink 2 link to PX4: the offboard client, frame and mode conversions, signing.
 
-``connect_vehicle(None)`` starts the simulated PX4 on loopback and returns the
-client connected to it; ``connect_vehicle("udpin:0.0.0.0:14540")`` (or a serial
-``DEVICE:BAUD``) connects to a real PX4 or its SITL. Both return a
-``insulator_rs.vehicle.Vehicle``. Submodules load pymavlink lazily so importing
-this package stays cheap.
+``connect_vehicle("udpin:0.0.0.0:14540")`` (or a serial ``DEVICE:BAUD``)
+connects to a real PX4 or its SITL and returns a
+``insulator_rs.vehicle.Vehicle``. The simulated PX4 is one of the simulator's
+adapters (``insulator_rs.sim.px4``): nothing here imports the simulator.
+Submodules load pymavlink lazily so importing this package stays cheap.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 __all__ = ["connect_vehicle"]
 
 
-def connect_vehicle(connection: str | None = None, **options: Any) -> MavlinkVehicle:
+def connect_vehicle(connection: str, **options: Any) -> MavlinkVehicle:
     """See ``insulator_rs.mavlink.client.connect_vehicle``."""
     from insulator_rs.mavlink.client import connect_vehicle as _connect
 

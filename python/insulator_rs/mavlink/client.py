@@ -396,39 +396,24 @@ class MavlinkVehicle:
 
 
 def connect_vehicle(
-    connection: str | None = None,
+    connection: str,
     *,
     time_scale: float = 1.0,
     signing_key: bytes | str | os.PathLike[str] | None = None,
-    sim_options: dict[str, Any] | None = None,
     **client_options: Any,
 ) -> MavlinkVehicle:
-    """The MAVLink vehicle the mission flies through.
+    """The MAVLink vehicle the mission flies through: a real PX4 or its SITL.
 
-    ``connection=None`` starts the simulated PX4 (``px4_sim.SimulatedPx4``) on a
-    free loopback port and connects to it (``udpout``); the returned client owns
-    it (``client.simulator``) and stops it on ``close()``. Otherwise
-    ``connection`` is a pymavlink connection string for a real PX4 or its SITL,
-    e.g. ``udpin:0.0.0.0:14540`` or ``/dev/ttyTHS1:921600``. ``signing_key`` is
-    the 32-byte key or the path of a key file (``signing.load_signing_key``);
-    with it every message is signed and unsigned ones are ignored, on both ends.
-    ``time_scale`` is the simulator's speed-up (keep 1.0 for a real vehicle).
+    ``connection`` is a pymavlink connection string, e.g. ``udpin:0.0.0.0:14540``
+    (PX4 SITL's offboard port) or ``/dev/ttyTHS1:921600``. ``signing_key`` is the
+    32-byte key or the path of a key file (``signing.load_signing_key``); with it
+    every message is signed and unsigned ones are ignored, on both ends.
+    ``time_scale`` is the SITL's speed factor (keep 1.0 for a real vehicle). The
+    simulated PX4 is an adapter of the simulator: ``insulator_rs.sim.px4.connect_simulated_px4``.
     """
+    if connection is None:
+        raise TypeError("connection must be a MAVLink connection string; the simulated PX4 is started "
+                        "by insulator_rs.sim.px4.connect_simulated_px4")
     if signing_key is not None and not isinstance(signing_key, bytes):
         signing_key = load_signing_key(signing_key)
-    if connection is not None:
-        if sim_options:
-            raise ValueError("sim_options only apply when connection is None (the built-in simulated PX4)")
-        return MavlinkVehicle(connection, time_scale=time_scale, signing_key=signing_key, **client_options)
-    from insulator_rs.mavlink.px4_sim import SimulatedPx4
-
-    sim = SimulatedPx4(time_scale=time_scale, signing_key=signing_key, **(sim_options or {})).start()
-    try:
-        host, port = sim.address
-        client = MavlinkVehicle(f"udpout:{host}:{port}", time_scale=time_scale, signing_key=signing_key,
-                                **client_options)
-    except BaseException:
-        sim.stop()
-        raise
-    client.simulator = sim
-    return client
+    return MavlinkVehicle(connection, time_scale=time_scale, signing_key=signing_key, **client_options)

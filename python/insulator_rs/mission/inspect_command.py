@@ -133,12 +133,14 @@ def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time
     :func:`kinematic_vehicle`) when ``connection`` is None, else to that autopilot with W's
     origin put at the tower base."""
     from insulator_rs.mavlink import connect_vehicle
+    from insulator_rs.sim.px4 import connect_simulated_px4
 
     tower = mission.tower
-    sim_options = None
     if connection is None:
         sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt)}
-    vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
+        vehicle = connect_simulated_px4(time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
+    else:
+        vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key)
     if connection is not None:
         try:
             vehicle.set_world_origin(tower.lat, tower.lon, tower.alt)

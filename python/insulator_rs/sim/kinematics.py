@@ -16,7 +16,7 @@ Two layers:
   simulation clock, an image-capture log with the pose of every image, and
   fault injection (pilot mode change, GPS glitch or loss). It implements
   ``insulator_rs.vehicle.Vehicle``. The simulated PX4 on MAVLink
-  (``insulator_rs.mavlink.px4_sim``) wraps this same class, so the in-process
+  (``insulator_rs.sim.px4``) wraps this same class, so the in-process
   path and the MAVLink path fly the same vehicle.
 
 Everything here is in the world frame W (ENU, metres, radians, seconds).

@@ -1,23 +1,33 @@
 //! DBSCAN on 3-D points with scikit-learn's semantics.
 //!
-//! The work is done on a uniform grid (module `dbscan_grid`: near-linear, no neighbour lists);
-//! clouds too wide for its packed cell keys fall back to kiddo's ImmutableKdTree here. The
-//! immutable tree is used on purpose: kiddo's mutable tree panics when a bucket fills with
-//! equal coordinates, which LiDAR scan lines produce routinely. Both give identical labels.
+//! Layout (no module imports its parent): `clustering` holds what every back end returns and
+//! the merge of independent parts; `grid` is the near-linear uniform-grid DBSCAN that does the
+//! work; `kdtree` is kiddo's kd-tree version, for the one case the grid cannot take; this module
+//! validates the arguments and splits the cloud.
+//!
+//! A far point must not cost more than a near one. The grid packs cell coordinates into 21
+//! bits per axis, so a cloud whose bounding box needs more cells than that (60,000 dense points
+//! plus ONE stray LiDAR return 1e7 m away) used to fall back to the kd-tree for the whole
+//! cloud: 34 s and 6.4 GB. Now such a cloud is first cut at gaps: two points whose coordinates
+//! differ by more than `eps` along an axis are never neighbours, so sorting along x (then y,
+//! then z) and cutting wherever consecutive points are more than `eps` apart gives parts that
+//! no neighbourhood crosses. Each part is clustered on its own grid and the labels are merged
+//! in scikit-learn's numbering. This is exact (nothing is dropped; far points keep their true
+//! labels: noise, or their own cluster) and costs one sort of the cloud on top of the grid.
+//! The kd-tree remains only for a part that is one connected chain of points over more than
+//! 2^21 cells per axis (about 360 km for eps = 0.3 m, which needs millions of points).
 
-use kiddo::immutable::float::kdtree::ImmutableKdTree;
-use kiddo::SquaredEuclidean;
-
-use crate::dbscan_grid::dbscan_grid;
 use crate::error::{check_positive, invalid, Result};
 use crate::points::{collect_finite, PointCloud};
 
-/// Label of points that belong to no cluster.
-pub const NOISE: i32 = -1;
+mod clustering;
+mod grid;
+mod kdtree;
 
-/// Points per kd-tree leaf bucket (kiddo's default).
-const BUCKET: usize = 32;
-type Tree = ImmutableKdTree<f64, u32, 3, BUCKET>;
+pub use clustering::NOISE;
+use clustering::{merge, Clustering};
+use grid::dbscan_grid;
+use kdtree::dbscan_kdtree;
 
 /// Labels each point with its cluster (0, 1, ...) or [`NOISE`].
 ///
@@ -47,110 +57,69 @@ pub fn dbscan<P: PointCloud + ?Sized>(points: &P, eps: f64, min_points: usize) -
     Ok(labels)
 }
 
-/// Most neighbour indices kept between the two passes (u32 each: 64 MiB). Beyond it the
-/// neighbourhoods of core points are queried again while expanding, so memory stays O(N).
-const NEIGHBOUR_BUDGET: usize = 16 << 20;
-
 /// DBSCAN on points already known to be finite (validated arguments). Crate-internal so
 /// localize can cluster its finite copy without re-scanning it.
 pub(crate) fn dbscan_finite(coords: &[[f64; 3]], eps: f64, min_points: usize) -> Vec<i32> {
-    dbscan_grid(coords, eps, min_points).unwrap_or_else(|| dbscan_kdtree(coords, eps, min_points))
+    cluster_finite(coords, eps, min_points).labels
 }
 
-/// The kd-tree version (for clouds wider than the grid's cell keys allow, and as a cross-check).
-fn dbscan_kdtree(coords: &[[f64; 3]], eps: f64, min_points: usize) -> Vec<i32> {
-    dbscan_with_budget(coords, eps, min_points, NEIGHBOUR_BUDGET)
+/// The grid on the whole cloud when it fits; otherwise the cloud is cut at gaps wider than
+/// `eps` (module docs) and every part is tried again, down to the kd-tree for a part that
+/// cannot be cut.
+fn cluster_finite(coords: &[[f64; 3]], eps: f64, min_points: usize) -> Clustering {
+    if let Some(whole) = dbscan_grid(coords, eps, min_points) {
+        return whole;
+    }
+    let mut done: Vec<(Vec<u32>, Clustering)> = Vec::new();
+    // An explicit work list, not recursion: a hostile cloud could shed one point per cut.
+    let mut todo: Vec<Vec<u32>> = Vec::new();
+    let mut settle = |part: Vec<u32>, sub: &[[f64; 3]], todo: &mut Vec<Vec<u32>>| match cut_at_gaps(sub, eps) {
+        // Each piece back in input order: a part's clusters are numbered by their first core
+        // point in the order given, which must be the cloud's order for the merge to hold.
+        Some(pieces) => todo.extend(pieces.into_iter().map(|mut p| {
+            p.sort_unstable();
+            p.into_iter().map(|k| part[k as usize]).collect()
+        })),
+        None => done.push((part, dbscan_kdtree(sub, eps, min_points))),
+    };
+    settle((0..coords.len() as u32).collect(), coords, &mut todo);
+    let mut grid_parts = Vec::new();
+    while let Some(part) = todo.pop() {
+        let sub: Vec<[f64; 3]> = part.iter().map(|&i| coords[i as usize]).collect();
+        match dbscan_grid(&sub, eps, min_points) {
+            Some(c) => grid_parts.push((part, c)),
+            None => settle(part, &sub, &mut todo),
+        }
+    }
+    done.extend(grid_parts);
+    merge(coords.len(), &done)
 }
 
-/// Groups exactly equal points: returns the distinct points, their multiplicities and,
-/// for each input point, the index of its distinct point. Many LiDARs report every missing
-/// return as (0, 0, 0), so without this a cloud could hold one neighbourhood of N points.
-fn deduplicate(coords: &[[f64; 3]]) -> (Vec<[f64; 3]>, Vec<usize>, Vec<u32>) {
-    // +0.0 turns -0.0 into 0.0 so equal coordinates share a bit pattern.
-    let key = |p: &[f64; 3]| [(p[0] + 0.0).to_bits(), (p[1] + 0.0).to_bits(), (p[2] + 0.0).to_bits()];
-    let mut order: Vec<u32> = (0..coords.len() as u32).collect();
-    order.sort_unstable_by_key(|&i| key(&coords[i as usize]));
-    let mut unique: Vec<[f64; 3]> = Vec::with_capacity(coords.len());
-    let mut weight: Vec<usize> = Vec::with_capacity(coords.len());
-    let mut rep = vec![0u32; coords.len()];
-    let mut last: Option<[u64; 3]> = None;
-    for &i in &order {
-        let k = key(&coords[i as usize]);
-        if last != Some(k) {
-            unique.push(coords[i as usize]);
-            weight.push(0);
-            last = Some(k);
-        }
-        let u = unique.len() - 1;
-        weight[u] += 1;
-        rep[i as usize] = u as u32;
-    }
-    (unique, weight, rep)
-}
-
-fn dbscan_with_budget(coords: &[[f64; 3]], eps: f64, min_points: usize, budget: usize) -> Vec<i32> {
-    let m = coords.len();
-    if m == 0 {
-        return Vec::new();
-    }
-    let (unique, weight, rep) = deduplicate(coords);
-    let u_count = unique.len();
-    let tree = Tree::new_from_slice(&unique);
-    let eps2 = eps * eps;
-    let query = |q: &[f64; 3]| tree.within_unsorted::<SquaredEuclidean>(q, eps2);
-
-    // Pass 1: weighted neighbour count of every distinct point; the neighbourhoods of core
-    // points (the only ones expanded) are kept in one flat buffer while it fits the budget.
-    let mut is_core = vec![false; u_count];
-    let mut starts = vec![0usize; u_count + 1];
-    let mut neighbours: Vec<u32> = Vec::with_capacity(u_count * min_points.min(32));
-    let mut stored = true;
-    for (k, q) in unique.iter().enumerate() {
-        let found = query(q);
-        let count: usize = found.iter().map(|nn| weight[nn.item as usize]).sum();
-        if count >= min_points {
-            is_core[k] = true;
-            if stored {
-                if neighbours.len() + found.len() > budget {
-                    stored = false;
-                    neighbours = Vec::new();
-                } else {
-                    neighbours.extend(found.iter().map(|nn| nn.item));
-                }
+/// Cuts `coords` into parts along the first axis (x, y, z) that has a gap wider than `eps`
+/// between consecutive sorted coordinates; `None` when no axis has one. Points of different
+/// parts differ by more than `eps` along that axis, so they are never neighbours.
+fn cut_at_gaps(coords: &[[f64; 3]], eps: f64) -> Option<Vec<Vec<u32>>> {
+    for axis in 0..3 {
+        let mut order: Vec<u32> = (0..coords.len() as u32).collect();
+        order.sort_unstable_by(|&a, &b| coords[a as usize][axis].total_cmp(&coords[b as usize][axis]));
+        let mut parts: Vec<Vec<u32>> = vec![Vec::new()];
+        let mut last: Option<f64> = None;
+        for &i in &order {
+            let v = coords[i as usize][axis];
+            // `v - prev` may overflow to +inf for points near +-f64::MAX: still a gap.
+            if last.is_some_and(|prev| v - prev > eps) {
+                parts.push(Vec::new());
+            }
+            last = Some(v);
+            if let Some(p) = parts.last_mut() {
+                p.push(i);
             }
         }
-        if stored {
-            starts[k + 1] = neighbours.len();
+        if parts.len() > 1 {
+            return Some(parts);
         }
     }
-
-    // Pass 2: expand clusters from core points in input index order (sklearn's dbscan_inner).
-    let mut labels = vec![NOISE; u_count];
-    let mut stack: Vec<u32> = Vec::new();
-    let mut next_label: i32 = 0;
-    for &seed in &rep {
-        if labels[seed as usize] != NOISE || !is_core[seed as usize] {
-            continue;
-        }
-        stack.push(seed);
-        while let Some(i) = stack.pop() {
-            let i = i as usize;
-            if labels[i] != NOISE {
-                continue;
-            }
-            labels[i] = next_label;
-            if !is_core[i] {
-                continue;
-            }
-            if stored {
-                stack.extend(neighbours[starts[i]..starts[i + 1]].iter().filter(|&&j| labels[j as usize] == NOISE));
-            } else {
-                stack.extend(query(&unique[i]).iter().map(|nn| nn.item).filter(|&j| labels[j as usize] == NOISE));
-            }
-        }
-        next_label += 1;
-    }
-    rep.iter().map(|&u| labels[u as usize]).collect()
+    None
 }
 
 /// Number of clusters in a label vector (largest label + 1).
@@ -161,6 +130,7 @@ pub fn n_clusters(labels: &[i32]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use kdtree::{dbscan_with_budget, NEIGHBOUR_BUDGET};
     use proptest::prelude::*;
     use std::collections::HashMap;
 
@@ -367,16 +337,58 @@ mod tests {
         assert!(labels.iter().all(|&l| l == 0));
         // A sparser cube where cells are below min_points: still matches the kd-tree.
         let sparse: Vec<[f64; 3]> = pts[..2000].iter().map(|p| [p[0] * 20.0, p[1] * 20.0, p[2] * 20.0]).collect();
-        assert_eq!(dbscan(&sparse, 0.3, 5).unwrap(), dbscan_kdtree(&sparse, 0.3, 5));
+        assert_eq!(dbscan(&sparse, 0.3, 5).unwrap(), dbscan_kdtree(&sparse, 0.3, 5).labels);
     }
 
     #[test]
-    fn huge_extent_falls_back_to_the_tree() {
-        // 1e12 m apart needs more cells than the packed keys hold: the kd-tree answers.
-        let pts = vec![[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [1e12, 0.0, 0.0], [1e12, 0.1, 0.0], [-1e300, 0.0, 0.0]];
-        assert!(crate::dbscan_grid::dbscan_grid(&pts, 0.3, 2).is_none());
-        assert_eq!(dbscan(&pts, 0.3, 2).unwrap(), vec![0, 0, 1, 1, -1]);
-        assert_equivalent(&pts[..4], 0.3, 2);
+    fn huge_extent_is_cut_at_gaps() {
+        // 1e12 m apart needs more cells than the packed keys hold: the cloud is cut at its gaps
+        // and each part gridded; the kd-tree gives the same answer on the whole cloud.
+        let pts = vec![[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [1e12, 0.0, 0.0], [1e12, 0.1, 0.0], [-1e300, 0.0, 0.0],
+                       [f64::MAX, f64::MAX, 0.0], [-f64::MAX, 0.0, f64::MAX]];
+        assert!(dbscan_grid(&pts, 0.3, 2).is_none());
+        assert_eq!(dbscan(&pts, 0.3, 2).unwrap(), vec![0, 0, 1, 1, -1, -1, -1]);
+        assert_eq!(cluster_finite(&pts, 0.3, 2), dbscan_kdtree(&pts, 0.3, 2));
+        assert_equivalent(&pts, 0.3, 2);
+        assert_equivalent(&pts, 0.3, 1);
+    }
+
+    #[test]
+    fn one_far_point_changes_nothing_else() {
+        // A dense clump (cells far above min_points) plus one stray return 1e7 m away: the same
+        // labels as without it (that cloud used to take the kd-tree: 34 s at 60,000 points).
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let near: Vec<[f64; 3]> = (0..20_000).map(|_| [next() * 2.0, next() * 0.5, next() * 0.5]).collect();
+        let alone = dbscan(&near, 0.3, 10).unwrap();
+        for far in [[1e7, 0.0, 0.0], [0.0, -1e7, 3.0], [5.0, 5.0, 1e12], [-1e300, 0.0, 0.0]] {
+            let mut pts = near.clone();
+            pts.insert(1234, far);
+            let labels = dbscan(&pts, 0.3, 10).unwrap();
+            assert_eq!(labels[1234], NOISE);
+            assert_eq!([&labels[..1234], &labels[1235..]].concat(), alone);
+        }
+    }
+
+    #[test]
+    fn merge_numbers_clusters_by_first_core_point() {
+        // Part B's border point comes first in index order, then part A's core, then B's cores:
+        // A's cluster is 0 (its core comes first), B's is 1, as scikit-learn numbers them.
+        let pts = vec![[1e6, 0.0, 0.0], [0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [1e6 + 0.15, 0.0, 0.0],
+                       [1e6 + 0.2, 0.0, 0.0], [1e6 + 0.25, 0.0, 0.0]];
+        assert_eq!(dbscan(&pts, 0.1, 2).unwrap(), vec![-1, 0, 0, 1, 1, 1]);
+        assert_eq!(dbscan(&pts, 0.16, 3).unwrap(), vec![0, -1, -1, 0, 0, 0]);
+        assert_equivalent(&pts, 0.16, 3);
+        let pts = vec![[1e6, 0.0, 0.0], [0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.1, 0.0, 0.0],
+                       [1e6 + 0.1, 0.0, 0.0], [1e6 + 0.2, 0.0, 0.0], [1e6 + 0.3, 0.0, 0.0]];
+        // eps 0.1, min 3: B's first point (index 0) is a border point of B's cluster.
+        assert_eq!(dbscan(&pts, 0.1 + 1e-9, 3).unwrap(), vec![1, 0, 0, 0, 1, 1, 1]);
+        assert_equivalent(&pts, 0.1 + 1e-9, 3);
     }
 
     proptest! {
@@ -390,7 +402,7 @@ mod tests {
             eps in prop::sample::select(vec![0.1, 0.2, 0.3, 0.5]), min_points in 1usize..12,
         ) {
             let pts: Vec<[f64; 3]> = pts.iter().map(|p| p.map(|v| f64::from(v) * scale)).collect();
-            let grid = crate::dbscan_grid::dbscan_grid(&pts, eps, min_points);
+            let grid = dbscan_grid(&pts, eps, min_points);
             prop_assert_eq!(grid, Some(dbscan_kdtree(&pts, eps, min_points)));
         }
 
@@ -402,6 +414,26 @@ mod tests {
         ) {
             let pts: Vec<[f64; 3]> = pts.iter().map(|p| [f64::from(p[0]) * 0.1, f64::from(p[1]) * 0.1, f64::from(p[2]) * 0.1]).collect();
             assert_equivalent(&pts, f64::from(eps_steps) * 0.1 + 1e-9, min_points);
+        }
+
+        /// Clumps of which some are moved 1e9 m (or 1e300 m) away along a random axis: the cloud is
+        /// cut at its gaps and merged; labels as the brute force, and as the kd-tree exactly.
+        #[test]
+        fn far_parts_match_brute_force_and_kdtree(
+            pts in prop::collection::vec((prop::array::uniform3(0i32..10), 0usize..4), 1..200),
+            axis in 0usize..3, far in prop::sample::select(vec![1e9, -1e9, 1e300]),
+            eps_steps in 1i32..4, min_points in 1usize..6,
+        ) {
+            let pts: Vec<[f64; 3]> = pts.iter().map(|(p, group)| {
+                let mut q = p.map(|v| f64::from(v) * 0.1);
+                if *group > 0 {
+                    q[axis] += far * *group as f64;
+                }
+                q
+            }).collect();
+            let eps = f64::from(eps_steps) * 0.1 + 1e-9;
+            assert_equivalent(&pts, eps, min_points);
+            prop_assert_eq!(cluster_finite(&pts, eps, min_points), dbscan_kdtree(&pts, eps, min_points));
         }
 
         #[test]

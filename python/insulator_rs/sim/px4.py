@@ -44,6 +44,7 @@ from __future__ import annotations
 import argparse
 import heapq
 import math
+import os
 import random
 import select
 import socket
@@ -58,6 +59,7 @@ import numpy as np
 import pymap3d  # type: ignore[import-untyped]
 
 from insulator_rs.mavlink import px4_modes
+from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2
@@ -600,8 +602,33 @@ class SimulatedPx4:
             capabilities, 0, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, self.system_id))
 
 
+def connect_simulated_px4(
+    *,
+    time_scale: float = 1.0,
+    signing_key: bytes | str | os.PathLike[str] | None = None,
+    sim_options: dict[str, Any] | None = None,
+    **client_options: Any,
+) -> MavlinkVehicle:
+    """Start a ``SimulatedPx4`` on a free loopback port and connect the MAVLink client to it
+    (``udpout``). The client owns the simulator (``client.simulator``) and stops it on
+    ``close()``. ``sim_options`` go to ``SimulatedPx4``, ``client_options`` to ``MavlinkVehicle``;
+    ``signing_key`` (bytes or a key file) is used by both ends."""
+    if signing_key is not None and not isinstance(signing_key, bytes):
+        signing_key = load_signing_key(signing_key)
+    sim = SimulatedPx4(time_scale=time_scale, signing_key=signing_key, **(sim_options or {})).start()
+    try:
+        host, port = sim.address
+        client = MavlinkVehicle(f"udpout:{host}:{port}", time_scale=time_scale, signing_key=signing_key,
+                                **client_options)
+    except BaseException:
+        sim.stop()
+        raise
+    client.simulator = sim
+    return client
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the simulated PX4 standalone: ``python -m insulator_rs.mavlink.px4_sim``."""
+    """Run the simulated PX4 standalone: ``python -m insulator_rs.sim.px4``."""
     parser = argparse.ArgumentParser(description="Simulated PX4 multirotor on loopback UDP (MAVLink 2).")
     parser.add_argument("--port", type=int, default=18570, help="UDP port to listen on (default 18570)")
     parser.add_argument("--remote", default="127.0.0.1:14540",
