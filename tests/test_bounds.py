@@ -289,3 +289,19 @@ def test_runaway_counts_are_refused(argv, flag, capsys):
         main(argv)
     assert exit_info.value.code == 2
     assert f"argument {flag}: must lie in" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", "localization", "--out", ""],
+    ["eval", "efficiency", "--out", " "],
+    ["dataset", "--out", ""],
+    ["train", "--out", "", "--data", "x"],
+])
+def test_empty_out_folder_is_refused(argv, capsys):
+    """``--out ''`` used to write into the current folder (issue 13 item 7)."""
+    from insulator_rs.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert "argument --out: must name a report folder" in capsys.readouterr().err

@@ -605,6 +605,7 @@ class InspectionRun:
             "distance_m": float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
             "detection_events": self.events,
             "localizations": self.localizations,
+            "refused_not_insulator": dict(self.perception.not_insulator),
             "insulators_found": len(insulators),
             "insulators_in_scene": len(self.tower.insulators),
             "insulators_matched": len(found_gt),
@@ -649,7 +650,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the report in --out: the new run is written beside it and swapped in "
                         "when it ends, so the old report stays whole until then")
-    p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
+    p.add_argument("--method", default="dbscan+ransac",
+                   choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", "bounded"),
+                   help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
     p.add_argument("--seed", type=bounds.option("--seed"), default=0)

@@ -1,0 +1,87 @@
+"""``--lidar`` and ``--camera`` of ``insulator-rs inspect``: flying with live sensors.
+
+Kept here so the command's module only registers, checks and opens (three calls):
+
+* :func:`add_arguments` adds the flags;
+* :func:`check_arguments` refuses a combination that cannot fly, before anything flies;
+* :func:`open_from_arguments` starts the vehicle clock (telemetry stamps), the Mid-360
+  driver and the camera, and returns them as one ``Sensors``.
+
+A live flight needs both sensors (each detection is paired with the LiDAR points of the
+same instant), a real autopilot (``--connection``: the vehicle clock is its telemetry's),
+and a detection network (``--detector``: there is no ground truth to stand in for it).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from insulator_rs.drivers.live_sensors import LiveSensors, open_live_sensors
+from insulator_rs.drivers.livox import parse_url
+from insulator_rs.exceptions import SensorError
+from insulator_rs.timesync import TelemetryClock
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--lidar", default=None, metavar="URL",
+                        help="live Livox Mid-360: mid360://HOST (configure and start the sensor at HOST) or "
+                             "mid360://listen[:PORT] (only listen, default port 56301); needs --connection, "
+                             "--camera and --detector")
+    parser.add_argument("--camera", default=None, metavar="SOURCE",
+                        help="live camera through OpenCV: a V4L2 index (0), a GStreamer pipeline ending in "
+                             "appsink, or a video file; its frames must match the rig's calibration size")
+
+
+def check_arguments(args: argparse.Namespace) -> bool:
+    """True for a live flight; ValueError (naming the flag) for one that cannot fly."""
+    lidar, camera = getattr(args, "lidar", None), getattr(args, "camera", None)
+    if lidar is None and camera is None:
+        return False
+    if lidar is None or camera is None:
+        missing = "--lidar" if lidar is None else "--camera"
+        raise ValueError(f"{missing}: a live flight needs both --lidar and --camera "
+                         "(each detection is paired with the LiDAR points of the same instant)")
+    if not getattr(args, "connection", None):
+        raise ValueError("--lidar/--camera: live sensors fly a real autopilot: add --connection")
+    if getattr(args, "sim_sensors", False):
+        raise ValueError("--lidar/--camera: not with --sim-sensors (the sensors are either live or simulated)")
+    if not getattr(args, "detector", None):
+        raise ValueError("--camera: a live camera needs a detection network: add --detector")
+    try:
+        parse_url(lidar)
+    except SensorError as exc:
+        raise ValueError(str(exc)) from exc
+    return True
+
+
+class _ClockedSensors(LiveSensors):
+    """LiveSensors that also stop the vehicle clock they were stamped with."""
+
+    def __init__(self, inner: LiveSensors, clock: TelemetryClock) -> None:
+        super().__init__(inner.lidar, inner.camera)
+        self.clock = clock
+
+    def health(self) -> dict[str, object]:
+        out = super().health()
+        out["clock_errors"] = self.clock.errors
+        return out
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            self.clock.close()
+
+
+def open_from_arguments(args: argparse.Namespace, vehicle: Any, rig: Any) -> LiveSensors:
+    """Starts the vehicle clock (from ``vehicle.state().time``), the Mid-360 and the camera
+    of ``args`` with the extrinsics and calibration of ``rig``; SensorError names what failed."""
+    clock = TelemetryClock(lambda: vehicle.state().time).start()
+    try:
+        sensors = open_live_sensors(args.lidar, args.camera, now=clock.now, T_b_l=rig.T_b_l, T_b_c=rig.T_b_c,
+                                    camera_model=rig.camera)
+    except BaseException:
+        clock.close()
+        raise
+    return _ClockedSensors(sensors, clock)
