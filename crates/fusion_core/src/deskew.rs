@@ -9,7 +9,8 @@
 //! with `T_w_b(t)` interpolated in SE(3) from a pose stream: slerp of the rotation and
 //! lerp of the translation between the two poses around `t` (what ROS' tf2 and most LIO
 //! front ends do). [`deskew_points_in_boxes`] fuses the deskew with the projection and
-//! the box culling of [`crate::points_in_boxes`] in one pass over the cloud.
+//! the box culling of [`crate::points_in_boxes`] in one parallel pass over the cloud (per
+//! chunk: deskew, then cull the chunk while it is in cache).
 //!
 //! Why the per-knot precomputation below is exact: quaternion slerp is bi-invariant
 //! (`slerp(M q0 N, M q1 N, s) = M slerp(q0, q1, s) N`), so the rotation of
@@ -22,7 +23,7 @@ use nalgebra::{Isometry3, UnitQuaternion};
 use rayon::prelude::*;
 
 use crate::camera::CameraModel;
-use crate::culling::{PixelBox, PARALLEL_MIN_POINTS};
+use crate::culling::{cull_range, PixelBox, PARALLEL_MIN_POINTS};
 use crate::error::{invalid, Result};
 use crate::points::PointCloud;
 use crate::projection::Projector;
@@ -338,28 +339,26 @@ pub fn deskew_points_in_boxes<P: PointCloud + Sync + ?Sized>(
         parts.push((r, head));
         rest = tail;
     }
+    // Per chunk: deskew into the output, then cull that cache-hot slice (the culling loop of
+    // `points_in_boxes`, measured faster than interleaving both per point).
     let lists: Vec<Vec<Vec<usize>>> = parts
         .into_par_iter()
         .map(|(r, slice)| {
-            let mut lists: Vec<Vec<usize>> = vec![Vec::new(); boxes.len()];
             let mut k = r.clone().next().map_or(0, |i| motion.start_segment(times[i]));
             let start = r.start;
             points.for_each_point_in(r, |i, p| {
-                let q = motion.apply(p, times[i], &mut k);
-                slice[i - start] = q;
-                if !any_box {
-                    return;
-                }
-                let Some(uv) = projector.pixel(q) else { return };
-                if !union.contains(uv) {
-                    return;
-                }
-                for (b, list) in boxes.iter().zip(lists.iter_mut()) {
-                    if b.contains(uv) {
-                        list.push(i);
-                    }
-                }
+                slice[i - start] = motion.apply(p, times[i], &mut k);
             });
+            if !any_box {
+                return vec![Vec::new(); boxes.len()];
+            }
+            let local: &[[f64; 3]] = slice;
+            let mut lists = cull_range(local, 0..local.len(), &projector, boxes, &union);
+            for list in &mut lists {
+                for i in list.iter_mut() {
+                    *i += start;
+                }
+            }
             lists
         })
         .collect();
