@@ -15,6 +15,20 @@ def insulator(center, axis, n, rng):
     return center + t * axis + rng.normal(0, 0.02, (n, 3))
 
 
+def string_of_sheds(center, axis, n, rng):
+    """Returns from a string of sheds: along the axis, at a random radius between the core's
+    (0.025 m) and the sheds' (0.12 m), all round it, with 2 cm noise (a string's shape, which the
+    false-find filter checks)."""
+    t = rng.uniform(-1.0, 1.0, n)[:, None]
+    u = axis / np.linalg.norm(axis)
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    a = rng.uniform(0.0, 2 * np.pi, n)[:, None]
+    r = rng.uniform(0.025, 0.12, n)[:, None]
+    return center + t * axis + r * (np.cos(a) * e1 + np.sin(a) * e2) + rng.normal(0, 0.02, (n, 3))
+
+
 def box_of(points_w, T_w_b):
     T_c_w = np.linalg.inv(T_w_b @ T_B_C)
     uv, valid = ir.project_points(points_w, T_c_w, CAM)
@@ -71,7 +85,7 @@ def test_scale_check_rejects_a_localization_that_does_not_fit_its_box():
         rng = np.random.default_rng(2)
         per = OnboardPerception(CAM, T_B_C, T_B_L, insulator_length=length)
         T_w_b = np.eye(4)
-        ins = insulator(np.array([8.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 60, rng)
+        ins = string_of_sheds(np.array([8.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 60, rng)
         for _ in range(EVENTS_PER_LOCALIZATION):
             out = per.event(box_of(ins, T_w_b), ins, T_w_b)
         assert len(out) == expected and per.implausible == 1 - expected

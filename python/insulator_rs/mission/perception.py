@@ -19,8 +19,11 @@ from typing import Literal, cast
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.mission.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
 
 Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
+# The fifth method (ir.localize_bounded): the LiDAR line, its ends from the events' boxes.
+BOUNDED = "bounded"
 EVENTS_PER_LOCALIZATION = 3
 # m: a box whose anchor lies this close to a track's belongs to it. Anchors are in W, so
 # they do not move with the vehicle; the gate is below the spacing of neighbouring
@@ -46,6 +49,10 @@ class Track:
 
     anchor: np.ndarray
     events: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
+    # (box, T_w_b) of each event in ``events``: the bounded method's image bounds.
+    views: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
+    # Shed relief (m) of each shape-checked localization of this track (insulator_shape).
+    reliefs: list = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,8 @@ class OnboardPerception:
         self.tracks: list[Track] = []
         self.failures = 0
         self.implausible = 0
+        # Localizations refused because the cluster does not look like an insulator, by reason.
+        self.not_insulator: dict[str, int] = {}
 
     def event(self, boxes: np.ndarray, points_l: np.ndarray, T_w_b: np.ndarray) -> list[Localization]:
         """One detection event: ``boxes`` (K, 4 or 5) px, the LiDAR frame ``points_l`` (N, 3) in L,
@@ -91,12 +100,13 @@ class OnboardPerception:
             anchor = np.median(pts_w[near], axis=0)
             track = self._associate(anchor)
             track.events.append(pts_w)
+            track.views.append((np.asarray(box[:4], dtype=np.float64), np.asarray(T_w_b, dtype=np.float64)))
             if len(track.events) < EVENTS_PER_LOCALIZATION:
                 continue
             acc_w = np.vstack(list(track.events))
             acc_b = acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3]
             try:
-                est = ir.localize(acc_b, method=cast(Method, self.method))
+                est = self._localize(acc_b, track, T_b_w)
             except ir.LocalizationError:
                 self.failures += 1
                 continue
@@ -108,9 +118,38 @@ class OnboardPerception:
             if not self._scale_plausible(center, axis, box, T_w_b):
                 self.implausible += 1
                 continue
+            if not self._looks_like_insulator(acc_b, est, center, axis, box, T_w_b, track):
+                continue
             track.anchor = center
             out.append(Localization(center, axis / np.linalg.norm(axis), int(est.n_points)))
         return out
+
+    def _localize(self, acc_b: np.ndarray, track: Track, T_b_w: np.ndarray) -> ir.Localization | ir.BoundedLocalization:
+        """The configured method on the accumulated cloud (B of the latest event)."""
+        if self.method != BOUNDED:
+            return ir.localize(acc_b, method=cast(Method, self.method))
+        boxes = np.array([b for b, _ in track.views])
+        T_b_c = np.array([T_b_w @ T @ self.T_b_c for _, T in track.views])
+        return ir.localize_bounded(acc_b, boxes, T_b_c, self.camera, insulator_length=self.insulator_length)
+
+    def _looks_like_insulator(self, acc_b: np.ndarray, est: ir.Localization | ir.BoundedLocalization,
+                              center: np.ndarray, axis: np.ndarray, box: np.ndarray, T_w_b: np.ndarray,
+                              track: Track) -> bool:
+        """The false-find filter (insulator_shape): the points on the line and the box must look like
+        a string of the mission's insulators. True without a known length."""
+        if self.insulator_length is None:
+            return True
+        shape = cluster_shape(line_members(acc_b, np.asarray(est.center), np.asarray(est.direction)))
+        if shape is not None:
+            track.reliefs.append(shape.relief)
+        T_c_w = np.linalg.inv(T_w_b @ self.T_b_c)
+        aspect = box_aspect_ratio(center, axis, box, T_c_w, self.camera, length=self.insulator_length)
+        verdict = check_insulator_shape(shape, insulator_length=self.insulator_length, aspect_ratio=aspect,
+                                        relief_history=track.reliefs)
+        for reason in verdict.reasons:
+            key = reason.split(" (")[0]
+            self.not_insulator[key] = self.not_insulator.get(key, 0) + 1
+        return verdict.ok
 
     def _scale_plausible(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
                          T_w_b: np.ndarray) -> bool:
