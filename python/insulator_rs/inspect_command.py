@@ -139,6 +139,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
     p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--record", type=Path, default=None,
+                   help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
+                        "messages in this MCAP file (replay it with `insulator-rs replay`)")
     p.add_argument("--vehicle", choices=("sim", "mavlink"), default=None,
                    help="sim: the in-process kinematic vehicle (default); mavlink: the MAVLink offboard "
                         "client, to the simulated PX4 it starts on loopback unless --connection is given")
@@ -239,9 +242,19 @@ def run(args: argparse.Namespace) -> int:
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
                               quiet=args.quiet)
+    recorder = None
+    if args.record is not None:
+        from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
+        from insulator_rs.recording.writer import McapRecorder
+
+        recorder = McapRecorder(args.record)
+        recorder.metadata(RECORD_NAME, FlightMetadata(
+            mission_text=Path(mission_path).read_text(encoding="utf-8"), mission_suffix=Path(mission_path).suffix,
+            mission_source=str(mission_path),
+            scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
     try:
         loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
-                          overwrite=args.overwrite)
+                          overwrite=args.overwrite, recorder=recorder)
         code = 0
         try:
             loop.fly()
@@ -259,6 +272,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
         sensors.close()
+        if recorder is not None:
+            recorder.close()
     if summary["status"].startswith("aborted"):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)

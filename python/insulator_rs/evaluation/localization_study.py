@@ -75,6 +75,10 @@ PAPER: dict[tuple[str, float], dict[str, tuple[float, float]]] = {
     ("B", 9.0): {"ransac": (0.43, 0.21), "dbscan+ransac": (0.36, 0.23), "dbscan": (0.41, 0.25),
                  "dbscan+pca": (0.41, 0.26)},
 }
+DETECTIONS_PER_EVENT = 3  # the paper accumulates three detection events (the pipeline's EVENTS_PER_LOCALIZATION)
+# A detection event must hold at least this many culled points to count in the motion study's own
+# accumulation (evaluation/motion_study.py); the pipeline's own gate is MIN_POINTS_PER_BOX.
+MIN_POINTS_PER_DETECTION = 1
 # Give up on an event when the target was not detected within this many images.
 MAX_IMAGES_PER_EVENT = 10
 
@@ -165,6 +169,7 @@ class SensorRig:
         self.camera_model = self.camera.model
         self.image_size = (int(self.camera_model.width), int(self.camera_model.height))
         self.T_b_l = self.lidar.T_b_l
+        self.T_c_l = np.linalg.inv(self.camera.T_b_c) @ self.T_b_l
         self.cfg = cfg
         self.seed = seed
 

@@ -86,13 +86,14 @@ class FlightLoop:
 
     def __init__(self, mission: Mission, vehicle: Vehicle, sensors: Sensors, detector: BoxDetector,
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False, recorder: Any = None) -> None:
         self.mission = mission
         self.vehicle = vehicle
         self.sensors = sensors
         self.detector = detector
         self.rig = rig
         self.settings = settings
+        self.recorder = recorder  # insulator_rs.recording.writer.McapRecorder (--record) or None
         self.geom = MissionGeometry.from_mission(mission)
         lim = mission.vehicle
         self.v_max, self.a_max = lim.v_max(), lim.a_max()
@@ -167,11 +168,16 @@ class FlightLoop:
             if frame is None:
                 return
             boxes = np.asarray(self.detector(frame.image), dtype=np.float64)
-            if len(boxes) == 0:
-                return
-            scan = self.sensors.lidar_scan(st.time)
+            # the recorder keeps the raw stream: every frame and its scan, boxes or not
+            scan = self.sensors.lidar_scan(st.time) if len(boxes) or self.recorder is not None else None
         except SensorError as exc:
             self._sensor_error(exc)
+            return
+        if self.recorder is not None:
+            if scan is not None:
+                self.recorder.scan(scan, frame.T_b_c)
+            self.recorder.frame(frame, scan.T_b_l if scan is not None else self.rig.T_b_l)
+        if len(boxes) == 0:
             return
         if scan is not None:
             self.perception.add_scan(scan)
@@ -193,6 +199,8 @@ class FlightLoop:
             scan = None
         if scan is not None:
             self.perception.add_scan(scan)
+            if self.recorder is not None:
+                self.recorder.scan(scan, frame.T_b_c)
         for loc in self.perception.process(frame, boxes):
             self.localizations += 1
             outcome = self.sm.localized(loc.center, loc.axis, st.position, st.time)
@@ -217,7 +225,10 @@ class FlightLoop:
             st = self.vehicle.state()
         t = st.time - self.t_start
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
-        self.perception.add_pose(PoseStamped(st.time, pose_from_yaw(st.position, st.yaw)))
+        pose = PoseStamped(st.time, pose_from_yaw(st.position, st.yaw))
+        self.perception.add_pose(pose)
+        if self.recorder is not None:
+            self.recorder.pose(pose, st.velocity)
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
             self._pair_pending(st)
             if st.time >= self._next_detect:
