@@ -78,7 +78,11 @@ def test_accumulated_points_lie_on_the_target_insulator():
         got = study._accumulate(rig, target.instance_id, trajectory, times, det, rng, cfg)
         if got is None:
             continue
-        points_b, ids, T_w_b = got
+        points_b, ids, T_w_b = got.points_b, got.hit_ids, got.T_w_b
+        # The bounded method's views: one box per event, the latest camera pose in its own B is
+        # the mount itself (exact odometry).
+        assert got.boxes.shape == (3, 4) and got.T_b_c.shape == (3, 4, 4)
+        assert np.allclose(got.T_b_c[-1], rig.camera.T_b_c, atol=1e-12)
         p_w = points_b[ids == target.instance_id] @ T_w_b[:3, :3].T + T_w_b[:3, 3]
         assert len(p_w) >= 10
         rel = p_w - target.center

@@ -45,9 +45,9 @@ import numpy as np
 
 from insulator_rs.mission import bounds
 
-METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca")
+METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
 METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
-                 "dbscan+pca": "DBSCAN + PCA"}
+                 "dbscan+pca": "DBSCAN + PCA", "bounded": "Bounded (cam.)"}
 TOWERS: dict[str, str] = {"A": "tower_a", "B": "tower_b"}
 # The paper's cells: tower A at 8, 9, 10 m, tower B at 8, 9 m.
 DEFAULT_STANDOFFS: dict[str, tuple[float, ...]] = {"A": (8.0, 9.0, 10.0), "B": (8.0, 9.0)}
@@ -233,15 +233,28 @@ def _event_poses(tower, target, standoff: float, rng: np.random.Generator,
     return trajectory, times
 
 
+@dataclass(frozen=True)
+class Accumulated:
+    """The target's last 3 detection events: ``points_b`` in B of the latest one, ``hit_ids`` the
+    instance id each point hit (ground truth), ``T_w_b`` the latest event's odometry pose, and for
+    the bounded method each event's ``boxes`` (K, 4) px with its camera pose ``T_b_c`` (K, 4, 4)
+    in that same B (through the odometry)."""
+
+    points_b: np.ndarray
+    hit_ids: np.ndarray
+    T_w_b: np.ndarray
+    boxes: np.ndarray
+    T_b_c: np.ndarray
+
+
 def _accumulate(rig: SensorRig, target_id: int, trajectory: Callable[[float], np.ndarray],
                 times: Sequence[float], detector, rng: np.random.Generator,
-                cfg: StudyConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Points of the target's last 3 detection events in B of the latest one, the instance id
-    each point hit (ground truth) and the latest event's odometry pose T_w_b (estimated).
-    None when the target was not detected 3 times."""
+                cfg: StudyConfig) -> Accumulated | None:
+    """The target's last 3 detection events (see :class:`Accumulated`); None when the target was
+    not detected 3 times."""
     import insulator_rs as ir
 
-    culled: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (points in L, ids, odometry T_w_b)
+    culled: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (points in L, ids, odometry T_w_b, box)
     for t in times:
         T_w_b = trajectory(t)
         box = rig.target_box(T_w_b, target_id)
@@ -257,7 +270,7 @@ def _accumulate(rig: SensorRig, target_id: int, trajectory: Callable[[float], np
         idx = ir.points_in_boxes(points_l, rig.T_c_l, rig.camera_model, mine[:1, :4])[0]
         if len(idx) < MIN_POINTS_PER_DETECTION:
             continue
-        culled.append((points_l[idx], hit_ids[idx], _noisy(T_w_b, rng, cfg)))
+        culled.append((points_l[idx], hit_ids[idx], _noisy(T_w_b, rng, cfg), mine[0, :4]))
         if len(culled) == DETECTIONS_PER_EVENT:
             break
     if len(culled) < DETECTIONS_PER_EVENT:
@@ -265,10 +278,12 @@ def _accumulate(rig: SensorRig, target_id: int, trajectory: Callable[[float], np
     T_w_b_last = culled[-1][2]
     T_b_w_last = np.linalg.inv(T_w_b_last)
     parts = []
-    for pts_l, _, T_w_b in culled:
+    for pts_l, _, T_w_b, _ in culled:
         T = T_b_w_last @ T_w_b @ rig.T_b_l
         parts.append(pts_l @ T[:3, :3].T + T[:3, 3])
-    return np.vstack(parts), np.concatenate([c[1] for c in culled]), T_w_b_last
+    return Accumulated(np.vstack(parts), np.concatenate([c[1] for c in culled]), T_w_b_last,
+                       np.array([c[3] for c in culled]),
+                       np.array([T_b_w_last @ c[2] @ rig.camera.T_b_c for c in culled]))
 
 
 def _errors(center_w: np.ndarray, direction_w: np.ndarray,
@@ -303,12 +318,20 @@ def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
         got = _accumulate(rig, target.instance_id, trajectory, times, detector, rng, cfg)
         if got is None:
             continue
-        points_b, hit_ids, T_w_b = got
+        points_b, hit_ids, T_w_b = got.points_b, got.hit_ids, got.T_w_b
         purity = float(np.mean(hit_ids == target.instance_id))
         for method in cfg.methods:
             try:
-                est = ir.localize(points_b, method=method,  # type: ignore[arg-type]
-                                  seed=event, **cfg.localize_params)
+                est: ir.Localization | ir.BoundedLocalization
+                if method == "bounded":
+                    # The mission's insulator length (the scene's strings) fills in an end the
+                    # frame cut off.
+                    est = ir.localize_bounded(points_b, got.boxes, got.T_b_c, rig.camera_model,
+                                              insulator_length=rig.tower.spec.insulators.length,
+                                              seed=event, **cfg.localize_params)
+                else:
+                    est = ir.localize(points_b, method=method,  # type: ignore[arg-type]
+                                      seed=event, **cfg.localize_params)
             except ir.LocalizationError:
                 results.append(EventResult(tower_key, standoff, event, target.instance_id, method,
                                            False, math.nan, math.nan, math.nan, math.nan,
@@ -430,7 +453,7 @@ def plot_errors(results: Sequence[EventResult], path: Path) -> None:
 
     towers = list(dict.fromkeys(r.tower for r in results))
     methods = list(dict.fromkeys(r.method for r in results))
-    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red"]
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"]
     fig, axes = plt.subplots(1, len(towers), figsize=(6 * len(towers), 4.5), squeeze=False)
     for ax, tower in zip(axes[0], towers):
         standoffs = sorted({r.standoff for r in results if r.tower == tower})
