@@ -51,6 +51,7 @@ from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.minsnap import TIME_ALLOCATIONS, MinSnapTrajectory, plan_min_snap_safe
 from insulator_rs.mission.perception import OnboardPerception
+from insulator_rs.mission.photo_quality import photo_quality
 from insulator_rs.mission.registry import Insulator, InsulatorRegistry
 from insulator_rs.mission.state_machine import POLICIES, InspectionStateMachine, PlanItem, State
 from insulator_rs.mission.two_flight import route
@@ -218,7 +219,8 @@ class InspectionRun:
         wps = inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=self.geom.line,
                                    volumes=self.geom.volumes, count=p.waypoints_per_insulator,
                                    inspection_distance=p.inspection_distance,
-                                   insulator_length=p.insulator_length, fov=self.fov)
+                                   insulator_length=p.insulator_length, fov=self.fov,
+                                   camera=self.photo_model)
         self.waypoints.extend(wps)
         return wps
 
@@ -449,12 +451,20 @@ class InspectionRun:
         box = frame.boxes.get(gt_id)
         w, h = self.photo_model.width, self.photo_model.height
         whole = box is not None and box[0] > 0 and box[1] > 0 and box[2] < w and box[3] < h
+        # The photo's figures as the flight knows them: odometry pose, gimbal, the localized string.
+        ins = next((i for i in self.registry.insulators if i.id == wp.insulator_id), None)
+        axis = ins.axis if ins is not None else np.array([0.0, 0.0, 1.0])
+        T_c_w = np.linalg.inv(_T_w_b(st.position, st.yaw) @ _gimballed_T_b_c(wp.gimbal_pitch))
+        quality = photo_quality(self.photo_model, T_c_w, wp.target, axis,
+                                length=self.mission.inspection.insulator_length,
+                                speed=float(np.linalg.norm(st.velocity)))
         self.photos.append({**record, "insulator_id": wp.insulator_id,
                             "time_s": st.time - self.t_start, "position": st.position, "yaw": st.yaw,
                             "gimbal_pitch": wp.gimbal_pitch, "gt_instance_id": gt_id,
-                            "insulator_visible": box is not None, "insulator_whole_in_frame": whole})
+                            "insulator_visible": box is not None, "insulator_whole_in_frame": whole,
+                            "quality": quality.as_dict(), "planned_gsd_mm": wp.planned_gsd_mm})
         self.say(f"[{self.now():7.1f} s] photo {name}: insulator {'whole' if whole else 'partly' if box else 'not'}"
-                 f" in frame")
+                 f" in frame, GSD {quality.gsd_mm_px:.1f} mm/px, blur {quality.motion_blur_px:.2f} px")
         self.write_summary()
 
     def takeoff(self) -> None:
