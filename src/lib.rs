@@ -9,6 +9,7 @@ mod bounded;
 mod camera;
 mod culling;
 mod dbscan;
+mod deskew;
 mod errors;
 mod livox;
 mod localize;
@@ -26,6 +27,7 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     transform::register(py, m)?;
     projection::register(py, m)?;
     culling::register(py, m)?;
+    deskew::register(py, m)?;
     dbscan::register(py, m)?;
     ransac::register(py, m)?;
     pca::register(py, m)?;

@@ -147,7 +147,7 @@ def test_wire_lidar_serves_whole_sensor_windows_on_request() -> None:
 
     state = {"t": 10.0}
     position = np.array([1.0, -2.0, 3.0])
-    wire = WireLidar(room(), lambda: (position, 0.4, np.zeros(3)), default_T_b_l(),
+    wire = WireLidar(room(), lambda t: body_pose(position, 0.4), default_T_b_l(),
                      clock=SensorClock(offset_s=333.0, drift=10e-6))
     try:
         scans = []

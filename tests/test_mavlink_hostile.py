@@ -265,8 +265,11 @@ def test_link_counts_each_kind_of_drop() -> None:
         broken[-1] ^= 0xFF  # CRC
         assert link.handle_datagram(bytes(broken), PEER) == [] and link.stats.bad_data >= 1
         assert len(link.handle_datagram(VALID + VALID, PEER)) == 2  # two whole frames in one datagram
+        unknown = bytearray(VALID)
+        unknown[7:10] = (4242).to_bytes(3, "little")  # a message id the dialect lacks (CRC unchecked then)
+        assert link.handle_datagram(bytes(unknown), PEER) == [] and link.stats.unknown_message == 1
         assert link.stats.dropped == (link.stats.foreign_address + link.stats.foreign_source
-                                      + link.stats.truncated + link.stats.bad_data)
+                                      + link.stats.truncated + link.stats.bad_data + link.stats.unknown_message)
         assert math.isfinite(link.stats.dropped)
     finally:
         link.close()

@@ -31,6 +31,8 @@ __all__ = [
     "RaycastScene",
     "chain_transforms",
     "dbscan",
+    "deskew",
+    "deskew_points_in_boxes",
     "localize",
     "livox_decode_command",
     "livox_discovery_request",
@@ -136,6 +138,20 @@ def project_points(
 def points_in_boxes(
     points_l: _Points, T_c_l: Any, cam: CameraModel, boxes: Any
 ) -> list[NDArray[np.int64]]: ...
+def deskew(
+    points_l: _Points, times: Any, pose_times: Any, poses: Any, t_ref: float, T_b_l: Any
+) -> NDArray[np.float64]: ...
+def deskew_points_in_boxes(
+    points_l: _Points,
+    times: Any,
+    pose_times: Any,
+    poses: Any,
+    t_ref: float,
+    T_b_l: Any,
+    T_c_l: Any,
+    cam: CameraModel,
+    boxes: Any,
+) -> tuple[NDArray[np.float64], list[NDArray[np.int64]]]: ...
 def dbscan(points: _Points, eps: float, min_points: int) -> NDArray[np.int32]: ...
 def ransac_line(
     points: _Points,

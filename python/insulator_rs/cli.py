@@ -21,6 +21,7 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("detect", "insulator_rs.detection.commands"),
     ("train", "insulator_rs.detection.train_command"),
     ("dataset", "insulator_rs.sim.dataset_command"),
+    ("replay", "insulator_rs.recording.commands"),
 )
 
 

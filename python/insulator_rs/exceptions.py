@@ -29,6 +29,12 @@ class ModelError(InsulatorError, ValueError):
     """
 
 
+class BagError(InsulatorError, ValueError):
+    """A recorded flight (MCAP file, rosbag2 folder, ROS 1 bag) cannot be read or replayed:
+    missing or truncated file, a missing topic, a wrong message type, stamps out of order or
+    jumping. The message names the file or topic and the time."""
+
+
 class ImageError(InsulatorError, ValueError):
     """An image file cannot be used: missing, not decodable, truncated, or of an unsupported pixel depth.
 

@@ -7,7 +7,10 @@ use std::f64::consts::PI;
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use fusion_core::{dbscan, localize, points_in_boxes, project_points, CameraModel, LocalizeParams, Method, PixelBox};
+use fusion_core::{
+    dbscan, deskew, deskew_points_in_boxes, localize, points_in_boxes, project_points, CameraModel, LocalizeParams,
+    Method, PixelBox, PoseStream,
+};
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -177,5 +180,37 @@ fn bench_localize(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_project_cull, bench_dbscan, bench_localize);
+/// Deskew of a 20k-point, 100 ms scan against a 20 Hz pose stream (6 poses, turning and
+/// climbing), alone and fused with project + cull to 3 boxes (target <= 60 us), beside plain
+/// project + cull of the same cloud.
+fn bench_deskew(c: &mut Criterion) {
+    let mut rng = Pcg64::seed_from_u64(4);
+    let pts = lidar_frame(FRAME_POINTS, &mut rng);
+    let times: Vec<f64> = (0..FRAME_POINTS).map(|i| 0.1 * i as f64 / FRAME_POINTS as f64).collect();
+    let knots: Vec<f64> = (0..6).map(|k| 0.02 * k as f64).collect();
+    let poses = knots
+        .iter()
+        .map(|&t| Isometry3::new(Vector3::new(3.0 * t, 0.5 * t, 10.0 + t), Vector3::new(0.02 * t, -0.05 * t, 1.0 + 4.0 * t)))
+        .collect();
+    let stream = PoseStream::new(knots, poses).unwrap();
+    let t_b_l = Isometry3::new(Vector3::new(0.1, 0.0, -0.1), Vector3::new(0.0, 0.05, 0.0));
+    let (cam, t_c_l) = camera_and_pose();
+    let boxes = [
+        PixelBox::new(500.0, 200.0, 700.0, 500.0).unwrap(),
+        PixelBox::new(800.0, 300.0, 900.0, 600.0).unwrap(),
+        PixelBox::new(100.0, 100.0, 400.0, 250.0).unwrap(),
+    ];
+    let mut g = c.benchmark_group("deskew_20k");
+    g.throughput(Throughput::Elements(FRAME_POINTS as u64));
+    g.bench_function("deskew", |b| b.iter(|| deskew(black_box(&pts), &times, &stream, 0.1, &t_b_l).unwrap()));
+    g.bench_function("deskew_points_in_boxes_3", |b| {
+        b.iter(|| deskew_points_in_boxes(black_box(&pts), &times, &stream, 0.1, &t_b_l, &t_c_l, &cam, &boxes).unwrap())
+    });
+    g.bench_function("points_in_boxes_3_no_deskew", |b| {
+        b.iter(|| points_in_boxes(black_box(&pts), &t_c_l, &cam, &boxes).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_project_cull, bench_dbscan, bench_localize, bench_deskew);
 criterion_main!(benches);

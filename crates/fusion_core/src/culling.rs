@@ -104,7 +104,7 @@ pub fn points_in_boxes<P: PointCloud + Sync + ?Sized>(
 }
 
 /// The per-box lists of the points in `range` (ascending).
-fn cull_range<P: PointCloud + ?Sized>(
+pub(crate) fn cull_range<P: PointCloud + ?Sized>(
     points: &P,
     range: Range<usize>,
     projector: &Projector,

@@ -7,6 +7,7 @@
 pub mod bounded;
 pub mod camera;
 pub mod culling;
+pub mod deskew;
 pub mod dbscan;
 pub mod error;
 pub mod points;
@@ -17,6 +18,7 @@ pub use bounded::{localize_bounded, BoundedLocalization, BoundedParams, BoxView}
 pub use camera::{CameraModel, NEAR_LIMIT};
 pub use culling::{points_in_boxes, PixelBox};
 pub use dbscan::{dbscan, NOISE};
+pub use deskew::{deskew, deskew_points_in_boxes, PoseStream};
 pub use error::{FusionError, Result};
 pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
 pub use projection::{project_points, Projection};

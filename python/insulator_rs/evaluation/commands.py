@@ -13,6 +13,8 @@ STUDIES: tuple[tuple[str, str, str], ...] = (
      "localization error of the four methods on towers A and B (paper Tables I and II)"),
     ("efficiency", "insulator_rs.evaluation.efficiency_study",
      "single-flight vs two-flight inspection time (paper efficiency figure)"),
+    ("motion", "insulator_rs.evaluation.motion_study",
+     "localization error under motion distortion, with and without deskew"),
 )
 
 

@@ -50,6 +50,7 @@ from insulator_rs.mission.single_flight import fly_single_flight
 from insulator_rs.mission.state_machine import InspectionStateMachine
 from insulator_rs.mission.two_flight import two_flight
 from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.report.folder import parse_out_folder
 from insulator_rs.sim.camera_render import default_camera_model, default_T_b_c
 from insulator_rs.sim.towers import Tower, load_tower
 
@@ -279,7 +280,7 @@ def plot(rows: list[StudyRow], path: Path) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("docs/results/efficiency"),
+    parser.add_argument("--out", type=parse_out_folder, default=Path("docs/results/efficiency"),
                         help="folder for efficiency.csv and efficiency.png (created)")
     parser.add_argument("--towers", nargs="+", choices=TOWERS, default=list(TOWERS))
     parser.add_argument("--n", type=int, nargs="+", default=list(N_VALUES), metavar="N",

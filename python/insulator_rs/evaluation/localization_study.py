@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.mission import bounds
+from insulator_rs.report.folder import parse_out_folder
 
 METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
 METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
@@ -569,7 +570,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="distance to the line in m for the centre (default: ir.localize's)")
     parser.add_argument("--ransac-threshold", type=_positive_float, default=None,
                         help="RANSAC inlier distance in m (default: ir.localize's)")
-    parser.add_argument("--out", type=Path, default=Path("results/localization"),
+    parser.add_argument("--out", type=parse_out_folder, default=Path("results/localization"),
                         help="folder for events.csv, summary.csv, errors.png")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
 

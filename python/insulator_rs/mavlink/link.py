@@ -46,14 +46,15 @@ class LinkStats:
     foreign_address: int = 0  # datagrams from an address other than the autopilot's
     foreign_source: int = 0  # messages from another system or component
     before_heartbeat: int = 0  # messages before the autopilot's first HEARTBEAT
+    unknown_message: int = 0  # valid frames of a message id the dialect lacks (PX4 sends a few)
     bad_data: int = 0  # bytes that are no valid MAVLink frame (bad CRC, garbage, unknown id)
     truncated: int = 0  # datagrams ending in an incomplete frame
     bad_signature: int = 0  # frames with a missing or wrong MAVLink 2 signature (signing on)
 
     @property
     def dropped(self) -> int:
-        return (self.foreign_address + self.foreign_source + self.before_heartbeat + self.bad_data
-                + self.truncated + self.bad_signature)
+        return (self.foreign_address + self.foreign_source + self.before_heartbeat + self.unknown_message
+                + self.bad_data + self.truncated + self.bad_signature)
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)} | {"dropped": self.dropped}
@@ -184,6 +185,9 @@ class AutopilotLink:
                 self.stats.bad_signature += 1
             else:
                 self.stats.bad_data += 1
+            return False
+        if isinstance(msg, M.MAVLink_unknown):  # pymavlink keeps no header for these: source unknown
+            self.stats.unknown_message += 1
             return False
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         if self.autopilot is None:

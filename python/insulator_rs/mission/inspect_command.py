@@ -62,6 +62,7 @@ from insulator_rs.sim.detector_standin import DetectorStandin
 from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits, VehicleFailsafe
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.towers import Tower, load_tower
+from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.vehicle import Vehicle, VehicleState
 
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
@@ -167,7 +168,8 @@ class InspectionRun:
     def __init__(self, mission: Mission, tower: Tower, out: Path, *, method: str, policy: str,
                  seed: int, detect_period: float, detect_scale: float, photo_scale: float,
                  max_flight_time: float, quiet: bool = False, vehicle: Vehicle | None = None,
-                 detector: Detector | None = None, time_allocation: str = "pmm", overwrite: bool = False) -> None:
+                 detector: Detector | None = None, time_allocation: str = "pmm", overwrite: bool = False,
+                 recorder: Any = None) -> None:
         self.mission = mission
         self.tower = tower
         self.geom = MissionGeometry.from_mission(mission)
@@ -187,6 +189,7 @@ class InspectionRun:
         self.standin = DetectorStandin(seed=seed)
         self.network = detector  # None: the stand-in turns ground-truth boxes into detections
         self.time_allocation = time_allocation
+        self.recorder = recorder  # insulator_rs.recording.writer.McapRecorder (--record) or None
         self.perception = OnboardPerception(self.det_camera.model, self.det_camera.T_b_c,
                                             self.lidar.T_b_l, method=method,
                                             insulator_length=mission.inspection.insulator_length)
@@ -262,6 +265,14 @@ class InspectionRun:
         T_true = self._sensor_T_w_b(st)
         frame = self.det_camera.render(self.tower.mesh, T_true, lighting=Lighting(shadows=False),
                                        seed=self.seed + self.events, time=st.time)
+        if self.recorder is not None:  # the raw stream: every frame and its scan, boxes or not
+            scan = self.lidar.scan(self.tower.mesh, (T_true, T_true), st.time, seed=self.seed + self.events)
+            # This simulator casts a frame from one pose (T_true at st.time): every point is as if
+            # measured then, so that is the time recorded (a replay's deskew is then the identity).
+            snapshot = np.full(len(scan.timestamps), st.time)
+            self.recorder.scan(LidarScan(scan.points_l, snapshot, self.lidar.T_b_l), self.det_camera.T_b_c)
+            self.recorder.frame(CameraFrame(st.time, np.ascontiguousarray(frame.rgb[:, :, ::-1]),
+                                            self.det_camera.model, self.det_camera.T_b_c), self.lidar.T_b_l)
         if not frame.boxes:
             return
         boxes = self._detect(frame)
@@ -314,6 +325,8 @@ class InspectionRun:
             st = self.vehicle.state()
         t = st.time - self.t_start
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
+        if self.recorder is not None:
+            self.recorder.pose(PoseStamped(st.time, _T_w_b(st.position, st.yaw)), st.velocity)
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT) and st.time >= self._next_detect:
             self._next_detect = st.time + self.detect_period
             self.detection_event(st)
@@ -669,6 +682,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
     p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--record", type=Path, default=None,
+                   help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
+                        "messages in this MCAP file (replay it with `insulator-rs replay`)")
     p.add_argument("--vehicle", choices=("sim", "mavlink"), default=None,
                    help="sim: the in-process kinematic vehicle (default); mavlink: the MAVLink offboard "
                         "client, to the simulated PX4 it starts on loopback unless --connection is given")
@@ -745,12 +761,23 @@ def run(args: argparse.Namespace) -> int:
             return 2
     else:
         vehicle = kinematic_vehicle(mission, args.seed)
+    recorder = None
+    if args.record is not None:
+        from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
+        from insulator_rs.recording.writer import McapRecorder
+
+        recorder = McapRecorder(args.record)
+        recorder.metadata(RECORD_NAME, FlightMetadata(
+            mission_text=Path(mission_path).read_text(encoding="utf-8"), mission_suffix=Path(mission_path).suffix,
+            mission_source=str(mission_path),
+            scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
     try:
         runner = InspectionRun(mission, tower, args.out, method=args.method, policy=args.policy, seed=args.seed,
                                detect_period=args.detect_period, detect_scale=args.detect_scale,
                                photo_scale=args.photo_scale, max_flight_time=args.max_flight_time,
                                quiet=args.quiet, vehicle=vehicle, detector=detector,
-                               time_allocation=args.time_allocation, overwrite=args.overwrite)
+                               time_allocation=args.time_allocation, overwrite=args.overwrite,
+                               recorder=recorder)
         code = 0
         try:
             runner.fly()
@@ -764,6 +791,8 @@ def run(args: argparse.Namespace) -> int:
         summary = runner.finish_report()
     finally:
         vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
+        if recorder is not None:
+            recorder.close()
     if summary["status"].startswith("aborted"):
         code = 1
     print(f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "

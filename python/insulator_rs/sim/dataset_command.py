@@ -6,6 +6,8 @@ import argparse
 import math
 from pathlib import Path
 
+from insulator_rs.report.folder import parse_out_folder
+
 
 def _positive_int(text: str) -> int:
     v = int(text)
@@ -32,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "as the paper's simulation dataset)")
     parser.add_argument("--split", nargs=3, type=_fraction, default=[0.8, 0.1, 0.1],
                         metavar=("TRAIN", "VAL", "TEST"), help="split fractions (default 0.8 0.1 0.1)")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--out", type=parse_out_folder, required=True, help="output folder")
     parser.add_argument("--width", type=_positive_int, default=None,
                         help="image width in px (default: the simulated camera's)")
     parser.add_argument("--height", type=_positive_int, default=None,

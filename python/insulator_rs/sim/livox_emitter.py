@@ -183,8 +183,10 @@ class LivoxEmitter:
         k = np.round(frame.timestamps * self.point_rate).astype(np.int64)
         refl = (np.full(len(k), 100, np.uint8) if reflectivity is None
                 else np.asarray(reflectivity, np.uint8))
+        first_open = self._next_packet * DOTS_PER_PACKET  # shots of packets already sent are dropped
         for i, ki in enumerate(k.tolist()):
-            self._pending[ki] = (frame.points_l[i], refl[i])
+            if ki >= first_open:
+                self._pending[ki] = (frame.points_l[i], refl[i])
         # The frame covers shots up to the one before the next frame's first.
         k_end = math.ceil(frame.t_end * self.point_rate - 1e-9)
         out: list[bytes] = []

@@ -32,22 +32,14 @@ from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.livox_emitter import DOTS_PER_PACKET, Faults, LivoxEmitter, SensorClock, send
 from insulator_rs.sim.mesh import Mesh
 
-#: (position W m, yaw rad, velocity W m/s) of the airframe, now.
-PoseSource = Callable[[], tuple[np.ndarray, float, np.ndarray]]
+#: The airframe's pose T_w_b (4x4) at a vehicle time (s): the simulator's pose sources.
+PoseSource = Callable[[float], np.ndarray]
 #: Rendered before each request (s): one whole sensor window + the reorder grace fit in it.
 RENDER_SPAN_S = 0.3
 #: Datagrams sent together (7.7 ms of data): the driver's arrival clock advances per chunk.
 CHUNK = 16
 #: Latency the arrivals are stamped with, past the chunk's last sample (s).
 LATENCY_S = 0.0005
-
-
-def _pose_matrix(position: np.ndarray, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = math.cos(yaw), math.sin(yaw)
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    T[:3, 3] = position
-    return T
 
 
 class WireLidar:
@@ -72,15 +64,6 @@ class WireLidar:
         self.seed = seed
 
     def _render(self, now: float) -> list[bytes]:
-        position, yaw, velocity = self.pose()
-        T_now = _pose_matrix(np.asarray(position, np.float64), float(yaw))
-        v = np.asarray(velocity, np.float64)
-
-        def trajectory(t: float) -> np.ndarray:
-            T = T_now.copy()
-            T[:3, 3] -= v * (now - t)
-            return T
-
         start = now - RENDER_SPAN_S
         first = math.ceil(start * self.lidar.point_rate / DOTS_PER_PACKET - 1e-9)
         if self.emitter._next_packet < first:  # the sensor was silent since the last request
@@ -89,7 +72,7 @@ class WireLidar:
         n = round(RENDER_SPAN_S * self.lidar.frame_rate)
         for k in range(n):
             t0 = start + k * self.lidar.frame_period
-            frame = self.lidar.scan(self.mesh, trajectory, t0, seed=self.seed + self._frames)
+            frame = self.lidar.scan(self.mesh, self.pose, t0, seed=self.seed + self._frames)
             self._frames += 1
             out += self.emitter.add_frame(frame)
         return out

@@ -1,0 +1,105 @@
+"""Many recorded flights re-processed in parallel on Ray, plus a fleet summary.
+
+Each flight is one Ray task running :func:`~insulator_rs.recording.commands.replay_one`, the
+function a single ``replay`` runs, into ``OUT/<recording name>/``. ``address=None`` starts a
+local Ray with ``workers`` CPUs (and stops it after); an address joins a running cluster
+(every node needs insulator_rs installed; the recordings and ``OUT`` on storage all nodes
+see). ``workers=1`` without an address runs the flights one after another in this process
+(no Ray needed).
+
+``fleet_summary.json``: per flight its status, insulators found, detector and errors where
+ground truth exists; per tower (its GPS position) the insulators each flight found.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from insulator_rs.recording.commands import ReplayOptions, replay_one
+
+
+def _name(path: Path, used: set[str]) -> str:
+    base = path.stem if path.is_file() else path.name
+    name, k = base, 1
+    while name in used:
+        k += 1
+        name = f"{base}_{k}"
+    used.add(name)
+    return name
+
+
+def replay_fleet(flights: list[Path], out: Path, options: ReplayOptions, *, workers: int = 1,
+                 address: str | None = None) -> dict[str, Any]:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    used: set[str] = set()
+    jobs = [(Path(f).resolve(), (out / _name(Path(f), used)).resolve()) for f in flights]
+    options = replace(options, progress=False)  # bars from parallel tasks interleave
+    if workers == 1 and address is None:
+        summaries = [replay_one(f, o, options) for f, o in jobs]
+    else:
+        summaries = _on_ray(jobs, options, workers, address)
+    fleet = fleet_summary(summaries)
+    (out / "fleet_summary.json").write_text(json.dumps(fleet, indent=2, default=_plain))
+    return fleet
+
+
+def _on_ray(jobs: list[tuple[Path, Path]], options: ReplayOptions, workers: int,
+            address: str | None) -> list[dict[str, Any]]:
+    import ray
+
+    started = False
+    if not ray.is_initialized():
+        # Local workers import insulator_rs from where this process does.
+        env = {"env_vars": {"PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
+                                                                           os.environ.get("PYTHONPATH", "")]))}}
+        if address is None:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, runtime_env=env,
+                     configure_logging=False)
+        else:
+            ray.init(address=address, log_to_driver=False, configure_logging=False)
+        started = True
+    try:
+        task = ray.remote(num_cpus=1, max_retries=0)(replay_one)
+        refs = [task.remote(str(f), str(o), options) for f, o in jobs]
+        results = []
+        for (f, o), ref in zip(jobs, refs):
+            try:
+                results.append(ray.get(ref))
+            except Exception as exc:  # a worker died (out of memory, killed): that flight failed
+                results.append({"status": f"failed: Ray task: {type(exc).__name__}: {exc}", "recording": str(f),
+                                "insulators_found": 0, "insulators": []})
+        return results
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def fleet_summary(summaries: list[dict[str, Any]]) -> dict[str, Any]:
+    flights = []
+    towers: dict[str, list[dict[str, Any]]] = {}
+    for s in summaries:
+        rec = {k: s.get(k) for k in ("recording", "status", "detector", "scene", "tower", "insulators_found",
+                                     "insulators_matched", "insulators_in_scene", "mean_error_m", "flight_time_s",
+                                     "wall_time_s", "speed_vs_real_time")}
+        flights.append(rec)
+        if s.get("tower"):
+            towers.setdefault(s["tower"], []).append({"recording": s["recording"],
+                                                      "insulators_found": s.get("insulators_found", 0)})
+    return {"flights": flights, "flights_ok": sum(1 for f in flights if f["status"] == "finished"),
+            "towers": towers,
+            "detectors": sorted({str(f["detector"]) for f in flights if f.get("detector")})}
+
+
+def _plain(value: Any) -> Any:
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)

@@ -1,0 +1,79 @@
+"""What a recording says about its flight: the mission file and the scene, as an MCAP
+metadata record named ``insulator_rs`` (other tools ignore it; Foxglove lists it).
+
+A replay takes the mission from there unless ``--mission`` is given; a recording without it
+(any bag from another recorder) needs ``--mission``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from insulator_rs._toml import tomllib
+from insulator_rs.exceptions import BagError, ConfigError
+from insulator_rs.mission.config import Mission, parse_mission
+
+RECORD_NAME = "insulator_rs"
+
+
+@dataclass(frozen=True)
+class FlightMetadata:
+    """``mission_text`` and its ``mission_suffix`` (.toml/.yaml), ``scene`` (a simulated
+    flight's scene name, for scoring against its ground truth; "" for a real flight)."""
+
+    mission_text: str = ""
+    mission_suffix: str = ".toml"
+    mission_source: str = ""
+    scene: str = ""
+
+    def as_record(self) -> dict[str, str]:
+        return {"mission_text": self.mission_text, "mission_suffix": self.mission_suffix,
+                "mission_source": self.mission_source, "scene": self.scene}
+
+    def mission(self, recording: Path) -> Mission | None:
+        if not self.mission_text:
+            return None
+        source = f"{recording} (mission recorded from {self.mission_source or 'the flight'})"
+        try:
+            data: Any = (tomllib.loads(self.mission_text) if self.mission_suffix == ".toml"
+                         else yaml.safe_load(self.mission_text))
+        except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
+            raise ConfigError(f"{source}: cannot parse: {exc}") from exc
+        return parse_mission(data, source)
+
+
+def mcap_file(path: Path) -> Path | None:
+    """The MCAP file of a recording (the file itself, or the single .mcap of a rosbag2 folder)."""
+    path = Path(path)
+    if path.is_file() and path.suffix == ".mcap":
+        return path
+    if path.is_dir():
+        files = sorted(path.glob("*.mcap"))
+        return files[0] if files else None
+    return None
+
+
+def read_metadata(path: Path) -> FlightMetadata:
+    """The ``insulator_rs`` record of a recording; empty when there is none (not an MCAP file,
+    another recorder's file). A file that is not readable MCAP is left for the reader to refuse."""
+    from mcap.reader import make_reader
+
+    f = mcap_file(path)
+    if f is None:
+        return FlightMetadata()
+    try:
+        with f.open("rb") as stream:
+            for record in make_reader(stream).iter_metadata():
+                if record.name == RECORD_NAME:
+                    m = dict(record.metadata)
+                    return FlightMetadata(m.get("mission_text", ""), m.get("mission_suffix", ".toml"),
+                                          m.get("mission_source", ""), m.get("scene", ""))
+    except Exception as exc:  # mcap raises several kinds for a damaged file
+        if isinstance(exc, BagError):
+            raise
+        return FlightMetadata()
+    return FlightMetadata()

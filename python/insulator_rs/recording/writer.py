@@ -1,0 +1,201 @@
+"""Record a flight as ROS 2 messages (cdr) in one MCAP file, as ``ros2 bag record -s mcap`` would.
+
+:class:`McapRecorder` writes the messages (schemas are the ROS 2 ``.msg`` definitions that
+rosbags generates, so Foxglove, ``ros2 bag play`` and rosbags open the file);
+:class:`RecordingSensors` wraps any :class:`~insulator_rs.sensors.Sensors` adapter and
+records what it hands out (detection frames, LiDAR scans); :class:`RecordingVehicle` wraps
+any :class:`~insulator_rs.vehicle.Vehicle` and records its pose stream (every ``state()``
+and ``advance()``, deduplicated by time). Inspection photos are not recorded (full-size
+images the replay does not need). Extrinsics go on ``/tf_static`` once (the LiDAR's and the
+first detection frame's camera); a camera pose that changes later (a gimbal) goes on ``/tf``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from insulator_rs.exceptions import BagError
+from insulator_rs.recording import convert as C
+from insulator_rs.recording import types as T
+from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
+
+# Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
+RECORDED_ODOMETRY = "/odom"
+# rosbag2's QoS of /tf_static (transient local) so `ros2 bag play` latches it.
+_TF_STATIC_QOS = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 1\n  deadline:\n    sec: 2147483647\n"
+                  "    nsec: 4294967295\n  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n  liveliness: 1\n"
+                  "  liveliness_lease_duration:\n    sec: 2147483647\n    nsec: 4294967295\n"
+                  "  avoid_ros_namespace_conventions: false")
+
+
+class McapRecorder:
+    """Writes one MCAP file of ROS 2 messages; ``image_format`` "jpeg" (CompressedImage,
+    default: what camera drivers' image_transport publishes) or "raw" (Image bgr8, lossless)."""
+
+    def __init__(self, path: Path, topics: T.Topics = T.Topics(), *, image_format: str = "jpeg") -> None:
+        from mcap.writer import CompressionType, Writer
+
+        if image_format not in ("jpeg", "raw"):
+            raise ValueError(f"image_format: must be 'jpeg' or 'raw', got {image_format!r}")
+        self.path = Path(path)
+        self.topics = topics
+        self.image_format = image_format
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("wb")
+        # LZ4 when available (what rosbag2 uses), else uncompressed chunks; zstd is optional too.
+        try:
+            import lz4  # noqa: F401
+
+            compression = CompressionType.LZ4
+        except ImportError:
+            compression = CompressionType.NONE
+        self._writer = Writer(self._file, compression=compression)
+        self._writer.start(profile="ros2", library="insulator_rs")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._store = T.typestore()
+        self._static_written = False
+        self._T_b_c: np.ndarray | None = None
+        self._T_b_l: np.ndarray | None = None  # the LiDAR's extrinsics, from its first scan
+        self._last_pose_time = -math.inf
+        self.counts: dict[str, int] = {}
+        self.closed = False
+
+    def _channel(self, topic: str, msgtype: str) -> int:
+        if topic not in self._channels:
+            if msgtype not in self._schemas:
+                text, _ = self._store.generate_msgdef(msgtype, ros_version=2)
+                self._schemas[msgtype] = self._writer.register_schema(msgtype, "ros2msg", text.encode())
+            meta = {"offered_qos_profiles": _TF_STATIC_QOS} if topic == self.topics.tf_static else {}
+            self._channels[topic] = self._writer.register_channel(topic, "cdr", self._schemas[msgtype], meta)
+        return self._channels[topic]
+
+    def write(self, topic: str, msgtype: str, t: float, msg: Any) -> None:
+        if self.closed:
+            raise BagError(f"{self.path}: recorder already closed")
+        data = self._store.serialize_cdr(msg, msgtype)
+        ns = int(round(t * 1e9))
+        seq = self.counts.get(topic, 0)
+        self._writer.add_message(self._channel(topic, msgtype), log_time=ns, data=bytes(data), publish_time=ns,
+                                 sequence=seq)
+        self.counts[topic] = seq + 1
+
+    def _extrinsics(self, t: float, T_b_l: np.ndarray | None, T_b_c: np.ndarray | None) -> None:
+        tp = self.topics
+        if not self._static_written and T_b_l is not None and T_b_c is not None:
+            tfs = [C.transform_stamped(np.asarray(T_b_l), t, tp.body_frame, tp.lidar_frame),
+                   C.transform_stamped(np.asarray(T_b_c), t, tp.body_frame, tp.camera_frame)]
+            self.write(tp.tf_static, T.TF_MESSAGE, t, C.tf_message(tfs))
+            self._static_written = True
+            self._T_b_c = np.asarray(T_b_c, dtype=np.float64)
+        elif self._static_written and T_b_c is not None and not np.allclose(T_b_c, self._T_b_c, atol=1e-9):
+            tf = C.transform_stamped(np.asarray(T_b_c), t, tp.body_frame, tp.camera_frame)
+            self.write("/tf", T.TF_MESSAGE, t, C.tf_message([tf]))
+
+    def scan(self, scan: LidarScan, T_b_c: np.ndarray | None = None) -> None:
+        if len(scan) == 0:
+            return
+        self._T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
+        t0, msg = C.scan_to_pointcloud2(scan, self.topics.lidar_frame)
+        if not self._static_written and T_b_c is not None:
+            self._extrinsics(t0, scan.T_b_l, T_b_c)
+        self.write(self.topics.lidar, T.POINTCLOUD2, t0, msg)
+
+    def frame(self, frame: CameraFrame, T_b_l: np.ndarray | None = None) -> None:
+        T_b_l = T_b_l if T_b_l is not None else self._T_b_l
+        self._extrinsics(frame.time, T_b_l, frame.T_b_c)
+        tp = self.topics
+        self.write(tp.camera_info, T.CAMERA_INFO, frame.time, C.camera_info(frame.camera, frame.time, tp.camera_frame))
+        if self.image_format == "jpeg":
+            self.write(tp.image, T.COMPRESSED_IMAGE, frame.time, C.image_to_compressed(frame, tp.camera_frame))
+        else:
+            self.write(tp.image.removesuffix("/compressed"), T.IMAGE, frame.time,
+                       C.image_raw(frame, tp.camera_frame))
+
+    def pose(self, pose: PoseStamped, velocity_w: np.ndarray | None = None) -> None:
+        """One pose of the vehicle's stream; a time at or before the last one is skipped."""
+        if not pose.time > self._last_pose_time:
+            return
+        self._last_pose_time = pose.time
+        self.write(RECORDED_ODOMETRY, T.ODOMETRY, pose.time,
+                   C.odometry(pose, velocity_w, self.topics.world_frame, self.topics.body_frame))
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """An MCAP metadata record (the flight's mission and scene: see :mod:`.metadata`)."""
+        self._writer.add_metadata(name, values)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
+
+
+class RecordingSensors:
+    """A :class:`~insulator_rs.sensors.Sensors` adapter that records what ``inner`` delivers."""
+
+    def __init__(self, inner: Sensors, recorder: McapRecorder) -> None:
+        self.inner = inner
+        self.recorder = recorder
+        self._T_b_c: np.ndarray | None = None
+        self._T_b_l: np.ndarray | None = None
+
+    def detection_frame(self, now: float) -> CameraFrame | None:
+        frame = self.inner.detection_frame(now)
+        if frame is not None:
+            self._T_b_c = frame.T_b_c
+            self.recorder.frame(frame, self._T_b_l)
+        return frame
+
+    def lidar_scan(self, now: float) -> LidarScan | None:
+        scan = self.inner.lidar_scan(now)
+        if scan is not None:
+            self._T_b_l = scan.T_b_l
+            self.recorder.scan(scan, self._T_b_c)
+        return scan
+
+    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
+        return self.inner.photo(now, T_b_c)
+
+    def health(self) -> dict[str, object]:
+        return {**self.inner.health(), "recorded_messages": dict(self.recorder.counts)}
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def __getattr__(self, name: str) -> Any:  # anything else an adapter offers (pose_at, ...)
+        return getattr(self.inner, name)
+
+
+class RecordingVehicle:
+    """A :class:`~insulator_rs.vehicle.Vehicle` wrapper that records the pose stream it reports
+    (level body at the reported position and yaw: what the Vehicle port gives)."""
+
+    def __init__(self, inner: Any, recorder: McapRecorder) -> None:
+        self.inner = inner
+        self.recorder = recorder
+
+    def _record(self, st: Any) -> Any:
+        T_w_b = np.eye(4)
+        c, s = math.cos(st.yaw), math.sin(st.yaw)
+        T_w_b[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        T_w_b[:3, 3] = st.position
+        if math.isfinite(st.time) and st.time >= 0 and np.all(np.isfinite(T_w_b)):
+            self.recorder.pose(PoseStamped(float(st.time), T_w_b), st.velocity)
+        return st
+
+    def state(self) -> Any:
+        return self._record(self.inner.state())
+
+    def advance(self, dt: float) -> Any:
+        return self._record(self.inner.advance(dt))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)

@@ -1,0 +1,152 @@
+"""Record -> replay round trip of a simulated flight, a rosbags-written copy, bad bags in a
+replay, the Ray fleet and the Rerun log.
+
+The flight is the small scene of ``test_mission_inspect`` (two insulators) flown with the
+shipped network ``insulator-sim`` and ``--record``. Its replay runs the same detector, the
+same perception and registry on the recorded frames, scans and poses; the insulators must
+agree within 5 cm (jpeg-compressed frames move a box by a pixel or so, nothing more).
+"""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+
+from insulator_rs.cli import main
+from insulator_rs.recording import types as T
+from insulator_rs.recording.commands import ReplayOptions, replay_one
+from insulator_rs.recording.writer import McapRecorder
+from test_mission_inspect import small_scene
+
+pytestmark = pytest.mark.slow
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.25", "--photo-scale", "0.2", "--quiet",
+        "--detector", "insulator-sim"]
+ROUND_TRIP_TOLERANCE = 0.05  # m
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("flight")
+    scene, mission = small_scene(tmp)
+    out = tmp / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
+               "--record", str(tmp / "flight.mcap")])
+    assert rc == 0
+    return tmp, json.loads((out / "summary.json").read_text())
+
+
+def _same_insulators(a, b, tol=ROUND_TRIP_TOLERANCE):
+    ca = np.array([r["center"] for r in a["insulators"]])
+    cb = np.array([r["center"] for r in b["insulators"]])
+    assert len(ca) == len(cb) >= 1
+    d = np.linalg.norm(ca[:, None] - cb[None], axis=2)
+    assert np.all(d.min(axis=1) < tol), d
+
+
+def test_recorded_flight_replays_to_the_same_insulators(flight, capsys):
+    tmp, flown = flight
+    assert flown["insulators_found"] >= 2
+    out = tmp / "replay"
+    rc = main(["replay", str(tmp / "flight.mcap"), "--out", str(out), "--quiet"])
+    assert rc == 0, capsys.readouterr()
+    replayed = json.loads((out / "summary.json").read_text())
+    assert replayed["status"] == "finished" and replayed["detector"] == "insulator-sim"
+    assert replayed["frames"] == flown["detection_events"]
+    _same_insulators(flown, replayed)
+    assert replayed["insulators_matched"] == 2 and replayed["mean_error_m"] < 0.6
+    assert (out / "trajectory.png").stat().st_size > 10_000
+    assert "finished" in capsys.readouterr().out
+
+
+def test_rosbags_written_copy_replays_the_same(flight):
+    """The recording re-written message by message by rosbags' own rosbag2 writer (MCAP storage)."""
+    tmp, flown = flight
+    bag = tmp / "rosbags_copy"
+    if bag.exists():
+        shutil.rmtree(bag)
+    store = T.typestore()
+    with AnyReader([tmp / "flight.mcap"], default_typestore=store) as reader, \
+            Writer2(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for conn, ns, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic not in conns:
+                conns[conn.topic] = writer.add_connection(conn.topic, conn.msgtype, typestore=store)
+            writer.write(conns[conn.topic], ns, store.serialize_cdr(msg, conn.msgtype))
+    opts = ReplayOptions(mission=str(tmp / "small_mission.toml"), scene=str(tmp / "small_tower.toml"))
+    replayed = replay_one(bag, tmp / "replay_copy", opts)
+    assert replayed["status"] == "finished"
+    _same_insulators(flown, replayed)
+
+
+def test_a_broken_recording_keeps_what_was_replayed(flight):
+    """A stamp jump late in the flight: the replay stops there with the error named, and the
+    insulators found before it are in the report."""
+    tmp, _ = flight
+    broken = tmp / "jump.mcap"
+    store = T.typestore()
+    with AnyReader([tmp / "flight.mcap"], default_typestore=store) as reader:
+        end = reader.end_time * 1e-9
+        rec = McapRecorder(broken)
+        for conn, ns, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = ns * 1e-9
+            if conn.topic == "/odom" and t > end - 5.0:
+                msg.header.stamp.sec += 100
+            rec.write(conn.topic, conn.msgtype, t, msg)
+        rec.close()
+    opts = ReplayOptions(mission=str(tmp / "small_mission.toml"), scene=str(tmp / "small_tower.toml"))
+    s = replay_one(broken, tmp / "replay_jump", opts)
+    assert s["status"].startswith("failed: ") and "/odom at t=" in s["status"] and "jumps" in s["status"]
+    assert s["insulators_found"] >= 1 and s["frames"] > 10
+    saved = json.loads((tmp / "replay_jump" / "summary.json").read_text())
+    assert saved["insulators_found"] == s["insulators_found"]
+
+
+def test_bad_recordings_are_refused_by_name(tmp_path, capsys):
+    assert main(["replay", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o"), "--quiet"]) == 1
+    assert "missing.mcap: no such file" in capsys.readouterr().out
+    assert main(["replay", str(tmp_path), "--workers", "0"]) == 2
+    assert "--workers: must be >= 1" in capsys.readouterr().err
+
+
+def test_fleet_on_a_local_ray(flight):
+    """Three recordings (one broken) on a local Ray with 2 CPUs: one report each plus the fleet
+    summary; the same function as a single replay."""
+    tmp, flown = flight
+    fleet = tmp / "fleet"
+    fleet.mkdir(exist_ok=True)
+    shutil.copy(tmp / "flight.mcap", fleet / "a.mcap")
+    shutil.copy(tmp / "flight.mcap", fleet / "b.mcap")
+    (fleet / "c.mcap").write_bytes((tmp / "flight.mcap").read_bytes()[:5000])
+    out = tmp / "fleet_report"
+    rc = main(["replay", str(fleet), "--out", str(out), "--workers", "2", "--quiet",
+               "--mission", str(tmp / "small_mission.toml"), "--scene", str(tmp / "small_tower.toml")])
+    assert rc == 1  # one flight failed
+    s = json.loads((out / "fleet_summary.json").read_text())
+    assert s["flights_ok"] == 2 and len(s["flights"]) == 3
+    assert s["detectors"] == ["insulator-sim"]
+    (tower,) = s["towers"].values()
+    assert [f["insulators_found"] for f in tower][:2] == [flown["insulators_found"]] * 2
+    for name in ("a", "b"):
+        one = json.loads((out / name / "summary.json").read_text())
+        _same_insulators(flown, one)
+    assert "c.mcap" in json.loads((out / "c" / "summary.json").read_text())["status"]
+
+
+def test_rerun_log(flight):
+    tmp, _ = flight
+    out = tmp / "replay_rerun"
+    s = replay_one(tmp / "flight.mcap", out, ReplayOptions(rerun=True))
+    assert s["status"] == "finished"
+    rrd = out / "replay.rrd"
+    assert rrd.stat().st_size > 100_000
+    import rerun as rr
+
+    entities = set()
+    for chunk in rr.recording.load_recording(str(rrd)).chunks() if hasattr(rr, "recording") else []:
+        entities.add(chunk.entity_path)
