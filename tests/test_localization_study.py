@@ -67,7 +67,7 @@ def test_the_flying_pipeline_puts_the_accumulated_points_on_the_target_insulator
     and localizes it within 0.5 m (the paper's accuracy class; the error lies along the axis). A frame mix-up anywhere in L -> B -> W -> C puts no point
     inside and the centre metres off."""
     cfg = StudyConfig(towers=("A",), standoffs={"A": (8.0,)}, events=1, odom_position_noise=0.0,
-                      odom_yaw_noise_deg=0.0, box_jitter=0.0, speed=0.0, methods=("dbscan+ransac",))
+                      odom_yaw_noise_deg=0.0, box_jitter=0.0, speed=0.0, methods=("dbscan+ransac", "bounded"))
     rig = study.SensorRig("tower_a", cfg, seed=1)
     rng = np.random.default_rng(1)
     from insulator_rs.sim.detector_standin import DetectorStandin
@@ -79,6 +79,7 @@ def test_the_flying_pipeline_puts_the_accumulated_points_on_the_target_insulator
         got = study._localize_event(rig, target, trajectory, times, det, rng, cfg, insulator_length=2.2)
         if got is None:
             continue
+        assert set(got) == {"dbscan+ransac", "bounded"}  # the fifth method through the same pipeline
         loc, outcome, n_input, purity = got["dbscan+ransac"]
         assert n_input >= 10 and purity > 0.2, (n_input, purity)
         if loc is not None:

@@ -254,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
             scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
     try:
         loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
-                          overwrite=args.overwrite, recorder=recorder)
+                          overwrite=args.overwrite, recorder=recorder, photo_camera=sensors.photo_model)
         code = 0
         try:
             loop.fly()

@@ -55,9 +55,9 @@ from insulator_rs.mission.perception import Localization, PerceptionPipeline
 from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.report.folder import parse_out_folder
 
-METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca")
+METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
 METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
-                 "dbscan+pca": "DBSCAN + PCA"}
+                 "dbscan+pca": "DBSCAN + PCA", "bounded": "Bounded (cam.)"}
 TOWERS: dict[str, str] = {"A": "tower_a", "B": "tower_b"}
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 # The paper's cells: tower A at 8, 9, 10 m, tower B at 8, 9 m.
@@ -467,7 +467,7 @@ def plot_errors(results: Sequence[EventResult], path: Path) -> None:
 
     towers = list(dict.fromkeys(r.tower for r in results))
     methods = list(dict.fromkeys(r.method for r in results))
-    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red"]
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"]
     fig, axes = plt.subplots(1, len(towers), figsize=(6 * len(towers), 4.5), squeeze=False)
     for ax, tower in zip(axes[0], towers):
         standoffs = sorted({r.standoff for r in results if r.tower == tower})

@@ -37,6 +37,7 @@ from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
 from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.perception import PerceptionPipeline
+from insulator_rs.mission.photo_quality import photo_quality
 from insulator_rs.mission.pmm import rest_to_rest_times
 from insulator_rs.mission.registry import Insulator, InsulatorRegistry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, State
@@ -86,7 +87,7 @@ class FlightLoop:
 
     def __init__(self, mission: Mission, vehicle: Vehicle, sensors: Sensors, detector: BoxDetector,
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
-                 overwrite: bool = False, recorder: Any = None) -> None:
+                 overwrite: bool = False, recorder: Any = None, photo_camera: Any = None) -> None:
         self.mission = mission
         self.vehicle = vehicle
         self.sensors = sensors
@@ -102,8 +103,10 @@ class FlightLoop:
                                              insulator_length=mission.inspection.insulator_length)
         self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate,
                                           mission.inspection.confirmations)
-        # the photo's vertical field of view frames the insulator from the waypoints
-        self.fov = 2 * math.atan((rig.camera.height / 2) / rig.camera.fy)
+        # the photos' intrinsics (the rig camera's unless the sensors deliver another resolution)
+        # frame the insulator from the waypoints and give the planned GSD
+        self.photo_model = rig.camera if photo_camera is None else photo_camera
+        self.fov = 2 * math.atan((self.photo_model.height / 2) / self.photo_model.fy)
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints,
                                          policy=settings.policy, cost=self._cost)
         tower = mission.tower
@@ -133,7 +136,8 @@ class FlightLoop:
         wps = inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=self.geom.line,
                                    volumes=self.geom.volumes, count=p.waypoints_per_insulator,
                                    inspection_distance=p.inspection_distance,
-                                   insulator_length=p.insulator_length, fov=self.fov)
+                                   insulator_length=p.insulator_length, fov=self.fov,
+                                   camera=self.photo_model)
         self.waypoints.extend(wps)
         return wps
 
@@ -348,10 +352,19 @@ class FlightLoop:
                                         position_enu=st.position, yaw_enu=st.yaw, gimbal_pitch=wp.gimbal_pitch,
                                         description=f"insulator {wp.insulator_id}, photo {n + 1}")
         self.photo_camera = frame.camera
+        # the photo's figures as the flight knows them: odometry pose, gimbal, the localized string
+        ins = next((i for i in self.registry.insulators if i.id == wp.insulator_id), None)
+        axis = ins.axis if ins is not None else np.array([0.0, 0.0, 1.0])
+        T_c_w = np.linalg.inv(pose_from_yaw(st.position, st.yaw) @ frame.T_b_c)
+        quality = photo_quality(frame.camera, T_c_w, wp.target, axis,
+                                length=self.mission.inspection.insulator_length,
+                                speed=float(np.linalg.norm(st.velocity)))
         self.photos.append({**record, "insulator_id": wp.insulator_id,
                             "time_s": frame.time - self.t_start, "position": st.position, "yaw": st.yaw,
-                            "gimbal_pitch": wp.gimbal_pitch, "T_b_c": frame.T_b_c})
-        self.say(f"[{self.now():7.1f} s] photo {name}")
+                            "gimbal_pitch": wp.gimbal_pitch, "T_b_c": frame.T_b_c,
+                            "quality": quality.as_dict(), "planned_gsd_mm": wp.planned_gsd_mm})
+        self.say(f"[{self.now():7.1f} s] photo {name}: GSD {quality.gsd_mm_px:.1f} mm/px, "
+                 f"blur {quality.motion_blur_px:.2f} px")
         self.write_summary()
 
     def takeoff(self) -> None:
