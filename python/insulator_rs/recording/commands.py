@@ -66,10 +66,11 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
 
             mission = load_mission(options.mission)
         else:
-            mission = meta.mission(path)
-            if mission is None:
+            recorded = meta.mission(path)
+            if recorded is None:
                 raise ConfigError(f"--mission: {path} does not carry its mission (not recorded by insulator_rs); "
                                   f"give the mission file")
+            mission = recorded
         scene = options.scene or meta.scene or None
         truth = _ground_truth(scene) if scene else None
         detector = _detector(options.detector)
