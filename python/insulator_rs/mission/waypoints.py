@@ -15,7 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import insulator_rs as ir
 from insulator_rs.mission.geodesy import LineFrame
+from insulator_rs.mission.photo_quality import DEFAULT_DIAMETER, MAX_GSD_MM
 from insulator_rs.mission.safety import SafetyVolumes
 
 # Fraction of the field of view the insulator may fill (the rest is margin for the localization error).
@@ -37,6 +39,8 @@ class InspectionWaypoint:
     target: np.ndarray
     insulator_id: int
     side: int
+    # mm/px the photo camera resolves on the insulator from here (None: no camera given).
+    planned_gsd_mm: float | None = None
 
 
 def aim(position: np.ndarray, target: np.ndarray) -> tuple[float, float]:
@@ -52,14 +56,36 @@ def viewing_distance(length: float, fov: float, inspection_distance: float) -> f
     return max(inspection_distance, need)
 
 
+def framing_distance(camera: ir.CameraModel, length: float, axis: np.ndarray,
+                     diameter: float = DEFAULT_DIAMETER) -> float:
+    """Distance (m) at which a string ``length`` x ``diameter`` m along ``axis`` (W), seen level
+    and square-on by ``camera``, fills at most FILL_FRACTION of the image along each image axis:
+    its horizontal extent against the horizontal field of view, its vertical extent against the
+    vertical one (a horizontal string uses the frame's long side)."""
+    u = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    vertical = abs(float(u[2]))
+    ext_h = length * math.sqrt(max(0.0, 1.0 - vertical**2)) + diameter
+    ext_v = length * vertical + diameter
+    half_h = math.atan((camera.width / 2) / camera.fx)
+    half_v = math.atan((camera.height / 2) / camera.fy)
+    return max((ext_h / 2) / math.tan(FILL_FRACTION * half_h), (ext_v / 2) / math.tan(FILL_FRACTION * half_v))
+
+
 def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: int, line: LineFrame,
                          volumes: SafetyVolumes, count: int, inspection_distance: float,
                          insulator_length: float, fov: float, fan: float = math.radians(60.0),
-                         side: int | None = None) -> list[InspectionWaypoint]:
+                         side: int | None = None, camera: ir.CameraModel | None = None,
+                         max_gsd_mm: float = MAX_GSD_MM) -> list[InspectionWaypoint]:
     """``count`` viewpoints for the insulator at ``center`` with unit ``axis`` (W).
 
     ``fan`` (rad) is the angle spanned by the viewpoints round the axis; ``side``
-    defaults to the side of the centre. Raises ValueError on a bad argument.
+    defaults to the side of the centre. With the photo ``camera``, the distance is the closest
+    that keeps the string whole in frame (:func:`framing_distance`, never nearer than
+    ``inspection_distance``, the safety minimum), which gives the finest GSD the camera can get
+    with the whole string; each waypoint carries that GSD (``planned_gsd_mm``; above
+    ``max_gsd_mm`` the camera cannot reach the inspection's GSD with the string whole, and the
+    photo records say so). Without it, ``fov`` (rad) frames the string as before. Raises
+    ValueError on a bad argument.
     """
     c = np.asarray(center, dtype=np.float64).reshape(3)
     u = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -77,7 +103,14 @@ def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: 
         e1 = np.array([0.0, 0.0, 1.0]) - u[2] * u
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(u, e1)
-    r = viewing_distance(insulator_length, fov, inspection_distance)
+    if camera is None:
+        r = viewing_distance(insulator_length, fov, inspection_distance)
+        gsd = None
+    else:
+        r = max(inspection_distance, framing_distance(camera, insulator_length, u))
+        gsd = 1000.0 * r / (0.5 * (camera.fx + camera.fy))
+        if not math.isfinite(max_gsd_mm) or max_gsd_mm <= 0:
+            raise ValueError(f"max_gsd_mm: must be finite and > 0, got {max_gsd_mm}")
     angles = [0.0] if count == 1 else list(np.linspace(-fan / 2, fan / 2, count))
     result = []
     for theta in angles:
@@ -90,5 +123,6 @@ def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: 
             if pushed > 100.0:
                 raise ValueError("center: no viewpoint outside the safety volumes within 100 m")
         yaw, pitch = aim(p, c)
-        result.append(InspectionWaypoint(p, yaw, pitch, c.copy(), insulator_id, s))
+        result.append(InspectionWaypoint(p, yaw, pitch, c.copy(), insulator_id, s,
+                                         None if gsd is None else gsd * float(np.linalg.norm(p - c)) / r))
     return result
