@@ -106,9 +106,10 @@ def _ground_truth(scene: str) -> list[Any]:
 
 def _detector(name: str) -> Any:
     from insulator_rs.detection.commands import open_detector
+    from insulator_rs.flight.detector import NetworkDetector
 
     try:
-        return open_detector(name, conf=DETECT_CONF, threads=1)
+        return NetworkDetector(open_detector(name, conf=DETECT_CONF))  # as the flight's --detector
     except ValueError as exc:
         raise ModelError(f"--detector: {exc}") from exc
 
