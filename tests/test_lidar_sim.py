@@ -14,7 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from insulator_rs.sim.lidar import Mid360, PoseTrack, interpolate_poses
+from insulator_rs.poses import PoseTrack, interpolate_poses
+from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.mesh import InstanceInfo, Mesh, box, cylinder, plane
 
 

@@ -59,14 +59,15 @@ def test_cells_are_deterministic_under_a_seed():
     assert len(a) == 2
 
 
-def test_accumulated_points_lie_on_the_target_insulator():
-    """With exact odometry, exact boxes and a hovering UAV (no motion distortion), every culled
-    LiDAR point that hit the target (simulator ground truth), taken from B of the latest event
-    back to W with the true pose, lies on the insulator: within its shed radius + 4 sigma of
-    range noise (8 cm) of its axis and within its length (+ 8 cm). A frame mix-up anywhere in
-    L -> C -> B -> W breaks this by metres."""
+def test_the_flying_pipeline_puts_the_accumulated_points_on_the_target_insulator():
+    """With exact odometry, exact boxes and a hovering UAV, the flight's PerceptionPipeline (the
+    study's localizer) accumulates points of which a good share lies inside the target's true
+    envelope (shed radius + 8 cm of its axis, within its length + 8 cm; more than 20 %: the rest
+    is lattice and conductor behind it in the same box, 41 % on average in the published run)
+    and localizes it within 0.5 m (the paper's accuracy class; the error lies along the axis). A frame mix-up anywhere in L -> B -> W -> C puts no point
+    inside and the centre metres off."""
     cfg = StudyConfig(towers=("A",), standoffs={"A": (8.0,)}, events=1, odom_position_noise=0.0,
-                      odom_yaw_noise_deg=0.0, box_jitter=0.0, speed=0.0)
+                      odom_yaw_noise_deg=0.0, box_jitter=0.0, speed=0.0, methods=("dbscan+ransac", "bounded"))
     rig = study.SensorRig("tower_a", cfg, seed=1)
     rng = np.random.default_rng(1)
     from insulator_rs.sim.detector_standin import DetectorStandin
@@ -75,22 +76,15 @@ def test_accumulated_points_lie_on_the_target_insulator():
     hits = 0
     for target in rig.tower.insulators[:4]:
         trajectory, times = study._event_poses(rig.tower, target, 8.0, rng, cfg)
-        got = study._accumulate(rig, target.instance_id, trajectory, times, det, rng, cfg)
+        got = study._localize_event(rig, target, trajectory, times, det, rng, cfg, insulator_length=2.2)
         if got is None:
             continue
-        points_b, ids, T_w_b = got.points_b, got.hit_ids, got.T_w_b
-        # The bounded method's views: one box per event, the latest camera pose in its own B is
-        # the mount itself (exact odometry).
-        assert got.boxes.shape == (3, 4) and got.T_b_c.shape == (3, 4, 4)
-        assert np.allclose(got.T_b_c[-1], rig.camera.T_b_c, atol=1e-12)
-        p_w = points_b[ids == target.instance_id] @ T_w_b[:3, :3].T + T_w_b[:3, 3]
-        assert len(p_w) >= 10
-        rel = p_w - target.center
-        along = rel @ target.axis
-        radial = np.linalg.norm(rel - np.outer(along, target.axis), axis=1)
-        assert np.all(radial < target.radius + 0.08)
-        assert np.all(np.abs(along) < target.length / 2 + 0.08)
-        hits += 1
+        assert set(got) == {"dbscan+ransac", "bounded"}  # the fifth method through the same pipeline
+        loc, outcome, n_input, purity = got["dbscan+ransac"]
+        assert n_input >= 10 and purity > 0.2, (n_input, purity)
+        if loc is not None:
+            assert outcome == "ok" and np.linalg.norm(loc.center - target.center) < 0.5
+            hits += 1
     assert hits >= 2
 
 
@@ -113,7 +107,7 @@ def test_summary_statistics_match_numpy():
     rows = [EventResult("A", 8.0, i, 1, "dbscan", True, e, e * 0.8, e * 0.6, 2.0, e * 0.5, 40, 90, 0.5)
             for i, e in enumerate(errs)]
     rows.append(EventResult("A", 8.0, 10, 1, "dbscan", False, math.nan, math.nan, math.nan,
-                            math.nan, math.nan, 0, 90, 0.4))
+                            math.nan, math.nan, 0, 90, 0.4, "failed"))
     (s,) = study.summarize(rows)
     assert s.n == 10 and s.failures == 1
     assert s.mean == pytest.approx(errs.mean()) and s.std == pytest.approx(errs.std(ddof=1))

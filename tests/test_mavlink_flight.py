@@ -117,7 +117,7 @@ def test_offboard_before_setpoints_is_refused_with_px4s_result(vehicle: MavlinkV
     with pytest.raises(CommandRejected) as refusal:
         vehicle.start_offboard()
     assert refusal.value.command == "MAV_CMD_DO_SET_MODE"
-    assert refusal.value.result == "MAV_RESULT_TEMPORARILY_REJECTED"
+    assert refusal.value.reason == "MAV_RESULT_TEMPORARILY_REJECTED"
     assert "OFFBOARD" in str(refusal.value)
     assert vehicle.state().mode == "HOLD"
 

@@ -1,4 +1,8 @@
-"""``insulator-rs inspect`` end to end on a small scene: one cross-arm, two insulators."""
+"""``insulator-rs inspect`` end to end on a small scene: one cross-arm, two insulators.
+
+The flight writes ``summary.json`` (what it knows); the scorer writes ``score.json`` (the
+report against the scene's ground truth, after the flight). Assertions on ground truth read
+the scorer's output."""
 
 import json
 from pathlib import Path
@@ -6,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from insulator_rs.cli import main
-from insulator_rs.mission import inspect_command
+from insulator_rs.flight.loop import FlightLoop
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = REPO / "python" / "insulator_rs" / "scenes"
@@ -49,16 +53,18 @@ def test_inspect_end_to_end_on_a_small_scene(tmp_path, capsys):
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
+    g = json.loads((out / "score.json").read_text())
     assert s["status"] == "finished" and s["state"] == "finish"
-    assert s["insulators_in_scene"] == 2 and s["insulators_matched"] == 2
-    assert s["insulators_inspected"] >= 2
-    matched = [r for r in s["insulators"] if r["error_m"] < 1.5]
+    assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2
+    assert s["insulators_inspected"] >= 2 and g["insulators_inspected_matched"] == 2
+    matched = [r for r in g["insulators"] if r["error_m"] < 1.5]
     assert all(r["error_m"] < 0.6 for r in matched)  # the paper's accuracy class
     assert len(s["photos"]) == 2 * s["insulators_inspected"]  # two waypoints per insulator
     for p in s["photos"]:
         assert (out / p["file"]).stat().st_size > 1000
-        assert p["insulator_visible"]
-    assert sum(p["insulator_whole_in_frame"] for p in s["photos"]) >= 2
+    assert [p["file"] for p in g["photos"]] == [p["file"] for p in s["photos"]]
+    assert all(p["insulator_visible"] for p in g["photos"])
+    assert sum(p["insulator_whole_in_frame"] for p in g["photos"]) >= 2
     states = [t["to"] for t in s["transitions"]]
     for st in ("explore", "inspect", "return", "cross", "finish"):
         assert st in states
@@ -72,13 +78,13 @@ def test_inspect_end_to_end_on_a_small_scene(tmp_path, capsys):
 def test_interruption_keeps_what_was_found(tmp_path, monkeypatch):
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"
-    original = inspect_command.InspectionRun.take_photo
+    original = FlightLoop.take_photo
 
     def photo_then_ctrl_c(self, wp):
         original(self, wp)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(inspect_command.InspectionRun, "take_photo", photo_then_ctrl_c)
+    monkeypatch.setattr(FlightLoop, "take_photo", photo_then_ctrl_c)
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
     assert rc == 130
     s = json.loads((out / "summary.json").read_text())
@@ -117,3 +123,24 @@ def test_bad_mission_file_is_refused_before_flying(tmp_path, capsys):
     rc = main(["inspect", "--mission", str(bad), "--out", str(out)])
     assert rc == 2 and not out.exists()
     assert "bad.toml: tower.max_width: must be > 0" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_live_log_holds_only_what_the_flight_knows(tmp_path, capsys):
+    """No ground truth reaches the flight: the progress lines and summary.json mention no error
+    against the truth; the scene's truth appears only in the scorer's score.json."""
+    scene, mission = small_scene(tmp_path)
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out),
+               "--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--max-flight-time", "90"])
+    assert rc in (0, 1)
+    log = capsys.readouterr().out.splitlines()
+    assert any("localized at" in line for line in log)
+    flight_lines = log[:-1]  # the last line is the post-flight score
+    assert not any("ground truth" in line or "error" in line for line in flight_lines), flight_lines
+    s = json.loads((out / "summary.json").read_text())
+    text = json.dumps(s)
+    for key in ("gt_instance_id", "error_m", "ground_truth", "insulators_matched", "insulator_visible"):
+        assert key not in text
+    g = json.loads((out / "score.json").read_text())
+    assert len(g["ground_truth"]) == 2 and "scored after the flight" in log[-1]

@@ -14,15 +14,14 @@ import pytest
 from test_mission_inspect import small_scene
 
 from insulator_rs.cli import main
-from insulator_rs.mission import inspect_command
-from insulator_rs.mission.inspect_command import InspectionRun
+from insulator_rs.flight.loop import FlightLoop
 from insulator_rs.sim.kinematics import KinematicVehicle
 
 MAVLINK = ["--vehicle", "mavlink", "--time-scale", "4"]
 ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
 
 
-def _inspect(tmp_path, *extra, confirmations=1):
+def _inspect(tmp_path, *extra, confirmations=1, score=False):
     """Fly the small scene. The registry confirms at once (the paper's behaviour) unless told
     otherwise: over MAVLink the simulated PX4 flies on while a frame renders, so a fast pass
     gets too few detection events for the default 3 confirmations (test_mission_inspect
@@ -32,23 +31,27 @@ def _inspect(tmp_path, *extra, confirmations=1):
     mission.write_text(mission.read_text() + f"confirmations = {confirmations}\n")
     out = tmp_path / "report"
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS, *extra])
-    return rc, out, json.loads((out / "summary.json").read_text())
+    s = json.loads((out / "summary.json").read_text())
+    if score:  # the scorer's output beside the flight's: (rc, out, summary, score)
+        return rc, out, s, json.loads((out / "score.json").read_text())
+    return rc, out, s
 
 
 def _after_first_photo(monkeypatch, action):
     """Run ``action(run)`` right after the first inspection photo is saved."""
-    original = InspectionRun.take_photo
+    original = FlightLoop.take_photo
 
     def photo_then_fault(self, wp):
         original(self, wp)
         if len(self.photos) == 1:
             action(self)
 
-    monkeypatch.setattr(InspectionRun, "take_photo", photo_then_fault)
+    monkeypatch.setattr(FlightLoop, "take_photo", photo_then_fault)
 
 
 def _assert_found_so_far_kept(out, s):
-    assert s["insulators_found"] >= 1 and s["insulators_matched"] >= 1
+    g = json.loads((out / "score.json").read_text())
+    assert s["insulators_found"] >= 1 and g["insulators_matched"] >= 1
     assert len(s["photos"]) >= 1 and all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
     assert s["state"] == "abort" and s["transitions"][-1]["to"] == "abort"
     assert (out / "trajectory.png").is_file()
@@ -62,17 +65,19 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
     those render stalls cost whole detection events on the small scene's fast pass. Detection
     twice a second: on a loaded machine one pass at 1 Hz once localized only one of the two
     insulators (each is in view for a few seconds at 3 m/s)."""
-    rc, out, s = _inspect(tmp_path, "--vehicle", "mavlink", "--time-scale", "1", "--detect-period", "0.5")
+    rc, out, s, g = _inspect(tmp_path, "--vehicle", "mavlink", "--time-scale", "1", "--detect-period", "0.5",
+                             score=True)
     assert rc == 0, s["status"]
     assert s["status"] == "finished" and s["state"] == "finish" and s["vehicle"] == "MavlinkVehicle"
     assert s["failsafe"] is None
-    assert s["insulators_in_scene"] == 2 and s["insulators_matched"] == 2
+    assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2
     assert s["insulators_inspected"] >= 2
-    assert all(r["error_m"] < 0.6 for r in s["insulators"] if r["error_m"] < 1.5)
+    assert all(r["error_m"] < 0.6 for r in g["insulators"] if r["error_m"] < 1.5)
     assert len(s["photos"]) == 2 * s["insulators_inspected"]
     for p in s["photos"]:
-        assert (out / p["file"]).stat().st_size > 1000 and p["insulator_visible"]
-    assert sum(p["insulator_whole_in_frame"] for p in s["photos"]) >= 2
+        assert (out / p["file"]).stat().st_size > 1000
+    assert all(p["insulator_visible"] for p in g["photos"])
+    assert sum(p["insulator_whole_in_frame"] for p in g["photos"]) >= 2
     states = [t["to"] for t in s["transitions"]]
     for st in ("explore", "inspect", "return", "cross", "finish"):
         assert st in states
@@ -102,7 +107,7 @@ def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_
 @pytest.mark.slow
 def test_pilot_takeover_aborts_and_nothing_more_is_sent(tmp_path, monkeypatch):
     seen = {}
-    original = inspect_command.InspectionRun.on_failsafe
+    original = FlightLoop.on_failsafe
 
     def on_failsafe(self, exc):
         original(self, exc)
@@ -111,7 +116,7 @@ def test_pilot_takeover_aborts_and_nothing_more_is_sent(tmp_path, monkeypatch):
         seen["commands"] = dict(self.vehicle.simulator.stats.commands)
         seen["sim"] = self.vehicle.simulator
 
-    monkeypatch.setattr(inspect_command.InspectionRun, "on_failsafe", on_failsafe)
+    monkeypatch.setattr(FlightLoop, "on_failsafe", on_failsafe)
     _after_first_photo(monkeypatch, lambda run: run.vehicle.simulator.pilot_mode_change("POSCTL"))
     rc, out, s = _inspect(tmp_path, *MAVLINK)
     assert rc == 1
@@ -148,7 +153,7 @@ def test_vehicle_options_are_checked(tmp_path, capsys):
     """Refused before anything flies: status 2 and the flag named, no traceback."""
     base = ["inspect", "--out", str(tmp_path / "r")]
     for extra, message in (
-            (["--connection", "udpin:127.0.0.1:14540"], "--connection: the camera and LiDAR of a real vehicle"),
+            (["--connection", "udpin:127.0.0.1:14540"], "--connection: add --lidar and --camera (live sensors), or --sim-sensors"),
             (["--vehicle", "mavlink", "--time-scale", "10"], "--time-scale: must be in"),
             (["--time-scale", "2"], "--time-scale: only applies to --vehicle mavlink"),
             (["--vehicle", "mavlink", "--sim-sensors"], "--sim-sensors: only applies with --connection"),
@@ -218,18 +223,20 @@ def test_far_side_finds_owed_on_the_landing_side_are_inspected_before_landing(tm
     landing itself (the mission then went on from the ground). It must be visited first.
     Perception is replaced by that one scripted localization (a true insulator's pose)."""
     from insulator_rs.mission.state_machine import State
+    from insulator_rs.sim.towers import load_tower
 
     outcomes = []
+    truth = load_tower(small_scene(tmp_path)[0]).insulators  # the test's script, not the flight, knows it
 
     def scripted_event(self, st):
         landing_side = self.sm.plan[-1].side if self.sm.plan else 0
         if outcomes or self.sm.state != State.EXPLORE or self.sm.side != -landing_side:
             return  # once, on the far side's pass (the last one: the small scene has one crossing)
-        gt = next(t for t in self.tower.insulators if self.geom.line.side(t.center) == landing_side)
+        gt = next(t for t in truth if self.geom.line.side(t.center) == landing_side)
         for _ in range(self.registry.confirmations):  # the registry confirms on the last one
             outcomes.append(self.sm.localized(gt.center, gt.axis, st.position, st.time))
 
-    monkeypatch.setattr(InspectionRun, "detection_event", scripted_event)
+    monkeypatch.setattr(FlightLoop, "detection_event", scripted_event)
     rc, out, s = _inspect(tmp_path)
     assert outcomes[-1] == "deferred" and set(outcomes[:-1]) <= {"candidate"}
     assert rc == 0 and s["status"] == "finished" and s["state"] == "finish"

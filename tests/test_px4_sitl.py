@@ -117,13 +117,14 @@ def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
                "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"])
     s = json.loads((out / "summary.json").read_text())
+    g = json.loads((out / "score.json").read_text())  # the post-flight scorer's, against the scene
     log = px4.log()
     assert FAILSAFE_LINE not in log, [line for line in log.splitlines() if "WARN" in line or "ERROR" in line]
     assert rc == 0 and s["status"] == "finished", s["status"]
-    assert s["insulators_in_scene"] == 2 and s["insulators_matched"] == 2 and s["insulators_inspected"] == 2
+    assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2 and s["insulators_inspected"] == 2
     assert len(s["photos"]) == 4 and all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
     assert {p["insulator_id"] for p in s["photos"]} == {r["id"] for r in s["insulators"]}
-    assert all(p["insulator_visible"] for p in s["photos"])
+    assert all(p["insulator_visible"] for p in g["photos"])
     assert "Landing detected" in log and "Disarmed by landing" in log
 
 
@@ -192,9 +193,10 @@ def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch)
         done.set()
         attacker.join(timeout=10)
     s = json.loads((out / "summary.json").read_text())
+    g = json.loads((out / "score.json").read_text())
     assert sent["truncated"] > 2000 and sent["heartbeats"] >= 4  # the attack ran, mid-flight
     assert FAILSAFE_LINE not in px4.log()
     assert rc == 0 and s["status"] == "finished", s["status"]
-    assert s["insulators_matched"] == 2 and s["insulators_inspected"] == 2 and len(s["photos"]) == 4
+    assert g["insulators_matched"] == 2 and s["insulators_inspected"] == 2 and len(s["photos"]) == 4
     assert stats[0]["foreign_address"] >= sent["truncated"] + sent["heartbeats"]
     assert sent["replies"] == 0  # nothing streamed to the stranger

@@ -16,7 +16,7 @@ from types import ModuleType
 
 # (subcommand, module that registers it)
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
-    ("inspect", "insulator_rs.mission.inspect_command"),
+    ("inspect", "insulator_rs.inspect_command"),
     ("eval", "insulator_rs.evaluation.commands"),
     ("detect", "insulator_rs.detection.commands"),
     ("train", "insulator_rs.detection.train_command"),

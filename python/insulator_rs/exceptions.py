@@ -1,4 +1,4 @@
-"""Every exception the package raises, under one base class.
+"""Every exception the package raises, under one base class (one name per meaning).
 
 The compiled core raises ``LocalizationError`` (and ``ValueError``/``TypeError``
 for bad arguments); the Python layers raise the others.
@@ -33,6 +33,36 @@ class BagError(InsulatorError, ValueError):
     """A recorded flight (MCAP file, rosbag2 folder, ROS 1 bag) cannot be read or replayed:
     missing or truncated file, a missing topic, a wrong message type, stamps out of order or
     jumping. The message names the file or topic and the time."""
+
+
+class CommandRejected(VehicleError):
+    """The vehicle (autopilot) refused a command.
+
+    ``command`` names it (e.g. ``"arm"``, ``"MAV_CMD_DO_SET_MODE"``), ``reason`` says why
+    (the autopilot's words, or its MAV_RESULT name), ``detail`` adds what was asked (e.g. the
+    mode). ``temporary`` is True where the command may succeed later (PX4's
+    TEMPORARILY_REJECTED: arming before a position estimate exists) and False where it is
+    denied outright. The simulator and the MAVLink client raise this same class.
+    """
+
+    def __init__(self, command: str, reason: str, detail: str = "", *, temporary: bool = True) -> None:
+        what = f"{command} ({detail})" if detail else command
+        super().__init__(f"{what} refused by the vehicle: {reason}")
+        self.command = command
+        self.reason = reason
+        self.detail = detail
+        self.temporary = temporary
+
+
+class VehicleFailsafe(VehicleError):
+    """A failsafe fired; ``reason`` says why, ``action`` what the vehicle (or the client on its
+    behalf) did. A vehicle's ``advance`` raises it once per failsafe; the mission then stops
+    commanding (the autopilot, or the pilot, flies)."""
+
+    def __init__(self, reason: str, action: str) -> None:
+        super().__init__(f"failsafe: {reason}; action: {action}")
+        self.reason = reason
+        self.action = action
 
 
 class ImageError(InsulatorError, ValueError):

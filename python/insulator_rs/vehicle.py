@@ -1,18 +1,41 @@
 """The one vehicle interface the mission flies through.
 
-Two implementations share it: the in-process kinematic simulator
+Two adapters implement it: the in-process kinematic simulator
 (`insulator_rs.sim.kinematics`) and the MAVLink offboard client that commands
 PX4 or the simulated PX4 (`insulator_rs.mavlink`). Everything here is in the
 world frame W (local ENU at the tower base, metres, radians, seconds); NED
-appears only inside the MAVLink package.
+appears only inside the MAVLink package. The inspection photo is not the
+vehicle's business: the companion computer takes it through
+:meth:`insulator_rs.sensors.Sensors.photo`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+
+
+class FlightMode(str, Enum):
+    """PX4 navigation states a vehicle can be in (names as PX4 prints them; the ``mode`` of
+    :class:`VehicleState` is one of these values)."""
+
+    MANUAL = "MANUAL"
+    POSCTL = "POSCTL"
+    HOLD = "HOLD"  # AUTO_LOITER
+    TAKEOFF = "TAKEOFF"  # AUTO_TAKEOFF
+    LAND = "LAND"  # AUTO_LAND
+    RTL = "RTL"  # AUTO_RTL
+    MISSION = "MISSION"  # AUTO_MISSION (not flown here: treated as HOLD)
+    OFFBOARD = "OFFBOARD"
+
+
+def wrap_angle(angle: float) -> float:
+    """Wrap an angle in rad to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass(frozen=True)

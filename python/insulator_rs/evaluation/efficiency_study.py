@@ -18,10 +18,15 @@ Set-up (stated, so the numbers can be reproduced and judged):
   ``DETECTION_RANGE`` of the vehicle, project into the simulated camera's image
   (``ir.project_points``, the simulator's default camera) and are not occluded:
   a ray cast through the simulator's scene (tower lattice, conductors, other
-  insulators) first hits that insulator. It is localized (perfectly, at its
-  ground-truth centre and axis: the localization error is the subject of the
-  localization study) on its ``EVENTS_TO_LOCALIZE``-th sighting, as the paper
-  accumulates three detection events.
+  insulators) first hits that insulator. Whenever one is seen, the flight's own
+  :class:`~insulator_rs.mission.perception.PerceptionPipeline` gets the detection frame
+  (the seen insulators' boxes: their projected outlines) and the simulated Mid-360 scans of
+  that instant (the scan ending then and the next, cast along the vehicle's motion, as the
+  flight pairs them) and localizes them, accumulating three detection events, with the
+  DBSCAN+RANSAC default and its plausibility gates; the registry confirms an insulator as
+  in flight. The viewpoints stay those of the ground-truth insulators, so both strategies
+  visit the same waypoints: what the pipeline decides is when (and whether) an insulator is
+  found, i.e. where the detours happen.
 * All times are point-mass-model times with optimised waypoint velocities.
   Single flight: take-off, exploration with detours, landing at the take-off
   point. Two flights: the scan flight (the same exploration path, no stops)
@@ -43,6 +48,7 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.mission.config import Mission, load_mission
+from insulator_rs.mission.perception import PerceptionPipeline
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.pmm import rest_to_rest_times
 from insulator_rs.mission.registry import Insulator, InsulatorRegistry
@@ -50,8 +56,11 @@ from insulator_rs.mission.single_flight import fly_single_flight
 from insulator_rs.mission.state_machine import InspectionStateMachine
 from insulator_rs.mission.two_flight import two_flight
 from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.poses import pose_from_yaw
+from insulator_rs.rig import simulator_rig
+from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.sim.lidar import Mid360
 from insulator_rs.report.folder import parse_out_folder
-from insulator_rs.sim.camera_render import default_camera_model, default_T_b_c
 from insulator_rs.sim.towers import Tower, load_tower
 
 V_MAX = 3.0  # m/s, every axis (paper)
@@ -61,7 +70,7 @@ SENSE_PERIOD = 0.2  # s, detector rate of 5 Hz
 DETECTION_RANGE = 20.0  # m, where the Mid-360 still puts enough points on an insulator
 AXIS_SAMPLES = 5
 MIN_VISIBLE_POINTS = 2
-EVENTS_TO_LOCALIZE = 3
+POSE_RATE_HZ = 20.0  # the flight loop feeds the pose history every control tick
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 TOWERS = ("tower_a", "tower_b")
 POLICIES = ("immediate", "insertion")
@@ -72,15 +81,15 @@ class VisibilityModel:
 
     def __init__(self, tower: Tower, *, detection_range: float = DETECTION_RANGE) -> None:
         self.tower = tower
-        self.cam = default_camera_model()
-        self.T_b_c = default_T_b_c()
+        rig = simulator_rig()
+        self.cam = rig.camera
+        self.T_b_c = rig.T_b_c
         self.range = detection_range
         self.scene = tower.mesh.raycaster
         offsets = np.linspace(-0.4, 0.4, AXIS_SAMPLES)
         self.points = np.array([[ins.center + f * ins.length * ins.axis for f in offsets]
                                 for ins in tower.insulators])  # (n, S, 3)
         self.ids = np.array([ins.instance_id for ins in tower.insulators])
-        self.sightings = np.zeros(len(tower.insulators), dtype=int)
 
     def visible(self, position: np.ndarray, yaw: float) -> np.ndarray:
         """(n,) bool: insulators seen from a level body at ``position`` (W) with heading ``yaw``."""
@@ -103,15 +112,69 @@ class VisibilityModel:
             ok = seen
         return ok.reshape(len(self.ids), AXIS_SAMPLES).sum(axis=1) >= MIN_VISIBLE_POINTS
 
-    def sense(self, position: np.ndarray, yaw: float, _time: float) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Localizations that become available at this poll (the EVENTS_TO_LOCALIZE-th sighting)."""
-        vis = self.visible(position, yaw)
-        self.sightings += vis
-        out = []
-        for i in np.flatnonzero(vis & (self.sightings == EVENTS_TO_LOCALIZE)):
-            ins = self.tower.insulators[i]
-            out.append((ins.center.copy(), ins.axis.copy()))
-        return out
+
+
+class PipelineSensing:
+    """The single flight's sensing: the visibility model says which insulators the camera sees;
+    the flight's perception pipeline localizes them from simulated Mid-360 scans (see the
+    module docstring). ``sense`` is the ``Sense`` callback of ``fly_single_flight``."""
+
+    def __init__(self, tower: Tower, insulator_length: float, *, seed: int = 0) -> None:
+        rig = simulator_rig()
+        self.tower = tower
+        self.visibility = VisibilityModel(tower)
+        self.lidar = Mid360(rig.T_b_l)
+        self.camera, self.T_b_c = rig.camera, rig.T_b_c
+        self.pipeline = PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, insulator_length=insulator_length)
+        self.image = np.broadcast_to(np.zeros(3, np.uint8), (rig.camera.height, rig.camera.width, 3))
+        mesh = tower.mesh
+        self.vertices = [mesh.vertices[np.unique(mesh.triangles[mesh.instance_ids == i.instance_id])]
+                         for i in tower.insulators]
+        self._last: tuple[float, np.ndarray] | None = None
+        self._seed = seed
+        self.scans = 0
+
+    def _boxes(self, seen: np.ndarray, T_w_b: np.ndarray) -> np.ndarray:
+        """The projected outline (x1, y1, x2, y2) of each seen insulator, clipped to the image."""
+        T_c_w = np.linalg.inv(T_w_b @ self.T_b_c)
+        size = np.array([self.camera.width, self.camera.height], dtype=np.float64)
+        boxes = []
+        for i in np.flatnonzero(seen):
+            uv, ok = ir.project_points(self.vertices[i], T_c_w, self.camera)
+            if not np.any(ok):
+                continue
+            lo, hi = np.clip(uv[ok].min(axis=0), 0, size), np.clip(uv[ok].max(axis=0), 0, size)
+            if np.all(hi - lo >= 2):
+                boxes.append([lo[0], lo[1], hi[0], hi[1]])
+        return np.array(boxes, dtype=np.float64).reshape(-1, 4)
+
+    def sense(self, position: np.ndarray, yaw: float, time: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Localizations the pipeline makes at this poll."""
+        if self._last is None or time <= self._last[0]:
+            velocity = np.zeros(3)
+        else:
+            velocity = (position - self._last[1]) / (time - self._last[0])
+        self._last = (time, position.copy())
+        seen = self.visibility.visible(position, yaw)
+        if not np.any(seen):
+            return []
+        boxes = self._boxes(seen, pose_from_yaw(position, yaw))
+        if len(boxes) == 0:
+            return []
+
+        def trajectory(t: float) -> np.ndarray:  # the vehicle's motion around this instant
+            return pose_from_yaw(position + velocity * (t - time), yaw)
+
+        period = self.lidar.frame_period
+        for t in np.arange(time - period, time + period + 1e-9, 1.0 / POSE_RATE_HZ):
+            self.pipeline.add_pose(PoseStamped(float(t), trajectory(float(t))))
+        for t_end in (time, time + period):
+            self._seed += 1
+            frame = self.lidar.scan(self.tower.mesh, trajectory, t_end - period, seed=self._seed)
+            self.pipeline.add_scan(LidarScan(frame.points_l, frame.timestamps, self.lidar.T_b_l))
+            self.scans += 1
+        out = self.pipeline.process(CameraFrame(time, self.image, self.camera, self.T_b_c), boxes)
+        return [(loc.center, loc.axis) for loc in out]
 
 
 def waypoint_counts(n_insulators: int, n_waypoints: int) -> list[int]:
@@ -158,7 +221,7 @@ class TowerStudy:
 
     @staticmethod
     def tower_camera_half_height() -> float:
-        cam = default_camera_model()
+        cam = simulator_rig().camera
         return (cam.height / 2) / cam.fy  # tan of half the vertical field of view (the narrower)
 
     def viewpoints(self, gt_index: int, count: int, insulator_id: int) -> list[InspectionWaypoint]:
@@ -176,7 +239,8 @@ class TowerStudy:
 
     def single_flight(self, counts: list[int], policy: str) -> tuple[float, int, bool]:
         """(flight time s, insulators inspected, trajectory safe) of one online single flight."""
-        reg = InsulatorRegistry(self.geom.line, self.mission.inspection.registry_gate)
+        reg = InsulatorRegistry(self.geom.line, self.mission.inspection.registry_gate,
+                                self.mission.inspection.confirmations)
 
         def make(ins: Insulator) -> list[InspectionWaypoint]:
             k = self.gt_index(ins.center)
@@ -187,8 +251,8 @@ class TowerStudy:
 
         sm = InspectionStateMachine(self.geom.path, reg, make, policy=policy, cost=cost)
         sm.start(0.0)
-        vis = VisibilityModel(self.tower)
-        res = fly_single_flight(sm, v_max=self.v_max, a_max=self.a_max, sense=vis.sense,
+        sensing = PipelineSensing(self.tower, self.mission.inspection.insulator_length)
+        res = fly_single_flight(sm, v_max=self.v_max, a_max=self.a_max, sense=sensing.sense,
                                 sense_period=SENSE_PERIOD)
         inspected = sum(1 for ins in reg.insulators if ins.inspected and counts[self.gt_index(ins.center)])
         safe = self.geom.volumes.samples_clear(res.positions,

@@ -12,11 +12,15 @@ line), the study draws localization events. One event:
    instance-id image, so occlusion is right) degraded by the detector
    stand-in, and the latest Mid-360 frame (sim.lidar, moving vehicle, so the
    frame carries its motion distortion, as a real one does);
-3. culls the frame to the target's box with ``ir.points_in_boxes``, transforms
-   the culled points with the (noisy) odometry into the body frame B of the
-   latest detection event and accumulates 3 detection events, as the paper does;
-4. runs ``ir.localize`` with each of the four methods and compares the centre,
-   taken to W with the latest odometry pose, with the ground truth.
+3. hands each image, its box, the LiDAR points of that instant (the scans ending at the
+   image and one scan later, as the flight loop pairs them) and the (noisy) odometry poses
+   at 20 Hz to the flight's own :class:`~insulator_rs.mission.perception.PerceptionPipeline`,
+   one per method, until it attempts a localization (its third detection event holding
+   LiDAR points): pairing, deskewing, culling, accumulation, ``ir.localize`` and the
+   plausibility gates are the code that flies, with the mission file's insulator length;
+4. compares the centre it returns (in W) with the ground truth; no result (a
+   ``LocalizationError``, too few points, a size that does not fit the box, or a shape the
+   false-find filter refuses) is a failure.
 
 Errors: centre distance (m), its horizontal and vertical components (m), and
 the angle between the estimated and true axes (degrees). The command prints
@@ -27,6 +31,8 @@ the table (mean ± std) beside the paper's numbers, writes ``events.csv``,
 
 Boxes are associated with the target by the ground-truth instance id the
 stand-in carries (the registry's association is not what this study measures).
+``purity`` is the share of the accumulated points inside the target's true envelope
+(shed radius + 8 cm around its axis, within its length + 8 cm).
 """
 
 from __future__ import annotations
@@ -44,15 +50,18 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.mission import bounds
+from insulator_rs.mission.config import load_mission
+from insulator_rs.mission.perception import Localization, PerceptionPipeline
+from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.report.folder import parse_out_folder
 
 METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
 METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
                  "dbscan+pca": "DBSCAN + PCA", "bounded": "Bounded (cam.)"}
 TOWERS: dict[str, str] = {"A": "tower_a", "B": "tower_b"}
+MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 # The paper's cells: tower A at 8, 9, 10 m, tower B at 8, 9 m.
 DEFAULT_STANDOFFS: dict[str, tuple[float, ...]] = {"A": (8.0, 9.0, 10.0), "B": (8.0, 9.0)}
-DETECTIONS_PER_EVENT = 3  # the paper accumulates three detection events
 # Paper Tables I and II: mean ± std of the centre error (m), 150 measurements per cell.
 PAPER: dict[tuple[str, float], dict[str, tuple[float, float]]] = {
     ("A", 8.0): {"ransac": (0.40, 0.20), "dbscan+ransac": (0.35, 0.17), "dbscan": (0.74, 0.57),
@@ -66,8 +75,9 @@ PAPER: dict[tuple[str, float], dict[str, tuple[float, float]]] = {
     ("B", 9.0): {"ransac": (0.43, 0.21), "dbscan+ransac": (0.36, 0.23), "dbscan": (0.41, 0.25),
                  "dbscan+pca": (0.41, 0.26)},
 }
-# A detection event must hold at least this many culled points to count (fewer is a
-# box the LiDAR did not see into, e.g. the insulator outside the Mid-360's -7 deg edge).
+DETECTIONS_PER_EVENT = 3  # the paper accumulates three detection events (the pipeline's EVENTS_PER_LOCALIZATION)
+# A detection event must hold at least this many culled points to count in the motion study's own
+# accumulation (evaluation/motion_study.py); the pipeline's own gate is MIN_POINTS_PER_BOX.
 MIN_POINTS_PER_DETECTION = 1
 # Give up on an event when the target was not detected within this many images.
 MAX_IMAGES_PER_EVENT = 10
@@ -102,7 +112,7 @@ class EventResult:
 
     error_axial: centre error along the true axis (m, the part the clutter at an insulator's
     ends pulls); n_points: points that determined the centre; n_input: accumulated culled points;
-    purity: share of those that hit the target insulator (ground truth of the simulator).
+    purity: share of those inside the target's true envelope (ground truth of the simulator).
     """
 
     tower: str
@@ -119,6 +129,9 @@ class EventResult:
     n_points: int
     n_input: int
     purity: float
+    # "ok", "failed" (no usable cloud), "implausible" (size does not fit the box) or "not an
+    # insulator" (the false-find filter: shape)
+    outcome: str = "ok"
 
 
 def _yaw_pose(position: np.ndarray, yaw: float) -> np.ndarray:
@@ -160,13 +173,11 @@ class SensorRig:
         self.cfg = cfg
         self.seed = seed
 
-    def lidar_points(self, trajectory: Callable[[float], np.ndarray], t_end: float,
-                     seed: int) -> tuple[np.ndarray, np.ndarray]:
-        """The latest complete Mid-360 frame at ``t_end`` (s): (N, 3) points in L as the driver
-        delivers them (each in L at its own timestamp, no motion compensation), and the (N,)
-        instance id each point hit (ground truth, for the purity statistic only)."""
+    def lidar_scan(self, trajectory: Callable[[float], np.ndarray], t_end: float, seed: int) -> LidarScan:
+        """The Mid-360 frame ending at ``t_end`` (s), as the driver delivers it: points in L at
+        their own timestamps (no motion compensation), per-point times."""
         frame = self.lidar.scan(self.mesh, trajectory, t_end - self.lidar.frame_period, seed=seed)
-        return frame.points_l, frame.instance_id
+        return LidarScan(frame.points_l, frame.timestamps, self.T_b_l)
 
     def target_box(self, T_w_b: np.ndarray, instance_id: int) -> np.ndarray | None:
         """Ground-truth box (x1, y1, x2, y2) px of one insulator's visible pixels in the image
@@ -234,57 +245,74 @@ def _event_poses(tower, target, standoff: float, rng: np.random.Generator,
     return trajectory, times
 
 
-@dataclass(frozen=True)
-class Accumulated:
-    """The target's last 3 detection events: ``points_b`` in B of the latest one, ``hit_ids`` the
-    instance id each point hit (ground truth), ``T_w_b`` the latest event's odometry pose, and for
-    the bounded method each event's ``boxes`` (K, 4) px with its camera pose ``T_b_c`` (K, 4, 4)
-    in that same B (through the odometry)."""
-
-    points_b: np.ndarray
-    hit_ids: np.ndarray
-    T_w_b: np.ndarray
-    boxes: np.ndarray
-    T_b_c: np.ndarray
+POSE_RATE_HZ = 20.0  # the flight loop feeds the pose history every control tick
+ENVELOPE_MARGIN = 0.08  # m: 4 sigma of the 2 cm range noise around an insulator's true shape
 
 
-def _accumulate(rig: SensorRig, target_id: int, trajectory: Callable[[float], np.ndarray],
-                times: Sequence[float], detector, rng: np.random.Generator,
-                cfg: StudyConfig) -> Accumulated | None:
-    """The target's last 3 detection events (see :class:`Accumulated`); None when the target was
-    not detected 3 times."""
-    import insulator_rs as ir
+def _odometry(trajectory: Callable[[float], np.ndarray], t0: float, t1: float, rng: np.random.Generator,
+              cfg: StudyConfig) -> list[PoseStamped]:
+    """The odometry the pipeline gets between ``t0`` and ``t1``: poses at POSE_RATE_HZ, each
+    with the configured noise."""
+    times = np.arange(t0, t1 + 1e-9, 1.0 / POSE_RATE_HZ)
+    return [PoseStamped(float(t), _noisy(trajectory(float(t)), rng, cfg)) for t in times]
 
-    culled: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (points in L, ids, odometry T_w_b, box)
+
+def _purity(points_w: np.ndarray, truth) -> float:
+    """Share of ``points_w`` inside the insulator's true envelope (axis, radius, length)."""
+    if len(points_w) == 0:
+        return math.nan
+    rel = points_w - truth.center
+    along = rel @ truth.axis
+    radial = np.linalg.norm(rel - np.outer(along, truth.axis), axis=1)
+    inside = (radial <= truth.radius + ENVELOPE_MARGIN) & (np.abs(along) <= truth.length / 2 + ENVELOPE_MARGIN)
+    return float(np.mean(inside))
+
+
+def _localize_event(rig: SensorRig, target, trajectory: Callable[[float], np.ndarray], times: Sequence[float],
+                    detector, rng: np.random.Generator, cfg: StudyConfig, insulator_length: float,
+                    ) -> dict[str, tuple[Localization | None, str, int, float]] | None:
+    """One localization event through the flight's perception pipeline, one pipeline per
+    method fed the same data: {method: (localization or None, outcome, accumulated points,
+    purity)}. None when the images ran out before a localization was attempted."""
+    pipelines = {m: PerceptionPipeline(rig.camera_model, rig.camera.T_b_c, rig.T_b_l, method=m,
+                                       insulator_length=insulator_length, localize_params=cfg.localize_params)
+                 for m in cfg.methods}
+    image = np.broadcast_to(np.zeros(3, np.uint8), (rig.image_size[1], rig.image_size[0], 3))
+    period = rig.lidar.frame_period
+    fed_until = times[0] - 1.0
     for t in times:
-        T_w_b = trajectory(t)
-        box = rig.target_box(T_w_b, target_id)
+        box = rig.target_box(trajectory(t), target.instance_id)
         if box is None:
             continue
-        det = detector.detect(box[None, :], rig.image_size, instance_ids=[target_id])
-        mine = det.boxes[det.instance_ids == target_id]
+        det = detector.detect(box[None, :], rig.image_size, instance_ids=[target.instance_id])
+        mine = det.boxes[det.instance_ids == target.instance_id]
         if len(mine) == 0:
             continue
-        points_l, hit_ids = rig.lidar_points(trajectory, t, seed=int(rng.integers(2**31)))
-        # The frame is used with the pose at the image time (its end), as the onboard
-        # pipeline does; the motion during the frame is left in it.
-        idx = ir.points_in_boxes(points_l, rig.T_c_l, rig.camera_model, mine[:1, :4])[0]
-        if len(idx) < MIN_POINTS_PER_DETECTION:
-            continue
-        culled.append((points_l[idx], hit_ids[idx], _noisy(T_w_b, rng, cfg), mine[0, :4]))
-        if len(culled) == DETECTIONS_PER_EVENT:
-            break
-    if len(culled) < DETECTIONS_PER_EVENT:
-        return None
-    T_w_b_last = culled[-1][2]
-    T_b_w_last = np.linalg.inv(T_w_b_last)
-    parts = []
-    for pts_l, _, T_w_b, _ in culled:
-        T = T_b_w_last @ T_w_b @ rig.T_b_l
-        parts.append(pts_l @ T[:3, :3].T + T[:3, 3])
-    return Accumulated(np.vstack(parts), np.concatenate([c[1] for c in culled]), T_w_b_last,
-                       np.array([c[3] for c in culled]),
-                       np.array([T_b_w_last @ c[2] @ rig.camera.T_b_c for c in culled]))
+        # the scan ending at the image and the next one: the flight pairs a frame with +-100 ms
+        scans = [rig.lidar_scan(trajectory, t_end, seed=int(rng.integers(2**31))) for t_end in (t, t + period)]
+        poses = _odometry(trajectory, fed_until + 1.0 / POSE_RATE_HZ, t + period, rng, cfg)
+        fed_until = t + period
+        frame = CameraFrame(t, image, rig.camera_model, rig.camera.T_b_c)
+        results = {}
+        for method, per in pipelines.items():
+            c = per.counters
+            before = (c.localizations, c.failures, c.implausible, c.not_insulator)
+            for pose in poses:
+                per.add_pose(pose)
+            for scan in scans:
+                per.add_scan(scan)
+            out = per.process(frame, mine[:1])
+            after = (c.localizations, c.failures, c.implausible, c.not_insulator)
+            if after == before:
+                continue  # fewer than 3 detection events with LiDAR points so far
+            outcome = "ok" if out else ("failed" if after[1] > before[1] else
+                                        "implausible" if after[2] > before[2] else "not an insulator")
+            track = max(per.tracks, key=lambda tr: len(tr.events))
+            acc = np.vstack(list(track.events))
+            results[method] = (out[0] if out else None, outcome, len(acc), _purity(acc, target))
+        if results:
+            return results  # every pipeline saw the same data, so all attempted together
+    return None
 
 
 def _errors(center_w: np.ndarray, direction_w: np.ndarray,
@@ -299,7 +327,6 @@ def _errors(center_w: np.ndarray, direction_w: np.ndarray,
 def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
              progress: Callable[[int, int], None] | None = None) -> list[EventResult]:
     """``cfg.events`` localization events at one standoff; one result per event and method."""
-    import insulator_rs as ir
     from insulator_rs.sim.detector_standin import DetectorStandin
 
     seed = cfg.seed * 1000 + int(round(standoff * 10)) + (0 if tower_key == "A" else 500)
@@ -307,6 +334,7 @@ def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
     detector = DetectorStandin(jitter=cfg.box_jitter, miss_rate=cfg.miss_rate,
                                false_positives=cfg.false_positives, seed=seed)
     insulators = rig.tower.insulators
+    length = load_mission(MISSIONS_DIR / f"{TOWERS[tower_key]}.toml").inspection.insulator_length
     results: list[EventResult] = []
     event = attempts = 0
     while event < cfg.events:
@@ -316,34 +344,19 @@ def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
                                f"{attempts - 1} attempts (the target is rarely seen by both sensors)")
         target = insulators[int(rng.integers(len(insulators)))]
         trajectory, times = _event_poses(rig.tower, target, standoff, rng, cfg)
-        got = _accumulate(rig, target.instance_id, trajectory, times, detector, rng, cfg)
+        got = _localize_event(rig, target, trajectory, times, detector, rng, cfg, length)
         if got is None:
             continue
-        points_b, hit_ids, T_w_b = got.points_b, got.hit_ids, got.T_w_b
-        purity = float(np.mean(hit_ids == target.instance_id))
         for method in cfg.methods:
-            try:
-                est: ir.Localization | ir.BoundedLocalization
-                if method == "bounded":
-                    # The mission's insulator length (the scene's strings) fills in an end the
-                    # frame cut off.
-                    est = ir.localize_bounded(points_b, got.boxes, got.T_b_c, rig.camera_model,
-                                              insulator_length=rig.tower.spec.insulators.length,
-                                              seed=event, **cfg.localize_params)
-                else:
-                    est = ir.localize(points_b, method=method,  # type: ignore[arg-type]
-                                      seed=event, **cfg.localize_params)
-            except ir.LocalizationError:
+            loc, outcome, n_input, purity = got[method]
+            if loc is None:
                 results.append(EventResult(tower_key, standoff, event, target.instance_id, method,
                                            False, math.nan, math.nan, math.nan, math.nan,
-                                           math.nan, 0, len(points_b), purity))
+                                           math.nan, 0, n_input, purity, outcome))
                 continue
-            center_w = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
-            direction_w = T_w_b[:3, :3] @ np.asarray(est.direction)
-            err, err_h, err_v, ang, err_axial = _errors(center_w, direction_w, target)
+            err, err_h, err_v, ang, err_axial = _errors(loc.center, loc.axis, target)
             results.append(EventResult(tower_key, standoff, event, target.instance_id, method, True,
-                                       err, err_h, err_v, ang, err_axial, int(est.n_points),
-                                       len(points_b), purity))
+                                       err, err_h, err_v, ang, err_axial, loc.n_points, n_input, purity))
         event += 1
         if progress is not None:
             progress(event, cfg.events)

@@ -43,17 +43,17 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.exceptions import VehicleError
+from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsafe
 from insulator_rs.mavlink import px4_modes
-from insulator_rs.mavlink.commands import CommandProtocol, CommandRejected
+from insulator_rs.mavlink.commands import CommandProtocol
 from insulator_rs.mavlink.failsafes import FailsafeMonitor, FailsafeSettings
 from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned
 from insulator_rs.mavlink.link import AutopilotLink, LinkStats, open_connection
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.telemetry import REQUESTED_RATES_HZ, Telemetry, TelemetryStore
 from insulator_rs.mavlink.wire import mavlink2
-from insulator_rs.sim.kinematics import FlightMode, VehicleFailsafe, as_finite, as_vector3, require_positive
-from insulator_rs.vehicle import VehicleState
+from insulator_rs.validation import as_finite, as_vector3, require_positive
+from insulator_rs.vehicle import FlightMode, VehicleState
 
 __all__ = ["CommandRejected", "FailsafeSettings", "LinkStats", "MavlinkVehicle", "Telemetry", "VehicleFailsafe",
            "connect_vehicle", "open_connection"]

@@ -14,21 +14,11 @@ import threading
 import time
 from typing import Any
 
-from insulator_rs.exceptions import VehicleError
+from insulator_rs.exceptions import CommandRejected, VehicleError
 from insulator_rs.mavlink.link import AutopilotLink
 from insulator_rs.mavlink.wire import command_name, mavlink2, result_name
 
 M = mavlink2
-
-
-class CommandRejected(VehicleError):
-    """The autopilot answered a command with something other than ACCEPTED."""
-
-    def __init__(self, command: str, result: str, detail: str = "") -> None:
-        what = f"{command} ({detail})" if detail else command
-        super().__init__(f"{what} refused by the vehicle: {result}")
-        self.command = command
-        self.result = result
 
 
 class CommandProtocol:

@@ -18,7 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from insulator_rs.mavlink.telemetry import TelemetryStore
-from insulator_rs.sim.kinematics import FlightMode, require_positive
+from insulator_rs.validation import require_positive
+from insulator_rs.vehicle import FlightMode
 
 
 @dataclass(frozen=True)

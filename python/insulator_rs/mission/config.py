@@ -24,6 +24,8 @@ message gives the range and the reason)::
     alt = 300.0
 
     [vehicle]                     # limits (m/s, m/s^2); the paper's real flight: 1 and 3
+    rig = "simulator"             # optional: the sensor rig file (camera calibration, T_b_c, T_b_l;
+                                  # see insulator_rs.rig), relative to this file, or a shipped rig's name
     v_max_horizontal = 1.0
     a_max_horizontal = 3.0
     v_max_vertical = 1.0
@@ -55,6 +57,7 @@ import yaml
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.mission import bounds
 from insulator_rs.mission.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
+from insulator_rs.rig import SensorRig, load_rig, resolve_rig
 from insulator_rs.textfile import read_config_text
 
 
@@ -94,7 +97,8 @@ class InspectionParams:
 @dataclass(frozen=True)
 class Mission:
     """A validated mission. ``takeoff`` is None when the file gives none (the
-    planner then takes off on the "+" side at the standoff)."""
+    planner then takes off on the "+" side at the standoff); ``rig`` is None when the
+    file names no sensor rig (the simulator then flies its own, a real flight refuses)."""
 
     source: str
     tower: GeoPoint
@@ -104,6 +108,7 @@ class Mission:
     takeoff: GeoPoint | None
     vehicle: VehicleLimits
     inspection: InspectionParams
+    rig: SensorRig | None = None  # the airframe's sensors; None: the file names none
 
     def neighbours_enu(self) -> np.ndarray:
         """Neighbour tower bases in W (N, 3), m."""
@@ -256,8 +261,17 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
     veh_t = r.table(data, "vehicle")
     assert veh_t is not None
     keys = ("v_max_horizontal", "a_max_horizontal", "v_max_vertical", "a_max_vertical")
-    r.unknown(veh_t, "vehicle", set(keys))
+    r.unknown(veh_t, "vehicle", {*keys, "rig"})
     vehicle = VehicleLimits(*(r.number(veh_t, "vehicle", k, positive=True) for k in keys))
+    rig = None
+    if "rig" in veh_t:
+        name = veh_t["rig"]
+        if not isinstance(name, str) or not name.strip():
+            raise r.fail("vehicle.rig", f"expected a rig file's path or a shipped rig's name, got {name!r}")
+        try:
+            rig = load_rig(resolve_rig(name, Path(source).resolve().parent))
+        except ConfigError as exc:
+            raise r.fail("vehicle.rig", str(exc)) from exc
 
     insp_t = r.table(data, "inspection")
     assert insp_t is not None
@@ -286,7 +300,7 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
                      f"must exceed inspection.safety_margin ({inspection.safety_margin} m), "
                      f"or the exploration path would lie inside the safety volume")
     mission = Mission(source, tower, max_height, max_width, tuple(neighbours), takeoff,
-                      vehicle, inspection)
+                      vehicle, inspection, rig)
     try:
         mission.line()
     except ValueError as exc:

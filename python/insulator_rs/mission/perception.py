@@ -1,25 +1,41 @@
-"""Onboard perception for the mission: detection boxes + a LiDAR frame -> insulator localizations.
+"""The perception pipeline: camera frames + LiDAR scans + poses -> insulator localizations in W.
 
-Per detection event (one camera image with its boxes and the LiDAR frame taken
-with it) the points of each box are culled with ``ir.points_in_boxes`` and
-moved into W with the vehicle's pose. Boxes are associated across events by
-the W position of their nearest points (median), so each track holds the culled points
-of the last :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator,
-as the paper accumulates three. Once a track has them, the accumulated points
-are expressed in the current body frame B and localized with ``ir.localize``;
-the result goes back to W.
+One object, :class:`PerceptionPipeline`, does the whole job and is what the flight loop,
+a bag replay and the studies call, so that what is measured offline is what flies:
+
+1. **Pair** a camera frame with the LiDAR points of the same instant: the points of the
+   buffered scans stamped within :data:`PAIRING_WINDOW` of the frame (per-point times,
+   one vehicle clock).
+2. **Deskew**: each point goes to W with the vehicle's pose at its own time, interpolated
+   from the pose history (the vehicle's estimate, not ground truth), ``T_w_b(t_i) @ T_b_l``.
+3. **Cull** to each detection box with ``ir.points_in_boxes`` in the camera at the frame's
+   instant, ``T_w_c = T_w_b(t_frame) @ T_b_c``.
+4. **Accumulate**: boxes are associated across events by the W position of their nearest
+   points (median), so each track holds the culled points of the last
+   :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
+   accumulates three.
+5. **Localize** the accumulated points, expressed in the current body frame B, with
+   ``ir.localize`` (or ``ir.localize_bounded``, method ``"bounded"``); the result goes back to
+   W and is checked against the box's size and, with a known insulator length, against the
+   shape of an insulator string (``insulator_shape``: the false-find filter).
+
+Use it live (``add_pose`` every control tick, ``add_scan`` for each scan, ``process`` for
+each frame with its boxes) or with a frame and a scan taken at one known pose
+(:meth:`PerceptionPipeline.event`, the studies' form).
 """
 
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Literal, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.mission.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
+from insulator_rs.poses import PoseHistory
+from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 
 Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 # The fifth method (ir.localize_bounded): the LiDAR line, its ends from the events' boxes.
@@ -41,6 +57,11 @@ SCALE_TOLERANCE = 1.5
 # A localization resting on fewer points than this is discarded: a handful of returns
 # is as likely a lattice member or a conductor clamp as the insulator.
 MIN_LOCALIZATION_POINTS = 10
+# s: LiDAR points stamped this close to a frame's exposure are "of the same instant": one
+# Mid-360 frame (100 ms) on either side, so a scan ending at the exposure pairs whole.
+PAIRING_WINDOW = 0.1
+# Scans kept for pairing (a frame is processed within a few scans of its exposure).
+SCAN_BUFFER = 5
 
 
 @dataclass
@@ -49,7 +70,7 @@ class Track:
 
     anchor: np.ndarray
     events: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
-    # (box, T_w_b) of each event in ``events``: the bounded method's image bounds.
+    # (box, T_w_c, camera) of each event in ``events``: the bounded method's image bounds.
     views: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
     # Shed relief (m) of each shape-checked localization of this track (insulator_shape).
     reliefs: list = field(default_factory=list)
@@ -57,50 +78,144 @@ class Track:
 
 @dataclass(frozen=True)
 class Localization:
-    """An insulator localized in W: ``center`` (3,) m, unit ``axis``, ``n_points`` used."""
+    """An insulator localized in W: ``center`` (3,) m, unit ``axis``, ``n_points`` used,
+    ``time`` (s, vehicle clock) of the frame that completed it."""
 
     center: np.ndarray
     axis: np.ndarray
     n_points: int
+    time: float = float("nan")
 
 
-class OnboardPerception:
-    """Turns detection events into localizations in W (see the module docstring)."""
+@dataclass
+class PerceptionCounters:
+    """What the pipeline did, for the report: frames processed, frames with no scan points or
+    no pose to pair with, localizations that failed, were implausible (size vs box), did not
+    look like an insulator (shape), or were made."""
+
+    frames: int = 0
+    unpaired: int = 0
+    failures: int = 0
+    implausible: int = 0
+    not_insulator: int = 0  # refused by the false-find filter (reasons in ``not_insulator``)
+    localizations: int = 0
+
+
+class PerceptionPipeline:
+    """Turns detection events into localizations in W (see the module docstring).
+
+    ``camera``/``T_b_c``/``T_b_l`` are the rig's; :meth:`process` takes the intrinsics and
+    camera pose of each frame and the extrinsics of each scan from the data themselves (a
+    gimbal, a binned detection image), :meth:`event` uses these. ``localize_params`` are
+    passed to ``ir.localize`` (its defaults otherwise).
+    """
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
-                 method: str = "dbscan+ransac", insulator_length: float | None = None) -> None:
+                 method: str = "dbscan+ransac", insulator_length: float | None = None,
+                 pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None) -> None:
+        if method not in ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", BOUNDED):
+            raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac, dbscan+pca or {BOUNDED}, "
+                             f"got {method!r}")
+        if not (np.isfinite(pairing_window) and pairing_window > 0):
+            raise ValueError(f"pairing_window: must be a finite number > 0, got {pairing_window!r}")
         self.camera = camera
+        self.T_b_c = np.asarray(T_b_c, dtype=np.float64)
         self.T_b_l = np.asarray(T_b_l, dtype=np.float64)
-        self.T_c_l = np.linalg.inv(np.asarray(T_b_c, dtype=np.float64)) @ self.T_b_l
         self.method = method
         self.insulator_length = insulator_length
-        self.T_b_c = np.asarray(T_b_c, dtype=np.float64)
+        self.pairing_window = float(pairing_window)
+        self.localize_params = dict(localize_params or {})  # ir.localize tuning overrides (eps, tau...)
         self.tracks: list[Track] = []
-        self.failures = 0
-        self.implausible = 0
+        self.poses = PoseHistory()
+        self.scans: deque[LidarScan] = deque(maxlen=SCAN_BUFFER)
+        self.counters = PerceptionCounters()
         # Localizations refused because the cluster does not look like an insulator, by reason.
         self.not_insulator: dict[str, int] = {}
 
-    def event(self, boxes: np.ndarray, points_l: np.ndarray, T_w_b: np.ndarray) -> list[Localization]:
-        """One detection event: ``boxes`` (K, 4 or 5) px, the LiDAR frame ``points_l`` (N, 3) in L,
-        the body pose ``T_w_b`` (4x4). Returns the localizations it made possible."""
-        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, boxes.shape[-1] if len(boxes) else 4)
+    # kept as attributes for the studies' tables
+    @property
+    def failures(self) -> int:
+        return self.counters.failures
+
+    @property
+    def implausible(self) -> int:
+        return self.counters.implausible
+
+    # -- live / replay ----------------------------------------------------------------------
+    def add_pose(self, pose: PoseStamped) -> None:
+        """The vehicle's estimated pose (feed every control tick, in time order)."""
+        self.poses.add(pose)
+
+    def add_scan(self, scan: LidarScan) -> None:
+        """A LiDAR scan with per-point times (kept for pairing with the next frames)."""
+        if len(scan):
+            self.scans.append(scan)
+
+    def process(self, frame: CameraFrame, boxes: np.ndarray) -> list[Localization]:
+        """One detection event: ``frame`` and its detection ``boxes`` (K, 4 or 5) px, paired with
+        the buffered scans' points of the same instant, deskewed with the pose history."""
+        self.counters.frames += 1
+        boxes = _as_boxes(boxes)
+        if len(boxes) == 0:
+            return []
+        if len(self.poses) == 0:
+            self.counters.unpaired += 1
+            return []
+        points_w = self._paired_points_w(frame.time)
+        if len(points_w) == 0:
+            self.counters.unpaired += 1
+            return []
+        T_w_b = self.poses.pose_at(frame.time)
+        return self._event_w(boxes, points_w, T_w_b, frame.camera, frame.T_b_c, frame.time)
+
+    def _paired_points_w(self, time: float) -> np.ndarray:
+        """The buffered scans' points within the pairing window of ``time``, each moved to W with
+        the pose at its own time."""
+        track = self.poses.track()
+        parts = []
+        for scan in self.scans:
+            near = np.abs(scan.times - time) <= self.pairing_window
+            if not np.any(near):
+                continue
+            pts_l = np.asarray(scan.points_l, dtype=np.float64)[near]
+            t = np.asarray(scan.times, dtype=np.float64)[near]
+            T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
+            pts_b = pts_l @ T_b_l[:3, :3].T + T_b_l[:3, 3]
+            parts.append(track.rotate(t, pts_b) + track.position(t))
+        return np.vstack(parts) if parts else np.zeros((0, 3))
+
+    # -- one frame and one scan at a known pose -----------------------------------------------
+    def event(self, boxes: np.ndarray, points_l: np.ndarray, T_w_b: np.ndarray,
+              time: float = float("nan")) -> list[Localization]:
+        """One detection event whose frame and LiDAR points were taken at one body pose ``T_w_b``
+        (4x4): ``boxes`` (K, 4 or 5) px in the rig camera's image, ``points_l`` (N, 3) in L."""
+        self.counters.frames += 1
+        boxes = _as_boxes(boxes)
         if len(boxes) == 0 or len(points_l) == 0:
             return []
-        T_w_l = T_w_b @ self.T_b_l
-        culled = ir.points_in_boxes(points_l, self.T_c_l, self.camera, boxes)
+        T_w_l = np.asarray(T_w_b, dtype=np.float64) @ self.T_b_l
+        points_w = np.asarray(points_l, dtype=np.float64) @ T_w_l[:3, :3].T + T_w_l[:3, 3]
+        return self._event_w(boxes, points_w, np.asarray(T_w_b, dtype=np.float64), self.camera,
+                             self.T_b_c, time)
+
+    # -- the shared core ----------------------------------------------------------------------
+    def _event_w(self, boxes: np.ndarray, points_w: np.ndarray, T_w_b: np.ndarray,
+                 camera: ir.CameraModel, T_b_c: np.ndarray, time: float) -> list[Localization]:
+        T_w_c = T_w_b @ T_b_c
+        T_c_w = np.linalg.inv(T_w_c)
+        culled = ir.points_in_boxes(points_w, T_c_w, camera, boxes)
         T_b_w = np.linalg.inv(T_w_b)
         out = []
         for box, idx in zip(boxes, culled):
             if len(idx) < MIN_POINTS_PER_BOX:
                 continue
-            pts_w = points_l[idx] @ T_w_l[:3, :3].T + T_w_l[:3, 3]
-            rng = np.linalg.norm(points_l[idx], axis=1)
+            pts_w = points_w[idx]
+            rng = np.linalg.norm(pts_w - T_w_c[:3, 3], axis=1)
             near = rng <= np.quantile(rng, ANCHOR_NEAR_FRACTION)
             anchor = np.median(pts_w[near], axis=0)
             track = self._associate(anchor)
             track.events.append(pts_w)
-            track.views.append((np.asarray(box[:4], dtype=np.float64), np.asarray(T_w_b, dtype=np.float64)))
+            track.views.append((np.asarray(box[:4], dtype=np.float64), T_w_c, camera))
             if len(track.events) < EVENTS_PER_LOCALIZATION:
                 continue
             acc_w = np.vstack(list(track.events))
@@ -108,33 +223,35 @@ class OnboardPerception:
             try:
                 est = self._localize(acc_b, track, T_b_w)
             except ir.LocalizationError:
-                self.failures += 1
+                self.counters.failures += 1
                 continue
             if est.n_points < MIN_LOCALIZATION_POINTS:
-                self.failures += 1
+                self.counters.failures += 1
                 continue
             center = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
             axis = T_w_b[:3, :3] @ np.asarray(est.direction)
-            if not self._scale_plausible(center, axis, box, T_w_b):
-                self.implausible += 1
+            if not self._scale_plausible(center, axis, box, T_c_w, camera):
+                self.counters.implausible += 1
                 continue
-            if not self._looks_like_insulator(acc_b, est, center, axis, box, T_w_b, track):
+            if not self._looks_like_insulator(acc_b, est, center, axis, box, T_c_w, camera, track):
+                self.counters.not_insulator += 1
                 continue
             track.anchor = center
-            out.append(Localization(center, axis / np.linalg.norm(axis), int(est.n_points)))
+            self.counters.localizations += 1
+            out.append(Localization(center, axis / np.linalg.norm(axis), int(est.n_points), float(time)))
         return out
 
     def _localize(self, acc_b: np.ndarray, track: Track, T_b_w: np.ndarray) -> ir.Localization | ir.BoundedLocalization:
         """The configured method on the accumulated cloud (B of the latest event)."""
         if self.method != BOUNDED:
-            return ir.localize(acc_b, method=cast(Method, self.method))
-        boxes = np.array([b for b, _ in track.views])
-        T_b_c = np.array([T_b_w @ T @ self.T_b_c for _, T in track.views])
-        return ir.localize_bounded(acc_b, boxes, T_b_c, self.camera, insulator_length=self.insulator_length)
+            return ir.localize(acc_b, method=cast(Method, self.method), **self.localize_params)
+        boxes = np.array([b for b, _, _ in track.views])
+        T_b_c = np.array([T_b_w @ T_w_c for _, T_w_c, _ in track.views])
+        return ir.localize_bounded(acc_b, boxes, T_b_c, track.views[-1][2], insulator_length=self.insulator_length)
 
     def _looks_like_insulator(self, acc_b: np.ndarray, est: ir.Localization | ir.BoundedLocalization,
-                              center: np.ndarray, axis: np.ndarray, box: np.ndarray, T_w_b: np.ndarray,
-                              track: Track) -> bool:
+                              center: np.ndarray, axis: np.ndarray, box: np.ndarray, T_c_w: np.ndarray,
+                              camera: ir.CameraModel, track: Track) -> bool:
         """The false-find filter (insulator_shape): the points on the line and the box must look like
         a string of the mission's insulators. True without a known length."""
         if self.insulator_length is None:
@@ -142,8 +259,7 @@ class OnboardPerception:
         shape = cluster_shape(line_members(acc_b, np.asarray(est.center), np.asarray(est.direction)))
         if shape is not None:
             track.reliefs.append(shape.relief)
-        T_c_w = np.linalg.inv(T_w_b @ self.T_b_c)
-        aspect = box_aspect_ratio(center, axis, box, T_c_w, self.camera, length=self.insulator_length)
+        aspect = box_aspect_ratio(center, axis, box, T_c_w, camera, length=self.insulator_length)
         verdict = check_insulator_shape(shape, insulator_length=self.insulator_length, aspect_ratio=aspect,
                                         relief_history=track.reliefs)
         for reason in verdict.reasons:
@@ -152,14 +268,13 @@ class OnboardPerception:
         return verdict.ok
 
     def _scale_plausible(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
-                         T_w_b: np.ndarray) -> bool:
+                         T_c_w: np.ndarray, camera: ir.CameraModel) -> bool:
         """Whether an insulator of the known length at ``center`` along ``axis`` (W) would span
         the box (its longer side, px) to within SCALE_TOLERANCE. True without a known length."""
         if self.insulator_length is None:
             return True
         half = 0.5 * self.insulator_length * axis / np.linalg.norm(axis)
-        T_c_w = np.linalg.inv(T_w_b @ self.T_b_c)
-        uv, _ = ir.project_points(np.stack([center - half, center + half]), T_c_w, self.camera)
+        uv, _ = ir.project_points(np.stack([center - half, center + half]), T_c_w, camera)
         if not np.all(np.isfinite(uv)):
             return True  # an end behind the camera: no scale to compare
         predicted = float(np.max(np.abs(uv[1] - uv[0])))
@@ -176,3 +291,12 @@ class OnboardPerception:
         track = Track(anchor=anchor)
         self.tracks.append(track)
         return track
+
+
+def _as_boxes(boxes: np.ndarray) -> np.ndarray:
+    boxes = np.asarray(boxes, dtype=np.float64)
+    if boxes.size == 0:
+        return np.zeros((0, 4))
+    if boxes.ndim != 2 or boxes.shape[1] not in (4, 5):
+        raise ValueError(f"boxes: expected shape (K, 4) or (K, 5), got {boxes.shape}")
+    return boxes

@@ -5,7 +5,7 @@ camera frame goes through the detector; a frame with boxes is paired with the Li
 that spans (or is nearest) its time within ``pairing_window``, that scan is deskewed to the
 frame's time with the recorded pose stream (``ir.deskew``, Rust: slerp + lerp of the poses
 around each point's time) and handed with the boxes and the pose at the frame's time to the
-flight's own perception (:class:`~insulator_rs.mission.perception.OnboardPerception`), whose
+flight's own perception (:class:`~insulator_rs.mission.perception.PerceptionPipeline`), whose
 localizations feed the flight's :class:`~insulator_rs.mission.registry.InsulatorRegistry`.
 A frame waits until the pose stream covers its scan (the stream is read ahead, as a live
 system waits for the next odometry sample).
@@ -31,7 +31,7 @@ from insulator_rs.exceptions import BagError
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.perception import OnboardPerception
+from insulator_rs.mission.perception import PerceptionPipeline
 from insulator_rs.mission.registry import InsulatorRegistry
 from insulator_rs.report.writer import ReportWriter
 from insulator_rs.recording.reader import FlightBag, Item
@@ -114,7 +114,7 @@ class ReplayRun:
         self.ground_truth = ground_truth
         self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate,
                                           mission.inspection.confirmations)
-        self.perception: OnboardPerception | None = None
+        self.perception: PerceptionPipeline | None = None
         self.report = ReportWriter(self.out, origin=GeoPoint(mission.tower.lat, mission.tower.lon, mission.tower.alt),
                                    overwrite=overwrite)
         self.rerun: Any = None
@@ -223,7 +223,7 @@ class ReplayRun:
             return
         self.counts["detection_events"] += 1
         if self.perception is None:
-            self.perception = OnboardPerception(frame.camera, frame.T_b_c, scan.T_b_l, method=self.settings.method,
+            self.perception = PerceptionPipeline(frame.camera, frame.T_b_c, scan.T_b_l, method=self.settings.method,
                                                 insulator_length=self.mission.inspection.insulator_length)
         T_w_b = _interpolate(self.poses.times, self.poses.T, frame.time)
         points_l = self._deskewed(scan, frame.time)

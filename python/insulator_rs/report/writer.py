@@ -158,15 +158,20 @@ class ReportWriter:
                      durable=True)
         table = io.StringIO(newline="")
         w = csv.writer(table)
+        # ground truth only where the caller has it (a replay scored against its scene); a flight's
+        # comparison is the scorer's, after the flight, in its own file
+        truth = any("gt_instance_id" in r for r in rows)
         w.writerow(["id", "x_m", "y_m", "z_m", "lat_deg", "lon_deg", "alt_m", "observations", "side",
-                    "inspected", "photos", "gt_instance_id", "error_m", "axis_error_deg"])
+                    "inspected", "photos"] + (["gt_instance_id", "error_m", "axis_error_deg"] if truth else []))
         for r in rows:
             g = r["wgs84"]
-            w.writerow([r["id"], *(f"{c:.3f}" for c in r["center"]), f"{g['lat']:.9f}", f"{g['lon']:.9f}",
-                        f"{g['alt']:.3f}", r.get("observations"), r.get("side"), r.get("inspected"),
-                        len(r.get("photos", [])), r.get("gt_instance_id"),
-                        "" if r.get("error_m") is None else f"{r['error_m']:.3f}",
-                        "" if r.get("axis_error_deg") is None else f"{r['axis_error_deg']:.2f}"])
+            row = [r["id"], *(f"{c:.3f}" for c in r["center"]), f"{g['lat']:.9f}", f"{g['lon']:.9f}",
+                   f"{g['alt']:.3f}", r.get("observations"), r.get("side"), r.get("inspected"),
+                   len(r.get("photos", []))]
+            if truth:
+                row += [r.get("gt_instance_id"), "" if r.get("error_m") is None else f"{r['error_m']:.3f}",
+                        "" if r.get("axis_error_deg") is None else f"{r['axis_error_deg']:.2f}"]
+            w.writerow(row)
         write_atomic(path / "insulators.csv", table.getvalue())
         self._last_summary = summary
         if _map_key(summary) != self._map_key:

@@ -12,9 +12,9 @@ OpenCV, so a point that ``cv2.projectPoints`` maps to (u, v) lands in pixel
 Ground-truth boxes come from the visible pixels of each insulator in the
 instance-id image, so occlusion is right by construction.
 
-Default camera: 1280x960 with a wide lens, resembling the paper's Basler
-dAA1600-60uc (4.5 um pixels binned to 1280 px across) behind a ~3 mm lens:
-fx = fy = 700 px (about 85 deg horizontal field of view), mild barrel distortion.
+Default camera: the shipped simulator rig's (``insulator_rs/rigs/simulator.toml`` and its
+calibration file, read as any real rig is): 1280x960 with a wide lens, fx = fy = 700 px
+(about 85 deg across), mild barrel distortion.
 """
 
 from __future__ import annotations
@@ -27,12 +27,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from insulator_rs._core import CameraModel
+from insulator_rs.poses import check_pose
+from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.mesh import Mesh
 
-#: Default lens (pixels, OpenCV k1 k2 p1 p2 k3).
-DEFAULT_WIDTH, DEFAULT_HEIGHT = 1280, 960
-DEFAULT_FOCAL = 700.0
-DEFAULT_DIST = (-0.12, 0.03, 0.0, 0.0, 0.0)
 #: Fewer visible pixels than this and an insulator gets no ground-truth box.
 MIN_BOX_PIXELS = 20
 #: Distortion inversion: iterations and convergence of cv2.undistortPoints.
@@ -40,32 +38,14 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 
 
 def default_camera_model() -> CameraModel:
-    """The default 1280x960 wide-angle camera (see the module docstring)."""
-    return CameraModel(
-        DEFAULT_FOCAL, DEFAULT_FOCAL, (DEFAULT_WIDTH - 1) / 2, (DEFAULT_HEIGHT - 1) / 2,
-        DEFAULT_WIDTH, DEFAULT_HEIGHT, dist=DEFAULT_DIST,
-    )
+    """The simulated camera's lens, from the shipped simulator rig (``rigs/simulator.toml``)."""
+    return simulator_rig().camera
 
 
 def default_T_b_c() -> np.ndarray:
-    """Camera looking along the body x axis (forward), level: C's z = B's x, C's x = -B's y."""
-    T = np.eye(4)
-    T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-    return T
-
-
-def check_pose(name: str, T: ArrayLike) -> np.ndarray:
-    """A finite 4x4 rigid transform as float64, or ValueError naming ``name``."""
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"{name}: expected shape (4, 4), got {T.shape}")
-    if not np.all(np.isfinite(T)):
-        raise ValueError(f"{name}: contains NaN or Inf")
-    R = T[:3, :3]
-    if (not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
-            or np.linalg.det(R) <= 0):
-        raise ValueError(f"{name}: not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)")
-    return T
+    """Where the simulated camera sits on the body, from the shipped simulator rig (level,
+    looking along the body x axis)."""
+    return simulator_rig().T_b_c
 
 
 def check_outside(mesh: Mesh, position: np.ndarray, what: str) -> None:

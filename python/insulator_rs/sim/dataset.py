@@ -155,21 +155,18 @@ class DatasetSummary:
 
 
 def scaled_camera_model(width: int, height: int):
-    """The default simulated camera's lens at another image size (same field of view across)."""
+    """The default simulated camera's lens at another image size (same field of view across,
+    square pixels, principal point at the centre of the new image)."""
     from insulator_rs._core import CameraModel
-    from insulator_rs.sim.camera_render import (
-        DEFAULT_DIST,
-        DEFAULT_FOCAL,
-        DEFAULT_WIDTH,
-        default_camera_model,
-    )
+    from insulator_rs.sim.camera_render import default_camera_model
 
+    base = default_camera_model()
     if (width, height) == (None, None):
-        return default_camera_model()
+        return base
     if width < 1 or height < 1:
         raise ValueError(f"image_size: width and height must be >= 1, got {width}x{height}")
-    f = DEFAULT_FOCAL * width / DEFAULT_WIDTH
-    return CameraModel(f, f, (width - 1) / 2, (height - 1) / 2, width, height, dist=DEFAULT_DIST)
+    f = base.fx * width / base.width
+    return CameraModel(f, f, (width - 1) / 2, (height - 1) / 2, width, height, dist=list(base.dist))
 
 
 def _aim_points(tower) -> np.ndarray:

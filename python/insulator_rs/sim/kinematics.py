@@ -13,8 +13,7 @@ Two layers:
   ``COM_OF_LOSS_T``, auto-disarm on the ground after ``COM_DISARM_LAND``,
   disarming refused in the air, arming refused without a position estimate or
   with a critical battery), odometry with configurable Gaussian noise, a
-  simulation clock, an image-capture log with the pose of every image, and
-  fault injection (pilot mode change, GPS glitch or loss). It implements
+  simulation clock, and fault injection (pilot mode change, GPS glitch or loss). It implements
   ``insulator_rs.vehicle.Vehicle``. The simulated PX4 on MAVLink
   (``insulator_rs.sim.px4``) wraps this same class, so the in-process
   path and the MAVLink path fly the same vehicle.
@@ -25,13 +24,14 @@ Everything here is in the world frame W (ENU, metres, radians, seconds).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
-from enum import Enum
 
 import numpy as np
 
-from insulator_rs.exceptions import VehicleError
-from insulator_rs.vehicle import VehicleState
+from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsafe
+from insulator_rs.validation import as_finite, as_vector3, require_non_negative, require_positive
+from insulator_rs.vehicle import FlightMode, VehicleState, wrap_angle
 
 # Integration step: the model is sub-stepped so that ``advance`` with a large
 # dt stays accurate (the position loop gain times this step is << 1).
@@ -41,44 +41,10 @@ LANDED_HEIGHT_M = 0.05
 LANDED_SPEED_MPS = 0.2
 # Takeoff is complete (mode goes to HOLD) within this distance of the target.
 TAKEOFF_REACHED_M = 0.3
-
-
-class FlightMode(str, Enum):
-    """PX4 navigation states the vehicle can be in (names as PX4 prints them)."""
-
-    MANUAL = "MANUAL"
-    POSCTL = "POSCTL"
-    HOLD = "HOLD"  # AUTO_LOITER
-    TAKEOFF = "TAKEOFF"  # AUTO_TAKEOFF
-    LAND = "LAND"  # AUTO_LAND
-    RTL = "RTL"  # AUTO_RTL
-    MISSION = "MISSION"  # AUTO_MISSION (not flown here: treated as HOLD)
-    OFFBOARD = "OFFBOARD"
-
-
-class CommandRefused(VehicleError):
-    """The autopilot refused a command; ``command`` and ``reason`` say which and why.
-
-    ``temporary`` is True where PX4 answers TEMPORARILY_REJECTED (the command may
-    succeed later, e.g. arming once a position estimate exists) and False where it
-    answers DENIED.
-    """
-
-    def __init__(self, command: str, reason: str, *, temporary: bool = True) -> None:
-        super().__init__(f"{command} refused: {reason}")
-        self.command = command
-        self.reason = reason
-        self.temporary = temporary
-
-
-class VehicleFailsafe(VehicleError):
-    """A failsafe fired; ``reason`` says why, ``action`` what the vehicle (or the
-    client on its behalf) did. ``advance`` raises it once per failsafe."""
-
-    def __init__(self, reason: str, action: str) -> None:
-        super().__init__(f"failsafe: {reason}; action: {action}")
-        self.reason = reason
-        self.action = action
+# Integration steps of true pose kept for the simulated sensors (10 s at 100 Hz): a LiDAR
+# frame is cast along the true path of its 0.1 s, which may lie a few seconds back when the
+# vehicle runs ahead of a sensor render (the simulated PX4 flies on in wall time).
+TRUE_TRACK_SAMPLES = 1000
 
 
 @dataclass(frozen=True)
@@ -177,60 +143,6 @@ class Setpoint:
     yaw: float | None = None
     yaw_rate: float | None = None
     max_speed: float | None = None  # m/s, tighter cap than the limits (takeoff speed)
-
-
-@dataclass(frozen=True)
-class CapturedImage:
-    """One camera trigger with the true pose at that instant (W frame)."""
-
-    index: int
-    time: float
-    position: np.ndarray
-    yaw: float
-
-
-def wrap_angle(angle: float) -> float:
-    """Wrap an angle in rad to [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def as_vector3(value: object, name: str) -> np.ndarray:
-    """Validate a 3-vector argument: a (3,) finite float64 copy, or ValueError/TypeError naming it."""
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be a sequence of 3 numbers, got {type(value).__name__}") from exc
-    if array.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,), got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {array.tolist()}")
-    return array.copy()
-
-
-def as_finite(value: object, name: str) -> float:
-    """Validate a scalar argument: a finite float, or ValueError/TypeError naming it."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-    result = float(value)
-    if not math.isfinite(result):
-        raise ValueError(f"{name} must be finite, got {result!r}")
-    return result
-
-
-def require_positive(value: object, name: str) -> float:
-    """A finite number > 0, or ValueError/TypeError naming ``name``."""
-    result = as_finite(value, name)
-    if result <= 0.0:
-        raise ValueError(f"{name} must be > 0, got {result!r}")
-    return result
-
-
-def require_non_negative(value: object, name: str) -> float:
-    """A finite number >= 0, or ValueError/TypeError naming ``name``."""
-    result = as_finite(value, name)
-    if result < 0.0:
-        raise ValueError(f"{name} must be >= 0, got {result!r}")
-    return result
 
 
 def _clamp_norm(vector: np.ndarray, limit: float) -> np.ndarray:
@@ -370,7 +282,6 @@ class KinematicVehicle:
         self.mode = FlightMode.HOLD
         self.battery_fraction = 1.0
         self.fault: str | None = None
-        self.captures: list[CapturedImage] = []
         self.position_valid = True
         self._rng = np.random.default_rng(seed)
         self._gps_offset = np.zeros(3)
@@ -385,6 +296,9 @@ class KinematicVehicle:
         self._has_taken_off = False
         self._closed = False
         self._pending_failsafe: VehicleFailsafe | None = None
+        # (time, true position, true yaw) after each integration step, for the simulated sensors
+        self.true_track: deque[tuple[float, np.ndarray, float]] = deque(maxlen=TRUE_TRACK_SAMPLES)
+        self.true_track.append((self.clock.now, position.copy(), self.model.yaw))
 
     # -- Vehicle protocol ------------------------------------------------------
 
@@ -420,11 +334,11 @@ class KinematicVehicle:
         if self.armed:
             return
         if not self.position_valid:
-            raise CommandRefused("arm", "no valid position estimate")
+            raise CommandRejected("arm", "no valid position estimate")
         if self.battery_fraction <= self.params.battery_critical:
-            raise CommandRefused("arm", f"battery critical ({self.battery_fraction:.0%})")
+            raise CommandRejected("arm", f"battery critical ({self.battery_fraction:.0%})")
         if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():
-            raise CommandRefused("arm", "offboard mode without a setpoint stream")
+            raise CommandRejected("arm", "offboard mode without a setpoint stream")
         self.armed = True
         self._armed_since = self.clock.now
         self._has_taken_off = False
@@ -438,7 +352,7 @@ class KinematicVehicle:
         if not self.armed:
             return
         if not self.landed and not force:
-            raise CommandRefused("disarm", "not landed")
+            raise CommandRejected("disarm", "not landed")
         self._disarm()
 
     def set_mode(self, mode: FlightMode | str) -> None:
@@ -452,12 +366,12 @@ class KinematicVehicle:
             return
         if target == FlightMode.OFFBOARD:
             if not self._setpoints_fresh():
-                raise CommandRefused("set mode OFFBOARD", "no offboard setpoint stream")
+                raise CommandRejected("set mode OFFBOARD", "no offboard setpoint stream")
             if not self.position_valid:
-                raise CommandRefused("set mode OFFBOARD", "no valid position estimate")
+                raise CommandRejected("set mode OFFBOARD", "no valid position estimate")
         elif target in (FlightMode.POSCTL, FlightMode.HOLD, FlightMode.TAKEOFF,
                         FlightMode.RTL, FlightMode.MISSION) and not self.position_valid:
-            raise CommandRefused(f"set mode {target.value}", "no valid position estimate")
+            raise CommandRejected(f"set mode {target.value}", "no valid position estimate")
         if target == FlightMode.TAKEOFF:
             self.request_takeoff(self.params.takeoff_altitude)
             return
@@ -475,7 +389,7 @@ class KinematicVehicle:
         self._check_open()
         altitude = require_positive(altitude, "altitude")
         if not self.armed:
-            raise CommandRefused("takeoff", "vehicle is disarmed")
+            raise CommandRejected("takeoff", "vehicle is disarmed")
         self.request_takeoff(altitude)
 
     def request_takeoff(self, altitude: float) -> None:
@@ -484,7 +398,7 @@ class KinematicVehicle:
         self._check_open()
         altitude = require_positive(altitude, "altitude")
         if not self.position_valid:
-            raise CommandRefused("takeoff", "no valid position estimate")
+            raise CommandRejected("takeoff", "no valid position estimate")
         self._begin_takeoff(altitude)
 
     def send_setpoint(
@@ -516,24 +430,27 @@ class KinematicVehicle:
             h = min(MAX_INTEGRATION_STEP_S, remaining)
             remaining -= h
             self._autopilot_step(h)
+            self.true_track.append((self.clock.now, self.model.position.copy(), self.model.yaw))
         self.raise_pending_failsafe()
         return self.state()
+
+    def true_pose_at(self, time: float) -> tuple[np.ndarray, float]:
+        """The true (position, yaw) at ``time`` (s), interpolated over the last integration steps
+        (clamped to the oldest/newest kept): where simulated sensors were at that instant."""
+        times = np.fromiter((s[0] for s in self.true_track), float, len(self.true_track))
+        k = int(np.searchsorted(times, time))
+        if k <= 0 or k >= len(times):
+            _, position, yaw = self.true_track[0 if k <= 0 else -1]
+            return position.copy(), yaw
+        (t0, p0, y0), (t1, p1, y1) = self.true_track[k - 1], self.true_track[k]
+        f = (time - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return p0 + f * (p1 - p0), wrap_angle(y0 + f * wrap_angle(y1 - y0))
 
     def raise_pending_failsafe(self) -> None:
         """Raise the failsafe that fired since the last call, if any (once each)."""
         pending, self._pending_failsafe = self._pending_failsafe, None
         if pending is not None:
             raise pending
-
-    def capture_image(self) -> None:
-        """Trigger the camera; the true pose at this instant is appended to ``captures``."""
-        self._check_open()
-        self.captures.append(CapturedImage(
-            index=len(self.captures),
-            time=self.clock.now,
-            position=self.model.position.copy(),
-            yaw=self.model.yaw,
-        ))
 
     def land(self) -> None:
         """Switch to AUTO_LAND at the current position (always accepted, as in PX4)."""

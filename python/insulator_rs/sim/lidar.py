@@ -40,7 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from insulator_rs.sim.camera_render import check_outside, check_pose
+from insulator_rs.poses import PoseTrack, check_pose
+from insulator_rs.rig import simulator_rig
+from insulator_rs.sim.camera_render import check_outside
 from insulator_rs.sim.mesh import Mesh
 
 #: A trajectory: body pose T_w_b (4x4) as a function of time (s), or the body poses
@@ -80,10 +82,9 @@ class LidarFrame:
 
 
 def default_T_b_l() -> np.ndarray:
-    """LiDAR 10 cm above the body origin, axes aligned with the body (FLU)."""
-    T = np.eye(4)
-    T[2, 3] = 0.10
-    return T
+    """Where the simulated Mid-360 sits on the body, from the shipped simulator rig (10 cm above
+    the body origin, axes aligned with the body)."""
+    return simulator_rig().T_b_l
 
 
 def _positive(name: str, value: float) -> float:
@@ -200,60 +201,6 @@ class Mid360:
         )
 
 
-class PoseTrack:
-    """Rigid body poses between knots: linear in translation, geodesic in rotation.
-
-    ``knots_t`` (K,) strictly increasing times, ``knots_T`` (K, 4, 4) poses;
-    times outside the knots are clamped to the ends.
-    """
-
-    def __init__(self, knots_t: np.ndarray, knots_T: np.ndarray) -> None:
-        self.knots_t = np.asarray(knots_t, dtype=np.float64)
-        self.knots_T = np.asarray(knots_T, dtype=np.float64)
-        R0 = self.knots_T[:-1, :3, :3]
-        self._R0 = R0
-        self._omega = _log_so3(np.einsum("kji,kjl->kil", R0, self.knots_T[1:, :3, :3]))
-
-    def _segments(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        kt = self.knots_t
-        seg = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, len(kt) - 2)
-        s = np.clip((t - kt[seg]) / (kt[seg + 1] - kt[seg]), 0.0, 1.0)
-        return seg, s
-
-    def position(self, t: np.ndarray) -> np.ndarray:
-        """(N, 3) positions at times ``t`` (N,)."""
-        seg, s = self._segments(t)
-        p = self.knots_T[:, :3, 3]
-        return p[seg] + (p[seg + 1] - p[seg]) * s[:, None]
-
-    def rotate(self, t: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """R(t_i) @ v_i for every row: (N,) times, (N, 3) vectors -> (N, 3).
-
-        Within a segment the relative rotation keeps one axis, so Rodrigues'
-        formula needs only matrix products with that segment's constant matrices.
-        """
-        seg, s = self._segments(t)
-        out = np.empty_like(v, dtype=np.float64)
-        for k in np.unique(seg):
-            rows = slice(None) if len(self._R0) == 1 else seg == k
-            angle_k = float(np.linalg.norm(self._omega[k]))
-            vk = v[rows]
-            if angle_k < 1e-12:
-                out[rows] = vk @ self._R0[k].T
-                continue
-            axis = self._omega[k] / angle_k
-            K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-            angle = angle_k * s[rows][:, None]
-            cos, sin = np.cos(angle), np.sin(angle)
-            local = vk * cos + (vk @ K.T) * sin + np.outer(vk @ axis, axis) * (1.0 - cos)
-            out[rows] = local @ self._R0[k].T
-        return out
-
-    def pose(self, time: float) -> np.ndarray:
-        """The 4x4 pose at ``time``."""
-        return interpolate_poses(self.knots_t, self.knots_T, np.array([time]))[0]
-
-
 def _pose_track(trajectory: Trajectory, t_start: float, t_end: float) -> PoseTrack:
     """The frame's body poses, sampled from a callable or given as a start/end pair."""
     if callable(trajectory):
@@ -269,48 +216,3 @@ def _pose_track(trajectory: Trajectory, t_start: float, t_end: float) -> PoseTra
         ) from None
     knots_T = np.stack([check_pose("trajectory[0]", start), check_pose("trajectory[1]", end)])
     return PoseTrack(np.array([t_start, t_end]), knots_T)
-
-
-def interpolate_poses(knots_t: np.ndarray, knots_T: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Piecewise interpolation of rigid poses: linear in translation, geodesic in rotation.
-
-    ``knots_t`` (K,) increasing, ``knots_T`` (K, 4, 4), ``t`` (N,) -> (N, 4, 4);
-    times outside the knots are clamped to the ends.
-    """
-    seg = np.clip(np.searchsorted(knots_t, t, side="right") - 1, 0, len(knots_t) - 2)
-    span = knots_t[seg + 1] - knots_t[seg]
-    s = np.clip((t - knots_t[seg]) / span, 0.0, 1.0)
-    R0 = knots_T[:-1, :3, :3]
-    R_rel = np.einsum("kji,kjl->kil", R0, knots_T[1:, :3, :3])  # R0^T R1 per segment
-    omega = _log_so3(R_rel)  # (K-1, 3)
-    R = np.einsum("nij,njl->nil", R0[seg], _exp_so3(omega[seg] * s[:, None]))
-    p0, p1 = knots_T[:-1, :3, 3], knots_T[1:, :3, 3]
-    out = np.zeros((len(t), 4, 4))
-    out[:, :3, :3] = R
-    out[:, :3, 3] = p0[seg] + (p1[seg] - p0[seg]) * s[:, None]
-    out[:, 3, 3] = 1.0
-    return out
-
-
-def _log_so3(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors of (K, 3, 3) rotations (angles < pi assumed between knots)."""
-    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(cos)
-    vee = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
-    sin = np.sin(angle)
-    scale = np.where(sin > 1e-9, angle / (2.0 * np.where(sin > 1e-9, sin, 1.0)), 0.5)
-    return vee * scale[:, None]
-
-
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotations (N, 3, 3) of rotation vectors (N, 3) (Rodrigues' formula)."""
-    angle = np.linalg.norm(w, axis=1)
-    safe = np.where(angle > 1e-12, angle, 1.0)
-    k = w / safe[:, None]
-    K = np.zeros((len(w), 3, 3))
-    K[:, 0, 1], K[:, 0, 2] = -k[:, 2], k[:, 1]
-    K[:, 1, 0], K[:, 1, 2] = k[:, 2], -k[:, 0]
-    K[:, 2, 0], K[:, 2, 1] = -k[:, 1], k[:, 0]
-    sin = np.where(angle > 1e-12, np.sin(angle), 0.0)[:, None, None]
-    one_minus_cos = np.where(angle > 1e-12, 1.0 - np.cos(angle), 0.0)[:, None, None]
-    return np.eye(3) + sin * K + one_minus_cos * (K @ K)

@@ -63,13 +63,9 @@ from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2
-from insulator_rs.sim.kinematics import (
-    CommandRefused,
-    FlightMode,
-    KinematicVehicle,
-    Setpoint,
-    VehicleFailsafe,
-)
+from insulator_rs.exceptions import CommandRejected, VehicleFailsafe
+from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
+from insulator_rs.vehicle import FlightMode
 
 M = mavlink2
 # Wall-clock period of the simulation loop (s): physics, inbound, telemetry.
@@ -423,7 +419,7 @@ class SimulatedPx4:
                 home_amsl = self.origin[2] + float(vehicle.home[2])
                 altitude = p[6] - home_amsl if math.isfinite(p[6]) else vehicle.params.takeoff_altitude
                 if altitude <= 0.0:
-                    raise CommandRefused("takeoff", f"altitude {p[6]!r} m AMSL is not above home")
+                    raise CommandRejected("takeoff", f"altitude {p[6]!r} m AMSL is not above home")
                 vehicle.request_takeoff(altitude)
             elif command == M.MAV_CMD_NAV_LAND:
                 vehicle.land()
@@ -439,7 +435,7 @@ class SimulatedPx4:
                 return  # PX4 routes these to a gimbal module SITL does not run: no COMMAND_ACK at all
             else:  # MAV_CMD_IMAGE_START_CAPTURE included: PX4 answers UNSUPPORTED
                 result = M.MAV_RESULT_UNSUPPORTED
-        except CommandRefused as refusal:
+        except CommandRejected as refusal:
             result = M.MAV_RESULT_TEMPORARILY_REJECTED if refusal.temporary else M.MAV_RESULT_DENIED
         self.stats.last_ack[command] = result
         self._send(M.MAVLink_command_ack_message(
@@ -457,9 +453,9 @@ class SimulatedPx4:
             return M.MAV_RESULT_ACCEPTED
         try:
             if mode in (FlightMode.POSCTL, FlightMode.MANUAL) and not self.rc_connected:
-                raise CommandRefused(f"set mode {mode.value}", "no RC")
+                raise CommandRejected(f"set mode {mode.value}", "no RC")
             self.vehicle.set_mode(mode)
-        except CommandRefused:
+        except CommandRejected:
             if self.vehicle.armed:
                 raise
         return M.MAV_RESULT_ACCEPTED

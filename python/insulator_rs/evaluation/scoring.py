@@ -1,0 +1,123 @@
+"""The post-flight scorer: a flight's report against the scene it flew (ground truth).
+
+Ground truth enters here and nowhere in the flight: the flight writes ``summary.json``
+(what it knows), and this compares it with a simulator scene afterwards:
+
+* each localized insulator is matched to the nearest true one: centre error (m) and axis
+  error (deg); a true insulator counts as found when a localization lies within
+  :data:`MATCH_DISTANCE` of it;
+* each photo is re-rendered from the scene at the pose the flight recorded for it (the
+  vehicle's estimate, camera aimed as recorded) to tell whether the insulator it was taken
+  for is in the picture, and whole.
+
+The result is ``score.json`` beside the summary.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from insulator_rs._core import CameraModel
+from insulator_rs.poses import pose_from_yaw
+from insulator_rs.sim.camera_render import Camera
+from insulator_rs.sim.towers import InsulatorTruth, Tower
+
+# m: a localized insulator this close to a true one counts as having found it.
+MATCH_DISTANCE = 1.5
+
+
+def _nearest(truth: list[InsulatorTruth], center: np.ndarray) -> tuple[InsulatorTruth, float]:
+    d = [float(np.linalg.norm(t.center - center)) for t in truth]
+    k = int(np.argmin(d))
+    return truth[k], d[k]
+
+
+def _axis_error_deg(a: np.ndarray, b: np.ndarray) -> float:
+    c = abs(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return math.degrees(math.acos(min(1.0, c)))
+
+
+def _photo_visibility(tower: Tower, camera: CameraModel, photo: dict[str, Any], gt_id: int) -> tuple[bool, bool]:
+    """(visible, whole in frame) of true insulator ``gt_id`` in the photo, re-rendered."""
+    cam = Camera(camera, np.asarray(photo["T_b_c"], dtype=np.float64))
+    frame = cam.render(tower.mesh, pose_from_yaw(np.asarray(photo["position"]), float(photo["yaw"])))
+    box = frame.boxes.get(gt_id)
+    if box is None:
+        return False, False
+    whole = box[0] > 0 and box[1] > 0 and box[2] < camera.width and box[3] < camera.height
+    return True, bool(whole)
+
+
+def score_flight(summary: dict[str, Any], tower: Tower, *, photos: bool = True) -> dict[str, Any]:
+    """Score a flight summary (as written to ``summary.json``) against ``tower``'s truth.
+    ``photos``: also re-render each photo for its visibility (costs a render per photo)."""
+    truth = list(tower.insulators)
+    found = summary.get("insulators", [])
+    rows: list[dict[str, Any]] = []
+    centers: dict[int, np.ndarray] = {}
+    for r in found:
+        center = np.asarray(r["center"], dtype=np.float64)
+        centers[int(r["id"])] = center
+        if not truth:
+            rows.append({"id": r["id"], "gt_instance_id": None, "error_m": None, "axis_error_deg": None})
+            continue
+        gt, err = _nearest(truth, center)
+        rows.append({"id": r["id"], "gt_instance_id": gt.instance_id, "error_m": err,
+                     "axis_error_deg": _axis_error_deg(gt.axis, np.asarray(r["axis"], dtype=np.float64)),
+                     "inspected": bool(r.get("inspected"))})
+    matched = {r["gt_instance_id"] for r in rows if r["error_m"] is not None and r["error_m"] < MATCH_DISTANCE}
+    inspected = {r["gt_instance_id"] for r in rows
+                 if r["error_m"] is not None and r["error_m"] < MATCH_DISTANCE and r.get("inspected")}
+    errors = [r["error_m"] for r in rows if r["error_m"] is not None]
+    photo_rows = []
+    cam_rec = summary.get("photo_camera")
+    camera = None if cam_rec is None else CameraModel(
+        cam_rec["fx"], cam_rec["fy"], cam_rec["cx"], cam_rec["cy"], cam_rec["width"], cam_rec["height"],
+        dist=cam_rec["dist"])
+    for p in summary.get("photos", []):
+        center = centers.get(int(p["insulator_id"]))
+        row: dict[str, Any] = {"file": p["file"], "insulator_id": p["insulator_id"], "gt_instance_id": None,
+                               "insulator_visible": None, "insulator_whole_in_frame": None}
+        if center is not None and truth:
+            gt, _ = _nearest(truth, center)
+            row["gt_instance_id"] = gt.instance_id
+            if photos and camera is not None:
+                row["insulator_visible"], row["insulator_whole_in_frame"] = _photo_visibility(
+                    tower, camera, p, gt.instance_id)
+        photo_rows.append(row)
+    return {
+        "scene": tower.spec.name,
+        "match_distance_m": MATCH_DISTANCE,
+        "insulators_in_scene": len(truth),
+        "insulators_found": len(found),
+        "insulators_matched": len(matched),
+        "insulators_inspected_matched": len(inspected),
+        "mean_error_m": float(np.mean(errors)) if errors else None,
+        "insulators": rows,
+        "photos": photo_rows,
+        "ground_truth": [{"instance_id": t.instance_id, "center": t.center.tolist(), "axis": t.axis.tolist(),
+                          "side": t.side} for t in truth],
+    }
+
+
+def write_score(folder: Path, score: dict[str, Any]) -> Path:
+    """``score.json`` in the report folder (atomically: temp file + rename)."""
+    path = Path(folder) / "score.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(score, indent=2, default=_plain))
+    os.replace(tmp, path)
+    return path
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -1,0 +1,62 @@
+"""One leg of the flight: the safe route through the plan's next items and its min-snap
+trajectory, with the time at which the trajectory passes each item."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.mission.minsnap import MinSnapTrajectory, plan_min_snap_safe
+from insulator_rs.mission.state_machine import PlanItem
+from insulator_rs.mission.two_flight import route
+
+SAFETY_CHECK_DT = 0.05  # s: sampling of planned trajectories for the safety check
+# m: a min-snap curve straying further than this from its straight path gets extra waypoints
+# (keeps the flight near the planned path, away from the conductors beyond it).
+MAX_PATH_DEVIATION = 2.0
+
+
+@dataclass(frozen=True)
+class Segment:
+    """``trajectory`` from the vehicle's position through ``items``; ``item_times`` (s from
+    the trajectory's start) at which it passes each item. None trajectory: nothing to fly."""
+
+    trajectory: MinSnapTrajectory | None
+    item_times: list[float]
+
+
+def polyline(geom: MissionGeometry, start: np.ndarray, items: list[PlanItem], clearance: float) -> np.ndarray:
+    """The safe route (crossing above the tower, out of the conductor corridor) from ``start``
+    through every item, repeated points removed."""
+    pts = [start]
+    for it in items:
+        r = route(geom.line, geom.volumes, pts[-1], it.position, clearance)
+        pts.extend(r[1:])
+    keep = [pts[0]]
+    for p in pts[1:]:
+        if np.linalg.norm(p - keep[-1]) > 1e-3:
+            keep.append(p)
+    return np.array(keep)
+
+
+def plan_segment(geom: MissionGeometry, start: np.ndarray, velocity: np.ndarray, items: list[PlanItem], *,
+                 v_max: np.ndarray, a_max: np.ndarray, clearance: float, time_allocation: str) -> Segment:
+    """Plan the min-snap, safety-checked trajectory through ``items`` from ``start`` (W) moving
+    at ``velocity`` (clipped to the limits)."""
+    pts = polyline(geom, start, items, clearance)
+    if len(pts) < 2:
+        return Segment(None, [])
+    v0 = np.clip(velocity, -v_max, v_max)
+    traj = plan_min_snap_safe(pts, v_max, a_max, geom.volumes, dt=SAFETY_CHECK_DT, v_start=v0,
+                              max_deviation=MAX_PATH_DEVIATION, time_allocation=time_allocation)
+    # items are among the trajectory's waypoints: the knot time of each
+    knots = np.concatenate([[0.0], np.cumsum(traj.durations)])
+    item_times = []
+    j = 0
+    for it in items:
+        while j < len(traj.waypoints) and np.linalg.norm(traj.waypoints[j] - it.position) > 1e-6:
+            j += 1
+        item_times.append(float(knots[min(j, len(knots) - 1)]))
+    return Segment(traj, item_times)

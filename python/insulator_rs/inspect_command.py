@@ -1,0 +1,308 @@
+"""``insulator-rs inspect``: a whole single-flight inspection, wired from the command line.
+
+This module is a composition root: it picks the adapters behind the flight loop's ports
+and hands them to :class:`insulator_rs.flight.loop.FlightLoop`, which knows none of them.
+
+* Vehicle: ``--vehicle sim`` (default) the in-process kinematic multirotor; ``--vehicle
+  mavlink`` the MAVLink offboard client, by default against the simulated PX4 it starts on
+  loopback (real UDP), or with ``--connection`` against a real PX4 or its SITL.
+* Sensors: the simulator's camera and Mid-360, rendered from the scene (tower A by default)
+  at the airframe's true pose; against an outside autopilot there is no simulator to ask,
+  so that needs ``--sim-sensors`` (a SITL setup: the sensors render the scene at the pose
+  the autopilot reports), or live sensors: ``--lidar mid360://HOST --camera SOURCE``
+  (:mod:`insulator_rs.drivers.cli_options`: a Livox Mid-360 and an OpenCV camera, stamped
+  in the vehicle clock read from the autopilot's telemetry; needs ``--detector``). A live
+  flight is not scored against the scene (the scene is not what the sensors saw).
+* Detector: the simulator's ground-truth stand-in (true boxes, jittered), or with
+  ``--detector`` a YOLO network (such as the shipped ``insulator-sim``) on the pixels.
+* Sensor rig: the mission's ``[vehicle] rig`` file (camera calibration, T_b_c, T_b_l); the
+  simulated airframe carries it (the shipped ``simulator`` rig when the mission names none).
+
+After the flight the scorer compares the report with the scene (``score.json``): the flight
+itself never sees ground truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from insulator_rs.drivers import cli_options
+from insulator_rs.evaluation.scoring import score_flight, write_score
+from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
+from insulator_rs.flight.detector import BoxDetector, NetworkDetector
+from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.mission import bounds
+from insulator_rs.mission.config import Mission, load_mission
+from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.mission.minsnap import TIME_ALLOCATIONS
+from insulator_rs.mission.state_machine import POLICIES
+from insulator_rs.report import check_out_folder, parse_out_folder
+from insulator_rs.rig import simulator_rig
+from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
+from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits
+from insulator_rs.sim.sensors import (
+    SimulatedSensors,
+    kinematic_true_pose,
+    reported_pose,
+    simulated_px4_true_pose,
+)
+from insulator_rs.sim.towers import load_tower
+from insulator_rs.vehicle import Vehicle
+
+MISSIONS_DIR = Path(__file__).resolve().parent / "missions"
+DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
+MAX_MAVLINK_TIME_SCALE = 4.0  # the client's timeouts and the 20 Hz stream hold up to this speed-up
+# The vehicle's own limits get this much headroom over the planning limits so the
+# position loop can track the trajectory.
+LIMIT_HEADROOM = 1.5
+
+
+def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
+    """The simulated airframe at the mission's take-off point, limits with headroom over the plan's."""
+    geom = MissionGeometry.from_mission(mission)
+    lim = mission.vehicle
+    return KinematicVehicle(
+        start_position=geom.takeoff, start_yaw=geom.path[0].yaw, seed=seed,
+        limits=MotionLimits(max_horizontal_speed=lim.v_max_horizontal * LIMIT_HEADROOM,
+                            max_vertical_speed=lim.v_max_vertical * LIMIT_HEADROOM,
+                            max_horizontal_acceleration=lim.a_max_horizontal * LIMIT_HEADROOM,
+                            max_vertical_acceleration=lim.a_max_vertical * LIMIT_HEADROOM))
+
+
+def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time_scale: float,
+                    signing_key: Path | None) -> Vehicle:
+    """The MAVLink offboard client: to the simulated PX4 (started here on loopback, flying
+    :func:`kinematic_vehicle`) when ``connection`` is None, else to that autopilot with W's
+    origin put at the tower base."""
+    from insulator_rs.mavlink import connect_vehicle
+    from insulator_rs.sim.px4 import connect_simulated_px4
+
+    tower = mission.tower
+    if connection is None:
+        sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt)}
+        vehicle = connect_simulated_px4(time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
+    else:
+        vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key)
+    if connection is not None:
+        try:
+            vehicle.set_world_origin(tower.lat, tower.lon, tower.alt)
+        except BaseException:
+            vehicle.close()
+            raise
+    return vehicle
+
+
+def load_network(model: str | None) -> NetworkDetector | None:
+    """The YOLO network for detection events (a shipped model name or an ONNX file); None keeps
+    the stand-in. Raises ValueError naming ``--detector``."""
+    if model is None:
+        return None
+    from insulator_rs.detection.commands import open_detector
+
+    try:
+        return NetworkDetector(open_detector(model, conf=DETECT_CONF))
+    except ValueError as exc:  # ModelError included: missing, truncated or not a YOLO export
+        raise ValueError(f"--detector: {exc}") from exc
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("inspect", help="fly a whole single-flight inspection (simulator or PX4)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scene", default="tower_a",
+                   help="built-in scene name (tower_a, tower_b) or a scene TOML file (default tower_a)")
+    p.add_argument("--mission", type=Path, default=None,
+                   help="mission file (TOML/YAML); default: the example mission of a built-in scene")
+    p.add_argument("--out", type=parse_out_folder, default=Path("inspection_report"),
+                   help="report folder (created; one that holds files is refused unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the report in --out: the new run is written beside it and swapped in "
+                        "when it ends, so the old report stays whole until then")
+    p.add_argument("--method", default="dbscan+ransac",
+                   choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", "bounded"),
+                   help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
+    p.add_argument("--policy", default="immediate", choices=POLICIES,
+                   help="buffering: visit at once (paper) or insert where cheapest")
+    p.add_argument("--seed", type=bounds.option("--seed"), default=0)
+    p.add_argument("--detector", default=None,
+                   help="a shipped model name (e.g. insulator-sim) or an ONNX file: run that YOLO network "
+                        "on the detection images (default: the simulator's ground-truth stand-in)")
+    p.add_argument("--time-allocation", default="pmm", choices=TIME_ALLOCATIONS,
+                   help="min-snap segment times: pmm (point-mass proportions, default) or snap "
+                        "(redistributed to minimise snap, Richter et al.; slower to plan)")
+    p.add_argument("--detect-period", type=bounds.option("--detect-period"), default=1.0, help="s between detection events (default 1)")
+    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=0.25,
+                   help="detection camera resolution as a fraction of the rig camera's (default 0.25)")
+    p.add_argument("--photo-scale", type=bounds.option("--photo-scale"), default=1.0,
+                   help="inspection photo resolution as a fraction of the rig camera's (default 1)")
+    p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s)")
+    p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
+    p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--record", type=Path, default=None,
+                   help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
+                        "messages in this MCAP file (replay it with `insulator-rs replay`)")
+    p.add_argument("--vehicle", choices=("sim", "mavlink"), default=None,
+                   help="sim: the in-process kinematic vehicle (default); mavlink: the MAVLink offboard "
+                        "client, to the simulated PX4 it starts on loopback unless --connection is given")
+    p.add_argument("--connection", default=None,
+                   help="MAVLink connection of a real PX4 or its SITL, e.g. udpin:0.0.0.0:14540 or "
+                        "/dev/ttyTHS1:921600 (implies --vehicle mavlink; needs --sim-sensors, or --lidar and --camera)")
+    p.add_argument("--sim-sensors", action="store_true",
+                   help="with --connection: the camera and LiDAR are simulated from the scene at the pose the "
+                        "autopilot reports (a SITL setup)")
+    p.add_argument("--time-scale", type=float, default=None,
+                   help=f"MAVLink only: speed-up of the simulated PX4 (default 1, at most "
+                        f"{MAX_MAVLINK_TIME_SCALE:g}; give the SITL's speed factor with --connection)")
+    p.add_argument("--signing-key", type=Path, default=None,
+                   help="MAVLink only: file with the 32-byte MAVLink 2 signing key (both ends sign)")
+    cli_options.add_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _vehicle_kind(args: argparse.Namespace) -> str:
+    """Check the vehicle options together; "sim" or "mavlink"."""
+    live = cli_options.check_arguments(args)  # --lidar/--camera: refused unless they can fly
+    kind = args.vehicle or ("mavlink" if args.connection is not None else "sim")
+    if kind == "sim":
+        for flag, value in (("--connection", args.connection), ("--time-scale", args.time_scale),
+                            ("--signing-key", args.signing_key)):
+            if value is not None:
+                raise ValueError(f"{flag}: only applies to --vehicle mavlink")
+        if args.sim_sensors:
+            raise ValueError("--sim-sensors: only applies with --connection")
+        return kind
+    if args.time_scale is not None and not (math.isfinite(args.time_scale)
+                                            and 0 < args.time_scale <= MAX_MAVLINK_TIME_SCALE):
+        raise ValueError(f"--time-scale: must be in (0, {MAX_MAVLINK_TIME_SCALE:g}], got {args.time_scale}")
+    if args.connection is not None:
+        if not args.connection.strip():
+            raise ValueError("--connection: must not be empty")
+        if not args.sim_sensors and not live:
+            raise ValueError("--connection: add --lidar and --camera (live sensors), or --sim-sensors to fly a "
+                             "SITL autopilot with the sensors simulated from the scene")
+    elif args.sim_sensors:
+        raise ValueError("--sim-sensors: only applies with --connection (the built-in simulated PX4 "
+                         "always has simulated sensors)")
+    if args.signing_key is not None and not args.signing_key.is_file():
+        raise ValueError(f"--signing-key: no such file: {args.signing_key}")
+    return kind
+
+
+def _with_limits(mission: Mission, v_max: float | None, a_max: float | None) -> Mission:
+    if v_max is None and a_max is None:
+        return mission
+    v = mission.vehicle
+    return replace(mission, vehicle=replace(
+        v, v_max_horizontal=v_max or v.v_max_horizontal, v_max_vertical=v_max or v.v_max_vertical,
+        a_max_horizontal=a_max or v.a_max_horizontal, a_max_vertical=a_max or v.a_max_vertical))
+
+
+def _final_line(summary: dict[str, Any], score: dict[str, Any] | None, out: Path) -> str:
+    if score is None:  # a live flight
+        return (f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
+                f"{summary['insulators_found']} insulators found, {summary['insulators_inspected']} inspected, "
+                f"{len(summary['photos'])} photos; report in {out}")
+    mean = score["mean_error_m"]
+    return (f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
+            f"{summary['insulators_found']} insulators found ({score['insulators_matched']} of "
+            f"{score['insulators_in_scene']} matched), {summary['insulators_inspected']} inspected, "
+            f"{len(summary['photos'])} photos, mean error {mean if mean is None else round(mean, 3)} m "
+            f"(scored after the flight); report in {out}")
+
+
+def run(args: argparse.Namespace) -> int:
+    # The numeric options were checked by argparse against insulator_rs.mission.bounds.
+    try:
+        mavlink = _vehicle_kind(args) == "mavlink"
+        tower = load_tower(args.scene)
+        mission_path = args.mission
+        if mission_path is None:
+            mission_path = MISSIONS_DIR / f"{tower.spec.name}.toml"
+            if not mission_path.is_file():
+                raise ConfigError(f"--mission: scene {tower.spec.name!r} has no example mission; give one")
+        mission = load_mission(mission_path)
+        MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
+        check_out_folder(args.out, overwrite=args.overwrite)
+        network = load_network(args.detector)
+    except (ConfigError, ValueError) as exc:
+        print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
+        return 2
+    mission = _with_limits(mission, args.v_max, args.a_max)
+    rig = mission.rig if mission.rig is not None else simulator_rig()
+    if mavlink:
+        try:
+            vehicle = mavlink_vehicle(mission, args.seed, connection=args.connection,
+                                      time_scale=args.time_scale or 1.0, signing_key=args.signing_key)
+        except (VehicleError, ConfigError) as exc:  # no autopilot answering, a bad key file
+            print(f"insulator-rs inspect: error: MAVLink vehicle: {exc}", file=sys.stderr)
+            return 2
+        simulator = getattr(vehicle, "simulator", None)  # the simulated PX4 this run started
+        pose = simulated_px4_true_pose(simulator) if simulator is not None else reported_pose(vehicle)
+    else:
+        vehicle = kinematic_vehicle(mission, args.seed)
+        pose = kinematic_true_pose(vehicle)
+    live = args.lidar is not None
+    sensors: Any
+    if live:
+        try:
+            sensors = cli_options.open_from_arguments(args, vehicle, rig)
+        except SensorError as exc:
+            vehicle.close()
+            print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
+            return 2
+        assert network is not None  # check_arguments demands --detector
+        detector: BoxDetector = network
+        photo_camera = rig.camera
+    else:
+        sensors = SimulatedSensors(tower.mesh, pose, rig, detect_scale=args.detect_scale,
+                                   photo_scale=args.photo_scale, seed=args.seed)
+        detector = network if network is not None else GroundTruthDetector(sensors, seed=args.seed)
+        photo_camera = sensors.photo_model
+    settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
+                              max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
+                              quiet=args.quiet)
+    recorder = None
+    if args.record is not None:
+        from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
+        from insulator_rs.recording.writer import McapRecorder
+
+        recorder = McapRecorder(args.record)
+        recorder.metadata(RECORD_NAME, FlightMetadata(
+            mission_text=Path(mission_path).read_text(encoding="utf-8"), mission_suffix=Path(mission_path).suffix,
+            mission_source=str(mission_path),
+            scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
+    try:
+        loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
+                          overwrite=args.overwrite, recorder=recorder, photo_camera=photo_camera)
+        code = 0
+        try:
+            loop.fly()
+        except KeyboardInterrupt:
+            loop.status = "interrupted"
+            code = 130
+        except Exception:
+            loop.status = "failed"
+            loop.finish_report()
+            raise
+        # the flight is over (landed, aborted or interrupted): now ground truth may be read
+        if live:  # the sensors saw the world, not the scene: nothing to score against
+            score = None
+            summary = loop.finish_report()
+        else:
+            score = score_flight(loop.summary(), tower)
+            summary = loop.finish_report(reference=[t.center for t in tower.insulators])
+            write_score(args.out, score)
+    finally:
+        vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
+        sensors.close()
+        if recorder is not None:
+            recorder.close()
+    if summary["status"].startswith("aborted"):
+        code = 1
+    print(_final_line(summary, score, args.out), file=sys.stdout)
+    return code

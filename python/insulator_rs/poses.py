@@ -1,0 +1,200 @@
+"""Rigid poses: checks, a body pose from position and yaw, interpolation, and a pose history.
+
+``T_a_b`` is a 4x4 float64 homogeneous matrix mapping coordinates in frame b to frame a
+(DESIGN.md). Interpolation between two poses is linear in translation and geodesic in
+rotation (constant angular velocity about one axis), which is what a multirotor does
+between two 20 Hz odometry samples to well under a millimetre.
+
+:class:`PoseHistory` is what the perception pipeline deskews a LiDAR scan with: the
+vehicle's estimated poses, stamped in the vehicle clock, kept for a few seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from insulator_rs.sensors import PoseStamped
+
+
+def check_pose(name: str, T: ArrayLike) -> np.ndarray:
+    """A finite 4x4 rigid transform as float64, or ValueError naming ``name``."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"{name}: expected shape (4, 4), got {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise ValueError(f"{name}: contains NaN or Inf")
+    R = T[:3, :3]
+    if (not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+            or np.linalg.det(R) <= 0):
+        raise ValueError(f"{name}: not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)")
+    return T
+
+
+def pose_from_yaw(position: ArrayLike, yaw: float) -> np.ndarray:
+    """T_w_b of a level body at ``position`` (W, m) heading ``yaw`` (rad from east, CCW).
+
+    A multirotor's roll and pitch at inspection speeds are a few degrees; the vehicle
+    interface reports position and yaw only, so the body is taken as level."""
+    T = np.eye(4)
+    c, s = math.cos(yaw), math.sin(yaw)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = np.asarray(position, dtype=np.float64)
+    return T
+
+
+class PoseTrack:
+    """Rigid body poses between knots: linear in translation, geodesic in rotation.
+
+    ``knots_t`` (K,) strictly increasing times, ``knots_T`` (K, 4, 4) poses;
+    times outside the knots are clamped to the ends.
+    """
+
+    def __init__(self, knots_t: np.ndarray, knots_T: np.ndarray) -> None:
+        self.knots_t = np.asarray(knots_t, dtype=np.float64)
+        self.knots_T = np.asarray(knots_T, dtype=np.float64)
+        R0 = self.knots_T[:-1, :3, :3]
+        self._R0 = R0
+        self._omega = _log_so3(np.einsum("kji,kjl->kil", R0, self.knots_T[1:, :3, :3]))
+
+    def _segments(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        kt = self.knots_t
+        seg = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, len(kt) - 2)
+        s = np.clip((t - kt[seg]) / (kt[seg + 1] - kt[seg]), 0.0, 1.0)
+        return seg, s
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        """(N, 3) positions at times ``t`` (N,)."""
+        seg, s = self._segments(t)
+        p = self.knots_T[:, :3, 3]
+        return p[seg] + (p[seg + 1] - p[seg]) * s[:, None]
+
+    def rotate(self, t: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """R(t_i) @ v_i for every row: (N,) times, (N, 3) vectors -> (N, 3).
+
+        Within a segment the relative rotation keeps one axis, so Rodrigues'
+        formula needs only matrix products with that segment's constant matrices.
+        """
+        seg, s = self._segments(t)
+        out = np.empty_like(v, dtype=np.float64)
+        for k in np.unique(seg):
+            rows = slice(None) if len(self._R0) == 1 else seg == k
+            angle_k = float(np.linalg.norm(self._omega[k]))
+            vk = v[rows]
+            if angle_k < 1e-12:
+                out[rows] = vk @ self._R0[k].T
+                continue
+            axis = self._omega[k] / angle_k
+            K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+            angle = angle_k * s[rows][:, None]
+            cos, sin = np.cos(angle), np.sin(angle)
+            local = vk * cos + (vk @ K.T) * sin + np.outer(vk @ axis, axis) * (1.0 - cos)
+            out[rows] = local @ self._R0[k].T
+        return out
+
+    def pose(self, time: float) -> np.ndarray:
+        """The 4x4 pose at ``time``."""
+        return interpolate_poses(self.knots_t, self.knots_T, np.array([time]))[0]
+
+
+
+
+def interpolate_poses(knots_t: np.ndarray, knots_T: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Piecewise interpolation of rigid poses: linear in translation, geodesic in rotation.
+
+    ``knots_t`` (K,) increasing, ``knots_T`` (K, 4, 4), ``t`` (N,) -> (N, 4, 4);
+    times outside the knots are clamped to the ends.
+    """
+    seg = np.clip(np.searchsorted(knots_t, t, side="right") - 1, 0, len(knots_t) - 2)
+    span = knots_t[seg + 1] - knots_t[seg]
+    s = np.clip((t - knots_t[seg]) / span, 0.0, 1.0)
+    R0 = knots_T[:-1, :3, :3]
+    R_rel = np.einsum("kji,kjl->kil", R0, knots_T[1:, :3, :3])  # R0^T R1 per segment
+    omega = _log_so3(R_rel)  # (K-1, 3)
+    R = np.einsum("nij,njl->nil", R0[seg], _exp_so3(omega[seg] * s[:, None]))
+    p0, p1 = knots_T[:-1, :3, 3], knots_T[1:, :3, 3]
+    out = np.zeros((len(t), 4, 4))
+    out[:, :3, :3] = R
+    out[:, :3, 3] = p0[seg] + (p1[seg] - p0[seg]) * s[:, None]
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def _log_so3(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors of (K, 3, 3) rotations (angles < pi assumed between knots)."""
+    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    vee = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
+    sin = np.sin(angle)
+    scale = np.where(sin > 1e-9, angle / (2.0 * np.where(sin > 1e-9, sin, 1.0)), 0.5)
+    return vee * scale[:, None]
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotations (N, 3, 3) of rotation vectors (N, 3) (Rodrigues' formula)."""
+    angle = np.linalg.norm(w, axis=1)
+    safe = np.where(angle > 1e-12, angle, 1.0)
+    k = w / safe[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2] = -k[:, 2], k[:, 1]
+    K[:, 1, 0], K[:, 1, 2] = k[:, 2], -k[:, 0]
+    K[:, 2, 0], K[:, 2, 1] = -k[:, 1], k[:, 0]
+    sin = np.where(angle > 1e-12, np.sin(angle), 0.0)[:, None, None]
+    one_minus_cos = np.where(angle > 1e-12, 1.0 - np.cos(angle), 0.0)[:, None, None]
+    return np.eye(3) + sin * K + one_minus_cos * (K @ K)
+
+
+# s of poses a history keeps: a scan (0.1 s) paired with a frame up to a second old fits easily.
+POSE_HISTORY_SECONDS = 5.0
+
+
+class PoseHistory:
+    """The vehicle's recent poses (vehicle clock), for deskewing and pairing sensor data.
+
+    ``add`` takes poses in time order (an older or equal stamp is ignored: a repeated
+    telemetry sample); poses older than ``span`` s before the newest are dropped.
+    """
+
+    def __init__(self, span: float = POSE_HISTORY_SECONDS) -> None:
+        if not (math.isfinite(span) and span > 0):
+            raise ValueError(f"span: must be a finite number > 0, got {span!r}")
+        self.span = float(span)
+        self._times: deque[float] = deque()
+        self._poses: deque[np.ndarray] = deque()
+
+    def __len__(self) -> int:
+        return len(self._times)
+
+    def add(self, pose: PoseStamped) -> None:
+        t = float(pose.time)
+        if not math.isfinite(t):
+            raise ValueError(f"pose.time: must be finite, got {t!r}")
+        if self._times and t <= self._times[-1]:
+            return
+        self._times.append(t)
+        self._poses.append(check_pose("pose.T_w_b", pose.T_w_b))
+        while self._times[0] < t - self.span:
+            self._times.popleft()
+            self._poses.popleft()
+
+    @property
+    def newest(self) -> PoseStamped | None:
+        return PoseStamped(self._times[-1], self._poses[-1]) if self._times else None
+
+    def track(self) -> PoseTrack:
+        """The history as a :class:`PoseTrack` (clamped outside its span). Needs one pose."""
+        if not self._times:
+            raise ValueError("pose history: empty (no pose received yet)")
+        t = np.array(self._times)
+        T = np.stack(list(self._poses))
+        if len(t) == 1:  # one pose: the vehicle stands there at every time
+            t, T = np.array([t[0], t[0] + 1.0]), np.stack([T[0], T[0]])
+        return PoseTrack(t, T)
+
+    def pose_at(self, time: float) -> np.ndarray:
+        """T_w_b at ``time`` (interpolated; clamped to the first/last pose outside the span)."""
+        track = self.track()
+        return interpolate_poses(track.knots_t, track.knots_T, np.array([float(time)]))[0]

@@ -1,0 +1,36 @@
+"""The ground-truth detector: the simulator's true boxes, degraded like a detector's output.
+
+A simulator-side adapter of the flight loop's detector port (a callable image -> boxes):
+it looks up the true insulator boxes of the detection image that
+:class:`~insulator_rs.sim.sensors.SimulatedSensors` rendered, and degrades them with the
+:class:`~insulator_rs.sim.detector_standin.DetectorStandin` (box jitter, misses, false
+positives). It only works on the simulator's own frames, by construction: no real flight can
+use it by mistake. The YOLO network is the other adapter
+(:class:`insulator_rs.flight.detector.NetworkDetector`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from insulator_rs.sim.detector_standin import DetectorStandin
+from insulator_rs.sim.sensors import SimulatedSensors
+
+
+class GroundTruthDetector:
+    """``detector(image) -> (M, 5) boxes x1, y1, x2, y2, score`` from the simulator's truth."""
+
+    name = "ground-truth stand-in (simulator boxes, jittered)"
+
+    def __init__(self, sensors: SimulatedSensors, standin: DetectorStandin | None = None, *,
+                 seed: int = 0) -> None:
+        self.sensors = sensors
+        self.standin = standin if standin is not None else DetectorStandin(seed=seed)
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        truth = self.sensors.ground_truth_boxes(image)
+        if not truth:
+            return np.zeros((0, 5))
+        ids = list(truth)
+        h, w = image.shape[:2]
+        return self.standin.detect(np.array([truth[i] for i in ids]), (w, h), ids).boxes

@@ -1,0 +1,89 @@
+"""The flight loop's handling of what a real vehicle and real sensors do: a refused command
+aborts cleanly (reported, landed when airborne, no traceback); a sensor error costs that
+detection event, never the flight."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_mission_inspect import small_scene
+
+from insulator_rs import inspect_command
+from insulator_rs.cli import main
+from insulator_rs.exceptions import CommandRejected, SensorError
+from insulator_rs.sim.sensors import SimulatedSensors
+
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+
+
+def _run(tmp_path, *extra):
+    scene, mission = small_scene(tmp_path)
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS, *extra])
+    return rc, out, json.loads((out / "summary.json").read_text())
+
+
+def test_a_refused_arm_aborts_before_take_off_without_a_traceback(tmp_path, monkeypatch, capsys):
+    made = []
+    original = inspect_command.kinematic_vehicle
+
+    def no_position_estimate(mission, seed):
+        v = original(mission, seed)
+        v.inject_position_loss(True)  # PX4 refuses to arm without a position estimate
+        made.append(v)
+        return v
+
+    monkeypatch.setattr(inspect_command, "kinematic_vehicle", no_position_estimate)
+    rc, out, s = _run(tmp_path)
+    assert rc == 1
+    assert s["status"] == "aborted: vehicle command failed: arm refused by the vehicle: no valid position estimate", s["status"]
+    assert s["insulators_found"] == 0 and s["photos"] == []
+    assert not made[0].armed and made[0].mode.value != "LAND"  # nothing to land: it never flew
+    assert "aborted: vehicle command failed: arm refused by the vehicle" in capsys.readouterr().out
+
+
+def test_a_refused_mode_change_after_take_off_aborts_and_lands(tmp_path, monkeypatch):
+    made = []
+    original = inspect_command.kinematic_vehicle
+
+    def refuses_offboard(mission, seed):
+        v = original(mission, seed)
+
+        def start_offboard():
+            raise CommandRejected("MAV_CMD_DO_SET_MODE", "MAV_RESULT_DENIED", "OFFBOARD", temporary=False)
+
+        v.start_offboard = start_offboard
+        made.append(v)
+        return v
+
+    monkeypatch.setattr(inspect_command, "kinematic_vehicle", refuses_offboard)
+    rc, out, s = _run(tmp_path)
+    assert rc == 1
+    assert s["status"] == ("aborted: vehicle command failed: MAV_CMD_DO_SET_MODE (OFFBOARD) refused by the vehicle: MAV_RESULT_DENIED"), s["status"]
+    assert s["failsafe"] is None and s["state"] == "abort"
+    v = made[0]
+    assert v.landed and v.mode.value == "LAND"  # the mission's own landing after the refusal
+    z = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, usecols=3)
+    assert z.max() > z[0] + 2.0 and z[-1] < z[0] + 0.1  # it had climbed to its first height, and came down
+
+
+@pytest.mark.slow
+def test_sensor_errors_cost_events_not_the_flight(tmp_path, monkeypatch):
+    """Every third detection frame fails (a camera dropping frames): the flight goes on, counts
+    the errors, and still finds both insulators of the small scene."""
+    original = SimulatedSensors.detection_frame
+    calls = []
+
+    def flaky(self, now):
+        calls.append(now)
+        if len(calls) % 3 == 0:
+            raise SensorError("camera: frame dropped")
+        return original(self, now)
+
+    monkeypatch.setattr(SimulatedSensors, "detection_frame", flaky)
+    rc, out, s = _run(tmp_path, "--detect-period", "0.5", "--max-flight-time", "80")
+    assert s["sensor_errors"] == len(calls) // 3 > 10
+    assert s["status"] in ("finished", "aborted: flight time limit of 80 s")
+    assert s["insulators_found"] >= 1
