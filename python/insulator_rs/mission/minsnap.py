@@ -297,23 +297,26 @@ def _plan_scaled(p: np.ndarray, vm: np.ndarray, am: np.ndarray, vs: np.ndarray |
     durations = rest_to_rest_times(p[:-1], p[1:], vm, am)
     if time_allocation == "snap":
         durations = optimize_segment_times(p, durations, vs)
+    crawling = PlanningError("v_start: no time scaling keeps the limits with this start velocity")
+    longest = MAX_SLOWDOWN * float(np.sum(rest_to_rest_times(p[:-1], p[1:], vm, am)))
     for _ in range(MAX_SCALING_ROUNDS):
         traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations, vs))
         alpha = _limit_factor(traj, vm, am)
         durations = durations * alpha
         if vs is None or abs(alpha - 1.0) < 1e-6:  # from rest one scaling is exact
             break
-    longest = MAX_SLOWDOWN * float(np.sum(rest_to_rest_times(p[:-1], p[1:], vm, am)))
+        if not np.sum(durations) <= longest:  # crawling: the curve's speed does not shrink with time
+            raise crawling
     traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations, vs))
     for _ in range(MAX_SCALING_ROUNDS):  # only slow down from here on, until the limits hold
         alpha = _limit_factor(traj, vm, am)
         if alpha <= 1.0 + 1e-9:
             return traj
         durations = durations * alpha * 1.01
-        if np.sum(durations) > longest:  # crawling: the curve's speed does not shrink with time
+        if not np.sum(durations) <= longest:
             break
         traj = MinSnapTrajectory(p, durations, solve_min_snap(p, durations, vs))
-    raise PlanningError("v_start: no time scaling keeps the limits with this start velocity")
+    raise crawling
 
 
 def _without_repeats(points: list[np.ndarray]) -> np.ndarray:
