@@ -38,7 +38,8 @@ pytestmark = [
                                               "repository and INSULATOR_RS_PX4_SITL not set"),
 ]
 SPEED = float(os.environ.get("INSULATOR_RS_PX4_SPEED", "1"))
-ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
+        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 @pytest.fixture
