@@ -128,12 +128,12 @@ def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
     assert "Landing detected" in log and "Disarmed by landing" in log
 
 
-def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch) -> None:
+def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch, capsys) -> None:
     """Once PX4 has taken off, a stranger on loopback sends the client's port a HEARTBEAT of an
     autopilot with system id 42 (POSCTL) twice a second and ~900 truncated 10-byte MAVLink 2
     headers per second for 4 s. The mission finishes as without them (every insulator found
     and photographed, no PX4 failsafe); the client dropped and counted every datagram and
-    sent nothing to the stranger."""
+    sent nothing to the stranger, and the run's last line reports the counts."""
     import socket
     import threading
 
@@ -200,3 +200,4 @@ def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch)
     assert g["insulators_matched"] == 2 and s["insulators_inspected"] == 2 and len(s["photos"]) == 4
     assert stats[0]["foreign_address"] >= sent["truncated"] + sent["heartbeats"]
     assert sent["replies"] == 0  # nothing streamed to the stranger
+    assert f"foreign_address {stats[0]['foreign_address']}" in capsys.readouterr().out  # reported
