@@ -67,3 +67,19 @@ def test_open_from_arguments_starts_clock_lidar_and_camera(tmp_path: Path) -> No
         assert "clock_errors" in sensors.health()
     finally:
         sensors.close()
+
+
+def test_inspect_refuses_live_flags_that_cannot_fly(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Through ``insulator-rs inspect``: status 2, the flag named, nothing flown."""
+    from insulator_rs.cli import main
+
+    base = ["inspect", "--out", str(tmp_path / "r")]
+    for extra, message in (
+            (["--lidar", "mid360://192.168.1.12"], "--camera: a live flight needs both"),
+            (["--lidar", "mid360://h", "--camera", "0", "--detector", "insulator-sim"], "add --connection"),
+            (["--lidar", "mid360://h", "--camera", "0", "--connection", "udpin:127.0.0.1:14540"], "add --detector"),
+            (["--lidar", "ouster://h", "--camera", "0", "--connection", "udpin:127.0.0.1:14540", "--detector",
+              "insulator-sim"], "mid360://HOST")):
+        assert main([*base, *extra]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()

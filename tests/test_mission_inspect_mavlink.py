@@ -153,7 +153,7 @@ def test_vehicle_options_are_checked(tmp_path, capsys):
     """Refused before anything flies: status 2 and the flag named, no traceback."""
     base = ["inspect", "--out", str(tmp_path / "r")]
     for extra, message in (
-            (["--connection", "udpin:127.0.0.1:14540"], "--connection: the camera and LiDAR of a real vehicle"),
+            (["--connection", "udpin:127.0.0.1:14540"], "--connection: add --lidar and --camera (live sensors), or --sim-sensors"),
             (["--vehicle", "mavlink", "--time-scale", "10"], "--time-scale: must be in"),
             (["--time-scale", "2"], "--time-scale: only applies to --vehicle mavlink"),
             (["--vehicle", "mavlink", "--sim-sensors"], "--sim-sensors: only applies with --connection"),

@@ -136,6 +136,7 @@ def test_summary_and_csv_give_wgs84(tmp_path):
         g = p["wgs84"]
         assert np.linalg.norm(_to_enu(g["lat"], g["lon"], g["alt"]) - np.array(p["position"])) < ROUND_TRIP_M
     rows = list(csv.DictReader((out / "insulators.csv").open()))
+    assert rows[0]["error_m"] == "0.100" and rows[1]["error_m"] == ""  # this summary holds ground truth
     for r, ins in zip(rows, insulators):
         enu = _to_enu(float(r["lat_deg"]), float(r["lon_deg"]), float(r["alt_m"]))
         assert np.linalg.norm(enu - ins["center"]) < ROUND_TRIP_M
@@ -147,6 +148,8 @@ def test_a_report_without_a_path_or_finds_is_still_valid(tmp_path):
     w.log_pose(0.0, np.zeros(3), 0.0, "idle")
     w.write_summary({"status": "aborted: no offboard", "insulators": [], "photos": []})
     w.close()
+    header = (tmp_path / "r" / "insulators.csv").read_text().splitlines()[0]
+    assert header.endswith(",photos")  # no ground-truth columns a flight cannot fill
     doc = geojson.loads((tmp_path / "r" / "inspection.geojson").read_text())
     assert doc.is_valid, doc.errors()
     assert [f["properties"]["kind"] for f in doc["features"]] == ["tower_base"]  # one pose: no LineString

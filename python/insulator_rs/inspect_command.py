@@ -9,7 +9,10 @@ and hands them to :class:`insulator_rs.flight.loop.FlightLoop`, which knows none
 * Sensors: the simulator's camera and Mid-360, rendered from the scene (tower A by default)
   at the airframe's true pose; against an outside autopilot there is no simulator to ask,
   so that needs ``--sim-sensors`` (a SITL setup: the sensors render the scene at the pose
-  the autopilot reports).
+  the autopilot reports), or live sensors: ``--lidar mid360://HOST --camera SOURCE``
+  (:mod:`insulator_rs.drivers.cli_options`: a Livox Mid-360 and an OpenCV camera, stamped
+  in the vehicle clock read from the autopilot's telemetry; needs ``--detector``). A live
+  flight is not scored against the scene (the scene is not what the sensors saw).
 * Detector: the simulator's ground-truth stand-in (true boxes, jittered), or with
   ``--detector`` a YOLO network (such as the shipped ``insulator-sim``) on the pixels.
 * Sensor rig: the mission's ``[vehicle] rig`` file (camera calibration, T_b_c, T_b_l); the
@@ -28,8 +31,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from insulator_rs.drivers import cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
-from insulator_rs.exceptions import ConfigError, VehicleError
+from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
 from insulator_rs.flight.detector import BoxDetector, NetworkDetector
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs.mission import bounds
@@ -118,7 +122,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the report in --out: the new run is written beside it and swapped in "
                         "when it ends, so the old report stays whole until then")
-    p.add_argument("--method", default="dbscan+ransac",
+    p.add_argument("--method", default="bounded",
                    choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", "bounded"),
                    help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
@@ -147,7 +151,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "client, to the simulated PX4 it starts on loopback unless --connection is given")
     p.add_argument("--connection", default=None,
                    help="MAVLink connection of a real PX4 or its SITL, e.g. udpin:0.0.0.0:14540 or "
-                        "/dev/ttyTHS1:921600 (implies --vehicle mavlink; needs --sim-sensors)")
+                        "/dev/ttyTHS1:921600 (implies --vehicle mavlink; needs --sim-sensors, or --lidar and --camera)")
     p.add_argument("--sim-sensors", action="store_true",
                    help="with --connection: the camera and LiDAR are simulated from the scene at the pose the "
                         "autopilot reports (a SITL setup)")
@@ -156,11 +160,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         f"{MAX_MAVLINK_TIME_SCALE:g}; give the SITL's speed factor with --connection)")
     p.add_argument("--signing-key", type=Path, default=None,
                    help="MAVLink only: file with the 32-byte MAVLink 2 signing key (both ends sign)")
+    cli_options.add_arguments(p)
     p.set_defaults(func=run)
 
 
 def _vehicle_kind(args: argparse.Namespace) -> str:
     """Check the vehicle options together; "sim" or "mavlink"."""
+    live = cli_options.check_arguments(args)  # --lidar/--camera: refused unless they can fly
     kind = args.vehicle or ("mavlink" if args.connection is not None else "sim")
     if kind == "sim":
         for flag, value in (("--connection", args.connection), ("--time-scale", args.time_scale),
@@ -176,9 +182,9 @@ def _vehicle_kind(args: argparse.Namespace) -> str:
     if args.connection is not None:
         if not args.connection.strip():
             raise ValueError("--connection: must not be empty")
-        if not args.sim_sensors:
-            raise ValueError("--connection: the camera and LiDAR of a real vehicle are not supported (no drivers); "
-                             "add --sim-sensors to fly a SITL autopilot with the sensors simulated from the scene")
+        if not args.sim_sensors and not live:
+            raise ValueError("--connection: add --lidar and --camera (live sensors), or --sim-sensors to fly a "
+                             "SITL autopilot with the sensors simulated from the scene")
     elif args.sim_sensors:
         raise ValueError("--sim-sensors: only applies with --connection (the built-in simulated PX4 "
                          "always has simulated sensors)")
@@ -196,7 +202,11 @@ def _with_limits(mission: Mission, v_max: float | None, a_max: float | None) -> 
         a_max_horizontal=a_max or v.a_max_horizontal, a_max_vertical=a_max or v.a_max_vertical))
 
 
-def _final_line(summary: dict[str, Any], score: dict[str, Any], out: Path) -> str:
+def _final_line(summary: dict[str, Any], score: dict[str, Any] | None, out: Path) -> str:
+    if score is None:  # a live flight
+        return (f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
+                f"{summary['insulators_found']} insulators found, {summary['insulators_inspected']} inspected, "
+                f"{len(summary['photos'])} photos; report in {out}")
     mean = score["mean_error_m"]
     return (f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
             f"{summary['insulators_found']} insulators found ({score['insulators_matched']} of "
@@ -236,9 +246,23 @@ def run(args: argparse.Namespace) -> int:
     else:
         vehicle = kinematic_vehicle(mission, args.seed)
         pose = kinematic_true_pose(vehicle)
-    sensors = SimulatedSensors(tower.mesh, pose, rig, detect_scale=args.detect_scale,
-                               photo_scale=args.photo_scale, seed=args.seed)
-    detector: BoxDetector = network if network is not None else GroundTruthDetector(sensors, seed=args.seed)
+    live = args.lidar is not None
+    sensors: Any
+    if live:
+        try:
+            sensors = cli_options.open_from_arguments(args, vehicle, rig)
+        except SensorError as exc:
+            vehicle.close()
+            print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
+            return 2
+        assert network is not None  # check_arguments demands --detector
+        detector: BoxDetector = network
+        photo_camera = rig.camera
+    else:
+        sensors = SimulatedSensors(tower.mesh, pose, rig, detect_scale=args.detect_scale,
+                                   photo_scale=args.photo_scale, seed=args.seed)
+        detector = network if network is not None else GroundTruthDetector(sensors, seed=args.seed)
+        photo_camera = sensors.photo_model
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
                               quiet=args.quiet)
@@ -254,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
             scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
     try:
         loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
-                          overwrite=args.overwrite, recorder=recorder, photo_camera=sensors.photo_model)
+                          overwrite=args.overwrite, recorder=recorder, photo_camera=photo_camera)
         code = 0
         try:
             loop.fly()
@@ -266,9 +290,13 @@ def run(args: argparse.Namespace) -> int:
             loop.finish_report()
             raise
         # the flight is over (landed, aborted or interrupted): now ground truth may be read
-        score = score_flight(loop.summary(), tower)
-        summary = loop.finish_report(reference=[t.center for t in tower.insulators])
-        write_score(args.out, score)
+        if live:  # the sensors saw the world, not the scene: nothing to score against
+            score = None
+            summary = loop.finish_report()
+        else:
+            score = score_flight(loop.summary(), tower)
+            summary = loop.finish_report(reference=[t.center for t in tower.insulators])
+            write_score(args.out, score)
     finally:
         vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
         sensors.close()

@@ -66,10 +66,11 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
 
             mission = load_mission(options.mission)
         else:
-            mission = meta.mission(path)
-            if mission is None:
+            recorded = meta.mission(path)
+            if recorded is None:
                 raise ConfigError(f"--mission: {path} does not carry its mission (not recorded by insulator_rs); "
                                   f"give the mission file")
+            mission = recorded
         scene = options.scene or meta.scene or None
         truth = _ground_truth(scene) if scene else None
         detector = _detector(options.detector)
@@ -105,9 +106,10 @@ def _ground_truth(scene: str) -> list[Any]:
 
 def _detector(name: str) -> Any:
     from insulator_rs.detection.commands import open_detector
+    from insulator_rs.flight.detector import NetworkDetector
 
     try:
-        return open_detector(name, conf=DETECT_CONF, threads=1)
+        return NetworkDetector(open_detector(name, conf=DETECT_CONF))  # as the flight's --detector
     except ValueError as exc:
         raise ModelError(f"--detector: {exc}") from exc
 

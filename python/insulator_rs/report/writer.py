@@ -10,7 +10,8 @@ Layout (what a line crew gets):
 * ``images/insulator_II_N.jpg``: the inspection photos, JPEG with EXIF GPS position,
   altitude, heading (true north) and UTC time (:mod:`.exif`), written when taken.
 * ``inspection.geojson`` (RFC 7946) and ``inspection.kml``: insulators, photo positions,
-  tower base and flown path on a map (:mod:`.geoexport`); rewritten with the summary.
+  tower base and flown path on a map (:mod:`.geoexport`); rewritten at each photo, status
+  change and close.
 * ``trajectory.csv`` (appended and flushed) and ``trajectory.png`` (the flown path round
   the tower with the waypoints, drawn at the end and whenever the run stops).
 
@@ -66,10 +67,9 @@ def utc_text(t: datetime) -> str:
 
 
 def _map_key(summary: dict[str, Any]) -> tuple[Any, ...]:
-    """What the map layers show besides the path: they are rewritten when this changes."""
-    rows = summary.get("insulators", [])
-    return (summary.get("status"), len(rows), sum(bool(r.get("inspected")) for r in rows),
-            len(summary.get("photos", [])))
+    """When the map layers are rewritten during a run: a new photo (the vehicle hovers then) or a
+    new status; a new insulator waits for the next of those (it is in summary.json at once)."""
+    return (summary.get("status"), len(summary.get("photos", [])))
 
 
 class ReportWriter:
@@ -89,8 +89,8 @@ class ReportWriter:
         self.images = path / "images"
         self.trajectory: list[tuple[float, float, float, float]] = []
         self._path_kept: list[tuple[float, float, float]] = []  # the flown path thinned to PATH_SPACING
-        # The map layers are rewritten when what they show changes (and at close), not on every
-        # periodic summary: a KML of a long path costs tens of ms the control loop should not wait.
+        # The map layers are rewritten at photos, status changes and close, not on every periodic
+        # summary: the KML of a 10-minute path costs ~0.1 s the control loop should not wait.
         self._map_key: tuple[Any, ...] | None = None
         self._last_summary: dict[str, Any] = {}
         # summary.json first: from here on the folder says which run it holds and that it is not done
@@ -158,15 +158,20 @@ class ReportWriter:
                      durable=True)
         table = io.StringIO(newline="")
         w = csv.writer(table)
+        # ground truth only where the caller has it (a replay scored against its scene); a flight's
+        # comparison is the scorer's, after the flight, in its own file
+        truth = any("gt_instance_id" in r for r in rows)
         w.writerow(["id", "x_m", "y_m", "z_m", "lat_deg", "lon_deg", "alt_m", "observations", "side",
-                    "inspected", "photos", "gt_instance_id", "error_m", "axis_error_deg"])
+                    "inspected", "photos"] + (["gt_instance_id", "error_m", "axis_error_deg"] if truth else []))
         for r in rows:
             g = r["wgs84"]
-            w.writerow([r["id"], *(f"{c:.3f}" for c in r["center"]), f"{g['lat']:.9f}", f"{g['lon']:.9f}",
-                        f"{g['alt']:.3f}", r.get("observations"), r.get("side"), r.get("inspected"),
-                        len(r.get("photos", [])), r.get("gt_instance_id"),
-                        "" if r.get("error_m") is None else f"{r['error_m']:.3f}",
-                        "" if r.get("axis_error_deg") is None else f"{r['axis_error_deg']:.2f}"])
+            row = [r["id"], *(f"{c:.3f}" for c in r["center"]), f"{g['lat']:.9f}", f"{g['lon']:.9f}",
+                   f"{g['alt']:.3f}", r.get("observations"), r.get("side"), r.get("inspected"),
+                   len(r.get("photos", []))]
+            if truth:
+                row += [r.get("gt_instance_id"), "" if r.get("error_m") is None else f"{r['error_m']:.3f}",
+                        "" if r.get("axis_error_deg") is None else f"{r['axis_error_deg']:.2f}"]
+            w.writerow(row)
         write_atomic(path / "insulators.csv", table.getvalue())
         self._last_summary = summary
         if _map_key(summary) != self._map_key:

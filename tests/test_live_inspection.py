@@ -1,0 +1,95 @@
+"""A whole small-scene inspection with the LiDAR through the wire.
+
+The flight loop flies the kinematic vehicle over the small scene (one cross-arm, two
+insulators: ``test_mission_inspect.small_scene``); the cameras are the simulator's, the
+LiDAR is :class:`~insulator_rs.sim.livox_wire.WireLidar`: frames rendered at the
+vehicle's REPORTED pose, encoded as Mid-360 datagrams on a sensor clock of its own
+(offset 1234.5 s, +25 ppm), sent on loopback, parsed and assembled by the live driver,
+whose per-point times are mapped to the vehicle clock from packet arrivals. Reference:
+the scene's ground truth, read by the post-flight scorer.
+
+Measured (this test, seed 0): the flight completes with no datagram lost or malformed, the
+clock map recovers the sensor's drift (-24.9994 ppm, truth -24.9994), and 1 of the 2
+insulators is found (0.07 m from the truth). The simulator's own LiDAR finds both: the
+loop pairs a frame with the scan returned 100 ms later, which the simulator renders up to
+that instant, while a 10 Hz driver's newest complete window ends 5-105 ms earlier, so a
+frame gets 100-200 ms of points instead of 200 ms. Waiting one more frame period before
+pairing (0.2 s) finds both with the wire LiDAR (measured); that change belongs to the
+flight loop, hence the strict xfail below, which will flag the day it passes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from test_mission_inspect import small_scene
+
+from insulator_rs.evaluation.scoring import score_flight
+from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.inspect_command import kinematic_vehicle, mavlink_vehicle
+from insulator_rs.mission.config import load_mission
+from insulator_rs.rig import simulator_rig
+from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
+from insulator_rs.sim.livox_emitter import SensorClock
+from insulator_rs.sim.livox_wire import SplitSensors, WireLidar
+from insulator_rs.sim.sensors import SimulatedSensors, kinematic_true_pose, reported_pose, simulated_px4_true_pose
+from insulator_rs.sim.towers import load_tower
+
+
+def fly_with_wire_lidar(tmp_path: Path, px4: bool) -> tuple[dict, dict, dict]:
+    """(summary, score, driver health) of one flight: the kinematic vehicle in process, or
+    the simulated PX4 over MAVLink on loopback (time scale 4; measured: the flight finishes
+    with clean LiDAR counters and the drift within 36 ppm, but finds 0 of 2 insulators --
+    the pairing gap of the module docstring, widened by 20 ms telemetry steps -- so no test
+    asserts on it yet)."""
+    scene, mission_path = small_scene(tmp_path)
+    tower = load_tower(str(scene))
+    mission = load_mission(mission_path)
+    rig = mission.rig if mission.rig is not None else simulator_rig()
+    if px4:
+        vehicle = mavlink_vehicle(mission, 0, connection=None, time_scale=4.0, signing_key=None)
+        true_pose = simulated_px4_true_pose(getattr(vehicle, "simulator"))
+    else:
+        vehicle = kinematic_vehicle(mission, 0)
+        true_pose = kinematic_true_pose(vehicle)
+    cameras = SimulatedSensors(tower.mesh, true_pose, rig, detect_scale=0.2, photo_scale=0.2, seed=0)
+    wire = WireLidar(tower.mesh, reported_pose(vehicle), rig.T_b_l, clock=SensorClock(offset_s=1234.5, drift=25e-6),
+                     seed=7)
+    sensors = SplitSensors(cameras, wire)
+    loop = FlightLoop(mission, vehicle, sensors, GroundTruthDetector(cameras, seed=0), tmp_path / "report", rig=rig,
+                      settings=FlightSettings(detect_period=1.0, quiet=True))
+    try:
+        loop.fly()
+        health = sensors.health()
+        summary = loop.summary()
+    finally:
+        vehicle.close()
+        sensors.close()
+    return summary, score_flight(summary, tower), health
+
+
+@pytest.fixture(scope="module")
+def wire_flight(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict, dict]:
+    """The in-process flight (about 35 s)."""
+    return fly_with_wire_lidar(tmp_path_factory.mktemp("wire_flight"), px4=False)
+
+
+def check_flight(summary: dict, score: dict, health: dict, *, drift_ppm: float = 5.0) -> None:
+    assert summary["status"] == "finished", summary["status"]
+    assert health["lidar_scans"] > 0 and health["lidar_lost"] == 0 and health["lidar_malformed"] == 0
+    assert health["lidar_unmapped_scans"] == 0 and health["lidar_receive_errors"] == 0
+    assert abs(health["lidar_clock_drift_ppm"] - (1 / (1 + 25e-6) - 1) * 1e6) < drift_ppm
+    assert score["insulators_matched"] >= 1 and score["mean_error_m"] < 0.3
+
+
+@pytest.mark.slow
+def test_whole_inspection_with_the_lidar_through_the_wire(wire_flight: tuple[dict, dict, dict]) -> None:
+    check_flight(*wire_flight)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the flight loop pairs a frame with the scan returned 100 ms later; "
+                   "a live 10 Hz driver needs one more frame period (see the module docstring)")
+def test_whole_inspection_with_the_lidar_through_the_wire_finds_both(wire_flight: tuple[dict, dict, dict]) -> None:
+    assert wire_flight[1]["insulators_matched"] == 2
