@@ -192,3 +192,13 @@ def test_bad_input():
         check_insulator_shape(None, insulator_length=2.0, diameter=float("nan"))
     assert cluster_shape(np.zeros((3, 3))) is None
     assert not check_insulator_shape(None, insulator_length=2.0).ok
+
+
+def test_plate_fails():
+    """A gusset plate (0.6 x 0.4 m, flat, 2 cm range noise) where members meet: planar, not a line."""
+    rng = np.random.default_rng(7)
+    pts = np.column_stack([np.full(150, 9.0), rng.uniform(-0.3, 0.3, 150), rng.uniform(-0.2, 0.2, 150)])
+    pts += rng.normal(0, 0.02, pts.shape)
+    est = ir.localize(pts, "dbscan+ransac")
+    v = check_insulator_shape(cluster_shape(line_members(pts, est.center, est.direction)), insulator_length=LENGTH_A)
+    assert not v.ok and any(r.startswith(("not linear", "too short")) for r in v.reasons), v.reasons

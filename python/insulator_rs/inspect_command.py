@@ -122,7 +122,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the report in --out: the new run is written beside it and swapped in "
                         "when it ends, so the old report stays whole until then")
-    p.add_argument("--method", default="dbscan+ransac",
+    p.add_argument("--method", default="bounded",
                    choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", "bounded"),
                    help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
@@ -305,4 +305,6 @@ def run(args: argparse.Namespace) -> int:
     if summary["status"].startswith("aborted"):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
+    if mavlink:  # what the link refused (strangers, garbage, bad signatures), counted by reason
+        print(f"MAVLink link: {vehicle.link_stats.describe()}", file=sys.stdout)
     return code

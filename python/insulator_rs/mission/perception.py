@@ -111,7 +111,7 @@ class PerceptionPipeline:
     """
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
-                 method: str = "dbscan+ransac", insulator_length: float | None = None,
+                 method: str = BOUNDED, insulator_length: float | None = None,
                  pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None) -> None:
         if method not in ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", BOUNDED):
             raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac, dbscan+pca or {BOUNDED}, "
