@@ -313,4 +313,6 @@ def run(args: argparse.Namespace) -> int:
     if summary["status"].startswith("aborted"):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
+    if mavlink:  # what the link refused (strangers, garbage, bad signatures), counted by reason
+        print(f"MAVLink link: {vehicle.link_stats.describe()}", file=sys.stdout)
     return code
