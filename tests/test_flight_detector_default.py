@@ -12,7 +12,7 @@ from insulator_rs.detection.detector import Detector
 from insulator_rs.flight.detector import (REAL_PHOTO_MODEL, SIMULATOR_MODEL, NetworkDetector, default_model,
                                           detections_dropped)
 from insulator_rs.inspect_command import load_network
-from tests.test_detection_sanitize import hostile_model
+from test_detection_sanitize import hostile_model  # tests/ is on sys.path (conftest)
 
 
 def test_default_network_fits_the_camera() -> None:
