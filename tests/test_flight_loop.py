@@ -15,7 +15,8 @@ from insulator_rs.cli import main
 from insulator_rs.exceptions import CommandRejected, SensorError
 from insulator_rs.sim.sensors import SimulatedSensors
 
-ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
+        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 def _run(tmp_path, *extra):
