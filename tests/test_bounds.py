@@ -52,7 +52,7 @@ MISSION_CASES = [
     ("inspection", "standoff", 1e300, "inspection.standoff: must lie in (0, 40] m"),
     ("inspection", "registry_gate", 1e9, "inspection.registry_gate: must lie in (0, 3] m"),
     ("inspection", "confirmations", 10**6, "inspection.confirmations: must lie in [1, 20]"),
-    ("vehicle", "v_max_horizontal", 1e-300, "vehicle.v_max_horizontal: must lie in [1, 10] m/s"),
+    ("vehicle", "v_max_horizontal", 1e-300, "vehicle.v_max_horizontal: must lie in [0.1, 10] m/s"),
     ("vehicle", "a_max_vertical", 1e6, "vehicle.a_max_vertical: must lie in [0.1, 20] m/s^2"),
     ("tower", "alt", 1e7, "tower.alt: must lie in [-500, 9000] m"),
 ]
@@ -202,8 +202,8 @@ def test_option_types_refuse_and_accept():
     import argparse
 
     v_max = bounds.option("--v-max")
-    assert v_max("2.5") == 2.5
-    for text in ("1e6", "25", "0.5", "nan", "inf", "0", "-1", "fast"):
+    assert v_max("2.5") == 2.5 and v_max("0.5") == 0.5 and v_max("0.1") == 0.1
+    for text in ("1e6", "25", "0.05", "nan", "inf", "0", "-1", "fast"):
         with pytest.raises(argparse.ArgumentTypeError):
             v_max(text)
     seed = bounds.option("--seed")
@@ -232,7 +232,7 @@ def _cli_cases(tmp_path: Path) -> dict[str, tuple[list[str], list[str]]]:
     huge = tmp_path / "huge.yaml"
     huge.write_text(yaml.safe_dump(_mission()).replace("max_height: 31.0", "max_height: 1" + "0" * 400))
     return {
-        "v-max 1e6": (["--v-max", "1e6"], ["argument --v-max: must lie in [1, 10] m/s"]),
+        "v-max 1e6": (["--v-max", "1e6"], ["argument --v-max: must lie in [0.1, 10] m/s"]),
         "v-max nan": (["--v-max", "nan"], ["argument --v-max:", "got nan"]),
         "detect-period 0": (["--detect-period", "0"], ["argument --detect-period: must lie in"]),
         "seed -1": (["--seed", "-1"], ["argument --seed: must lie in [0, 4294967295]"]),

@@ -61,18 +61,21 @@ def test_sim_model_finds_insulators_in_fresh_renders(detector: Detector, tmp_pat
 
 @pytest.mark.slow
 def test_inspection_with_the_sim_network_in_the_loop(tmp_path: Path) -> None:
-    """The whole mission with the shipped network on the rendered detection images instead
-    of the ground-truth stand-in: both insulators of the small scene found and inspected."""
+    """The whole mission with the shipped network on the rendered detection images, which is
+    inspect's default in the simulator (no --detector): both insulators of the small scene
+    found and inspected; the sanitiser refused nothing the real network returned."""
     from test_mission_inspect import ARGS, small_scene
 
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"
+    default_args = [a for a in ARGS if a not in ("--detector", "standin")]  # the inspect tests pin the stand-in
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out),
-               "--detector", NAME, *ARGS, "--detect-scale", "0.25"])
+               *default_args, "--detect-scale", "0.25"])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     g = json.loads((out / "score.json").read_text())  # the post-flight scorer's
     assert s["status"] == "finished" and s["detector"] == NAME
+    assert s["detections_dropped_by_sanitiser"]["total"] == 0
     assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2
     assert s["insulators_inspected"] >= 2
     assert all(r["error_m"] < 0.6 for r in g["insulators"] if r["error_m"] < 1.5)

@@ -15,7 +15,8 @@ from insulator_rs.cli import main
 from insulator_rs.exceptions import CommandRejected, SensorError
 from insulator_rs.sim.sensors import SimulatedSensors
 
-ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
+        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 def _run(tmp_path, *extra):
@@ -87,3 +88,33 @@ def test_sensor_errors_cost_events_not_the_flight(tmp_path, monkeypatch):
     assert s["sensor_errors"] == len(calls) // 3 > 10
     assert s["status"] in ("finished", "aborted: flight time limit of 80 s")
     assert s["insulators_found"] >= 1
+
+
+def test_a_planning_failure_mid_flight_aborts_and_lands(tmp_path, monkeypatch, capsys):
+    """The third leg cannot be planned (as when the vehicle cannot stop before a safety volume):
+    the mission aborts with the planner's reason and lands, no traceback."""
+    from insulator_rs.exceptions import PlanningError
+    from insulator_rs.flight import segment
+
+    made = []
+    original_vehicle = inspect_command.kinematic_vehicle
+    monkeypatch.setattr(inspect_command, "kinematic_vehicle",
+                        lambda mission, seed: made.append(original_vehicle(mission, seed)) or made[-1])
+    original_plan = segment.plan_min_snap_safe
+    calls = []
+
+    def fails_on_the_third_leg(*args, **kwargs):
+        calls.append(kwargs.get("v_start"))
+        if len(calls) == 3:
+            raise PlanningError("v_start: slowing from [3.0, 0.0, 0.0] m/s within a_max takes 2.81 m "
+                                "and enters the tower safety box")
+        return original_plan(*args, **kwargs)
+
+    monkeypatch.setattr(segment, "plan_min_snap_safe", fails_on_the_third_leg)
+    rc, out, s = _run(tmp_path, "--max-flight-time", "300")
+    assert rc == 1 and len(calls) == 3
+    assert s["status"] == ("aborted: planning failed: v_start: slowing from [3.0, 0.0, 0.0] m/s within "
+                           "a_max takes 2.81 m and enters the tower safety box"), s["status"]
+    assert s["state"] == "abort"
+    assert made[0].landed and made[0].mode.value == "LAND"
+    assert "planning failed" in capsys.readouterr().out

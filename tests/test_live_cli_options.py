@@ -34,7 +34,8 @@ def test_no_live_flags_is_not_live() -> None:
     (("--lidar", "mid360://192.168.1.12"), "--camera: a live flight needs both"),
     (("--camera", "0"), "--lidar: a live flight needs both"),
     (("--lidar", "mid360://h", "--camera", "0", "--detector", "m.onnx"), "add --connection"),
-    (("--lidar", "mid360://h", "--camera", "0", "--connection", "udpin:0.0.0.0:14540"), "add --detector"),
+    (("--lidar", "mid360://h", "--camera", "0", "--connection", "udpin:0.0.0.0:14540", "--detector", "standin"),
+     "a live camera needs a detection network"),
     (("--lidar", "mid360://h", "--camera", "0", "--connection", "c", "--detector", "d", "--sim-sensors"),
      "not with --sim-sensors"),
     (("--lidar", "velodyne://h", "--camera", "0", "--connection", "c", "--detector", "d"), "mid360://HOST"),
@@ -77,7 +78,8 @@ def test_inspect_refuses_live_flags_that_cannot_fly(tmp_path: Path, capsys: pyte
     for extra, message in (
             (["--lidar", "mid360://192.168.1.12"], "--camera: a live flight needs both"),
             (["--lidar", "mid360://h", "--camera", "0", "--detector", "insulator-sim"], "add --connection"),
-            (["--lidar", "mid360://h", "--camera", "0", "--connection", "udpin:127.0.0.1:14540"], "add --detector"),
+            (["--lidar", "mid360://h", "--camera", "0", "--connection", "udpin:127.0.0.1:14540", "--detector",
+              "standin"], "a live camera needs a detection network"),
             (["--lidar", "ouster://h", "--camera", "0", "--connection", "udpin:127.0.0.1:14540", "--detector",
               "insulator-sim"], "mid360://HOST")):
         assert main([*base, *extra]) == 2

@@ -20,32 +20,40 @@ flight loop, hence the strict xfail below, which will flag the day it passes.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from test_mission_inspect import small_scene
 
 from insulator_rs.evaluation.scoring import score_flight
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
-from insulator_rs.inspect_command import kinematic_vehicle
+from insulator_rs.inspect_command import kinematic_vehicle, mavlink_vehicle
 from insulator_rs.mission.config import load_mission
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
 from insulator_rs.sim.livox_emitter import SensorClock
 from insulator_rs.sim.livox_wire import SplitSensors, WireLidar
-from insulator_rs.sim.sensors import SimulatedSensors, kinematic_true_pose, reported_pose
+from insulator_rs.sim.sensors import SimulatedSensors, kinematic_true_pose, reported_pose, simulated_px4_true_pose
 from insulator_rs.sim.towers import load_tower
 
 
-@pytest.fixture(scope="module")
-def wire_flight(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict, dict]:
-    """One flight (about 35 s): (summary, score, driver health)."""
-    tmp_path = tmp_path_factory.mktemp("wire_flight")
+def fly_with_wire_lidar(tmp_path: Path, px4: bool) -> tuple[dict, dict, dict]:
+    """(summary, score, driver health) of one flight: the kinematic vehicle in process, or
+    the simulated PX4 over MAVLink on loopback (time scale 4; measured: the flight finishes
+    with clean LiDAR counters and the drift within 36 ppm, but finds 0 of 2 insulators --
+    the pairing gap of the module docstring, widened by 20 ms telemetry steps -- so no test
+    asserts on it yet)."""
     scene, mission_path = small_scene(tmp_path)
     tower = load_tower(str(scene))
     mission = load_mission(mission_path)
     rig = mission.rig if mission.rig is not None else simulator_rig()
-    vehicle = kinematic_vehicle(mission, 0)
-    cameras = SimulatedSensors(tower.mesh, kinematic_true_pose(vehicle), rig, detect_scale=0.2, photo_scale=0.2,
-                               seed=0)
+    if px4:
+        vehicle = mavlink_vehicle(mission, 0, connection=None, time_scale=4.0, signing_key=None)
+        true_pose = simulated_px4_true_pose(getattr(vehicle, "simulator"))
+    else:
+        vehicle = kinematic_vehicle(mission, 0)
+        true_pose = kinematic_true_pose(vehicle)
+    cameras = SimulatedSensors(tower.mesh, true_pose, rig, detect_scale=0.2, photo_scale=0.2, seed=0)
     wire = WireLidar(tower.mesh, reported_pose(vehicle), rig.T_b_l, clock=SensorClock(offset_s=1234.5, drift=25e-6),
                      seed=7)
     sensors = SplitSensors(cameras, wire)
@@ -61,14 +69,23 @@ def wire_flight(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict, d
     return summary, score_flight(summary, tower), health
 
 
-@pytest.mark.slow
-def test_whole_inspection_with_the_lidar_through_the_wire(wire_flight: tuple[dict, dict, dict]) -> None:
-    summary, score, health = wire_flight
+@pytest.fixture(scope="module")
+def wire_flight(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict, dict]:
+    """The in-process flight (about 35 s)."""
+    return fly_with_wire_lidar(tmp_path_factory.mktemp("wire_flight"), px4=False)
+
+
+def check_flight(summary: dict, score: dict, health: dict, *, drift_ppm: float = 5.0) -> None:
     assert summary["status"] == "finished", summary["status"]
     assert health["lidar_scans"] > 0 and health["lidar_lost"] == 0 and health["lidar_malformed"] == 0
     assert health["lidar_unmapped_scans"] == 0 and health["lidar_receive_errors"] == 0
-    assert abs(health["lidar_clock_drift_ppm"] - (1 / (1 + 25e-6) - 1) * 1e6) < 5.0
+    assert abs(health["lidar_clock_drift_ppm"] - (1 / (1 + 25e-6) - 1) * 1e6) < drift_ppm
     assert score["insulators_matched"] >= 1 and score["mean_error_m"] < 0.3
+
+
+@pytest.mark.slow
+def test_whole_inspection_with_the_lidar_through_the_wire(wire_flight: tuple[dict, dict, dict]) -> None:
+    check_flight(*wire_flight)
 
 
 @pytest.mark.slow

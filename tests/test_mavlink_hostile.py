@@ -213,6 +213,8 @@ def test_a_flood_of_truncated_headers_starves_nothing() -> None:
             assert received_by_stranger == 0
             assert client.state().healthy and client.state().mode == "OFFBOARD"
             assert client.telemetry().link["dropped"] >= 2 * sent * 0.95
+            line = stats.describe()
+            assert f"{stats.datagrams} datagrams" in line and f"truncated {stats.truncated}" in line
         finally:
             client.close()
 

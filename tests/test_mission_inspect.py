@@ -43,7 +43,8 @@ def small_scene(tmp_path):
 
 # Detection twice a second: the false-find filter judges a string's shape on its first three
 # localizations, and at 3 m/s a 1 Hz pass saw the far string only three times (12-16 points each).
-ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
+        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 @pytest.mark.slow

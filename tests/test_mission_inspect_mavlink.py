@@ -18,7 +18,8 @@ from insulator_rs.flight.loop import FlightLoop
 from insulator_rs.sim.kinematics import KinematicVehicle
 
 MAVLINK = ["--vehicle", "mavlink", "--time-scale", "4"]
-ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
+        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 def _inspect(tmp_path, *extra, confirmations=1, score=False):

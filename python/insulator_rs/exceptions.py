@@ -79,3 +79,12 @@ class SensorError(InsulatorError):
 
 class TimeSyncError(InsulatorError):
     """A clock map was asked for before any time pair arrived."""
+
+
+class PlanningError(InsulatorError, ValueError):
+    """No trajectory could be planned through valid waypoints: the straight path through them
+    enters a safety volume, the vehicle cannot stop before one, or inserting waypoints did not
+    keep the curve out of them. The message names the argument and which of those it is.
+
+    The flight loop aborts the mission on it (lands, status ``aborted: planning failed: ...``).
+    """

@@ -11,10 +11,11 @@ and hands them to :class:`insulator_rs.flight.loop.FlightLoop`, which knows none
   so that needs ``--sim-sensors`` (a SITL setup: the sensors render the scene at the pose
   the autopilot reports), or live sensors: ``--lidar mid360://HOST --camera SOURCE``
   (:mod:`insulator_rs.drivers.cli_options`: a Livox Mid-360 and an OpenCV camera, stamped
-  in the vehicle clock read from the autopilot's telemetry; needs ``--detector``). A live
+  in the vehicle clock read from the autopilot's telemetry). A live
   flight is not scored against the scene (the scene is not what the sensors saw).
-* Detector: the simulator's ground-truth stand-in (true boxes, jittered), or with
-  ``--detector`` a YOLO network (such as the shipped ``insulator-sim``) on the pixels.
+* Detector: by default the shipped YOLO network that fits the camera (``insulator-sim`` on
+  the simulator's rendered frames, ``insulator-field`` on a real camera's), ``--detector`` another
+  network, or ``--detector standin``: the simulator's ground-truth stand-in (true boxes, jittered).
 * Sensor rig: the mission's ``[vehicle] rig`` file (camera calibration, T_b_c, T_b_l); the
   simulated airframe carries it (the shipped ``simulator`` rig when the mission names none).
 
@@ -34,12 +35,13 @@ from typing import Any
 from insulator_rs.drivers import cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
-from insulator_rs.flight.detector import BoxDetector, NetworkDetector
+from insulator_rs.flight.detector import STANDIN, BoxDetector, NetworkDetector, default_model
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs.mission import bounds
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.minsnap import TIME_ALLOCATIONS
+from insulator_rs.mission.perception import METHODS
 from insulator_rs.mission.state_machine import POLICIES
 from insulator_rs.report import check_out_folder, parse_out_folder
 from insulator_rs.rig import simulator_rig
@@ -97,10 +99,15 @@ def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time
     return vehicle
 
 
-def load_network(model: str | None) -> NetworkDetector | None:
-    """The YOLO network for detection events (a shipped model name or an ONNX file); None keeps
-    the stand-in. Raises ValueError naming ``--detector``."""
+def load_network(model: str | None, *, live_camera: bool = False) -> NetworkDetector | None:
+    """The YOLO network for detection events (a shipped model name or an ONNX file; default the
+    shipped one that fits the camera); None for ``standin``. Raises ValueError naming ``--detector``."""
     if model is None:
+        model = default_model(live_camera)
+    if model == STANDIN:
+        if live_camera:
+            raise ValueError("--detector standin: the stand-in reads the simulator's ground truth; "
+                             "a live camera needs a network")
         return None
     from insulator_rs.detection.commands import open_detector
 
@@ -122,15 +129,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the report in --out: the new run is written beside it and swapped in "
                         "when it ends, so the old report stays whole until then")
-    p.add_argument("--method", default="dbscan+ransac",
-                   choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", "bounded"),
+    p.add_argument("--method", default="bounded",
+                   choices=METHODS,
                    help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
     p.add_argument("--seed", type=bounds.option("--seed"), default=0)
     p.add_argument("--detector", default=None,
-                   help="a shipped model name (e.g. insulator-sim) or an ONNX file: run that YOLO network "
-                        "on the detection images (default: the simulator's ground-truth stand-in)")
+                   help="a shipped model name or an ONNX file: the YOLO network run on the detection images "
+                        "(default: the shipped one that fits the camera, insulator-sim for the simulator's, "
+                        "insulator-field for a real one); 'standin' = the simulator's ground-truth stand-in "
+                        "(true boxes, jittered), named as such in the report")
     p.add_argument("--time-allocation", default="pmm", choices=TIME_ALLOCATIONS,
                    help="min-snap segment times: pmm (point-mass proportions, default) or snap "
                         "(redistributed to minimise snap, Richter et al.; slower to plan)")
@@ -228,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
         mission = load_mission(mission_path)
         MissionGeometry.from_mission(mission)  # path and volumes: refuse before anything flies
         check_out_folder(args.out, overwrite=args.overwrite)
-        network = load_network(args.detector)
+        network = load_network(args.detector, live_camera=getattr(args, "camera", None) is not None)
     except (ConfigError, ValueError) as exc:
         print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
         return 2
@@ -255,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
             vehicle.close()
             print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
             return 2
-        assert network is not None  # check_arguments demands --detector
+        assert network is not None  # live: the real-photo network by default; standin refused
         detector: BoxDetector = network
         photo_camera = rig.camera
     else:
@@ -305,4 +314,6 @@ def run(args: argparse.Namespace) -> int:
     if summary["status"].startswith("aborted"):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
+    if mavlink:  # what the link refused (strangers, garbage, bad signatures), counted by reason
+        print(f"MAVLink link: {vehicle.link_stats.describe()}", file=sys.stdout)
     return code

@@ -9,7 +9,7 @@ Kept here so the command's module only registers, checks and opens (three calls)
 
 A live flight needs both sensors (each detection is paired with the LiDAR points of the
 same instant), a real autopilot (``--connection``: the vehicle clock is its telemetry's),
-and a detection network (``--detector``: there is no ground truth to stand in for it).
+and a detection network (by default the real-photo one; there is no ground truth to stand in for it).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from insulator_rs.timesync import TelemetryClock
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lidar", default=None, metavar="URL",
                         help="live Livox Mid-360: mid360://HOST (configure and start the sensor at HOST) or "
-                             "mid360://listen[:PORT] (only listen, default port 56301); needs --connection, "
-                             "--camera and --detector")
+                             "mid360://listen[:PORT] (only listen, default port 56301); needs --connection "
+                             "and --camera")
     parser.add_argument("--camera", default=None, metavar="SOURCE",
                         help="live camera through OpenCV: a V4L2 index (0), a GStreamer pipeline ending in "
                              "appsink, or a video file; its frames must match the rig's calibration size")
@@ -46,8 +46,8 @@ def check_arguments(args: argparse.Namespace) -> bool:
         raise ValueError("--lidar/--camera: live sensors fly a real autopilot: add --connection")
     if getattr(args, "sim_sensors", False):
         raise ValueError("--lidar/--camera: not with --sim-sensors (the sensors are either live or simulated)")
-    if not getattr(args, "detector", None):
-        raise ValueError("--camera: a live camera needs a detection network: add --detector")
+    if getattr(args, "detector", None) == "standin":
+        raise ValueError("--detector standin: a live camera needs a detection network (default: the real-photo one)")
     try:
         parse_url(lidar)
     except SensorError as exc:

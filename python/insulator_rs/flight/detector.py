@@ -14,6 +14,16 @@ from typing import Protocol
 import numpy as np
 
 from insulator_rs.detection.detector import Detector
+from insulator_rs.detection.sanitize import DroppedDetections
+
+STANDIN = "standin"  # --detector standin: the simulator's ground-truth stand-in, by name only
+SIMULATOR_MODEL = "insulator-sim"  # trained on rendered images: the simulator's camera
+REAL_PHOTO_MODEL = "insulator-field"  # trained on field photos at the camera's geometry: real cameras
+
+
+def default_model(live_camera: bool) -> str:
+    """The shipped network that fits the camera the flight sees: rendered frames or a real camera."""
+    return REAL_PHOTO_MODEL if live_camera else SIMULATOR_MODEL
 
 
 class BoxDetector(Protocol):
@@ -26,12 +36,20 @@ class NetworkDetector:
     def __init__(self, network: Detector) -> None:
         self.network = network
         self.name = network.path.stem
+        self.dropped = DroppedDetections()  # summed over the flight: what the sanitiser refused
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         det = self.network(image)
+        self.dropped = self.dropped + det.dropped
         return np.column_stack([det.boxes, det.scores]) if len(det) else np.zeros((0, 5))
 
 
 def detector_name(detector: object) -> str:
     """What the report calls a detector: its ``name``, else its type's name."""
     return str(getattr(detector, "name", type(detector).__name__))
+
+
+def detections_dropped(detector: object) -> dict[str, int] | None:
+    """The sanitiser's counts summed over the flight (a network), None for a detector without them."""
+    dropped = getattr(detector, "dropped", None)
+    return dropped.to_dict() if isinstance(dropped, DroppedDetections) else None

@@ -10,9 +10,9 @@ flight goes on, crosses over the top, finishes and lands.
 
 A vehicle failsafe (link lost, the pilot took over, battery, position lost) aborts the
 mission: the report says why and keeps everything found so far, and once the failsafe fired
-nothing more is sent to the vehicle. A command the vehicle refuses aborts the mission cleanly
-(landing if airborne and the vehicle still takes commands); a sensor error costs that
-detection event or photo, never the flight.
+nothing more is sent to the vehicle. A command the vehicle refuses, or a leg no safe trajectory
+can be planned for, aborts the mission cleanly (landing if airborne and the vehicle still takes
+commands); a sensor error costs that detection event or photo, never the flight.
 
 The report folder (:mod:`insulator_rs.report`: photos with EXIF GPS, WGS-84, GeoJSON/KML) is
 written as the flight goes; an interruption (Ctrl-C) still leaves the summary, the photos
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.exceptions import SensorError, VehicleError, VehicleFailsafe
+from insulator_rs.exceptions import PlanningError, SensorError, VehicleError, VehicleFailsafe
 from insulator_rs.flight.detector import BoxDetector
 from insulator_rs.flight.segment import plan_segment
 from insulator_rs.mission.config import Mission
@@ -420,6 +420,14 @@ class FlightLoop:
         self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
         self.write_summary()
 
+    def on_planning_failure(self, exc: PlanningError) -> None:
+        """No safe trajectory from where the vehicle is (it cannot stop before a safety volume, or
+        the route cannot be cleared): reported, and the mission aborts (then lands, see
+        :meth:`land`) rather than fly on without a plan."""
+        self.abort(f"planning failed: {exc}")
+        self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
+        self.write_summary()
+
     def fly(self) -> None:
         """The whole flight; a refused command aborts it cleanly (see the module docstring)."""
         layout = self.report.layout
@@ -434,6 +442,8 @@ class FlightLoop:
             self.on_failsafe(exc)
         except VehicleError as exc:
             self.on_command_failure(exc)
+        except PlanningError as exc:
+            self.on_planning_failure(exc)
         if self.sm.state == State.ABORT:
             self.land()
             self.status = f"aborted: {self.abort_reason or 'mission aborted'}"

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from insulator_rs.flight.detector import detector_name
+from insulator_rs.flight.detector import detections_dropped, detector_name
 
 if TYPE_CHECKING:
     from insulator_rs.flight.loop import FlightLoop
@@ -41,6 +41,7 @@ def flight_summary(loop: FlightLoop) -> dict[str, Any]:
         "method": s.method,
         "time_allocation": s.time_allocation,
         "detector": detector_name(loop.detector),
+        "detections_dropped_by_sanitiser": detections_dropped(loop.detector),
         "policy": s.policy,
         "state": loop.sm.state.value,
         "vehicle": type(loop.vehicle).__name__,

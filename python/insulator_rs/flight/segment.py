@@ -44,12 +44,12 @@ def polyline(geom: MissionGeometry, start: np.ndarray, items: list[PlanItem], cl
 def plan_segment(geom: MissionGeometry, start: np.ndarray, velocity: np.ndarray, items: list[PlanItem], *,
                  v_max: np.ndarray, a_max: np.ndarray, clearance: float, time_allocation: str) -> Segment:
     """Plan the min-snap, safety-checked trajectory through ``items`` from ``start`` (W) moving
-    at ``velocity`` (clipped to the limits)."""
+    at ``velocity`` (m/s, as measured: over the limits it starts by slowing down to them).
+    PlanningError when none is safe (the vehicle cannot stop before a safety volume)."""
     pts = polyline(geom, start, items, clearance)
     if len(pts) < 2:
         return Segment(None, [])
-    v0 = np.clip(velocity, -v_max, v_max)
-    traj = plan_min_snap_safe(pts, v_max, a_max, geom.volumes, dt=SAFETY_CHECK_DT, v_start=v0,
+    traj = plan_min_snap_safe(pts, v_max, a_max, geom.volumes, dt=SAFETY_CHECK_DT, v_start=velocity,
                               max_deviation=MAX_PATH_DEVIATION, time_allocation=time_allocation)
     # items are among the trajectory's waypoints: the knot time of each
     knots = np.concatenate([[0.0], np.cumsum(traj.durations)])

@@ -59,6 +59,14 @@ class LinkStats:
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)} | {"dropped": self.dropped}
 
+    def describe(self) -> str:
+        """One line for a log, e.g. '1779 datagrams, 1539 messages accepted, 240 dropped
+        (before_heartbeat 228, unknown_message 12)'."""
+        reasons = ", ".join(f"{name} {n}" for name, n in self.as_dict().items()
+                            if n and name not in ("datagrams", "accepted", "dropped"))
+        return (f"{self.datagrams} datagrams, {self.accepted} messages accepted, {self.dropped} dropped"
+                + (f" ({reasons})" if reasons else ""))
+
 
 def open_connection(connection: str, *, source_system: int, source_component: int) -> Any:
     """A pymavlink connection for ``udpin:``/``udpout:``/``udp:``/``tcp:`` strings or ``DEVICE:BAUD``."""

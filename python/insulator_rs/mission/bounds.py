@@ -60,14 +60,15 @@ def _number(x: float) -> str:
 # ---- shared physical reasons -------------------------------------------------------------
 _ELEVATION = Limit(-500.0, 9000.0, "m", "ground elevations on Earth lie between the Dead Sea "
                    "(-430 m) and Everest (8849 m)")
-# The lower speed limit is the planner's, not the airframe's: re-planning from a moving start
-# fails in the min-snap time scaling when the vehicle flies at a limit below 1 m/s (tower B at
-# 0.5 and 0.1 m/s: "v_start: no time scaling keeps the limits"; 1 m/s, the paper's, flies).
-_V_HORIZONTAL = Limit(1.0, 10.0, "m/s", "the detector runs about once a second and must see an "
+# The lower speed limit is the airframe's hover-and-creep, not the planner's: re-planning from a
+# moving start used to fail in the min-snap time scaling below 1 m/s ("v_start: no time scaling
+# keeps the limits"); the planner now slows down first when it must, at any speed.
+_V_HORIZONTAL = Limit(0.1, 10.0, "m/s", "the detector runs about once a second and must see an "
                       "insulator several times in one pass: tower B flown at 25 m/s found 0 of 4 "
-                      "insulators, at 10 m/s 4 of 4 (measured); the planner is verified from 1 m/s")
-_V_VERTICAL = Limit(1.0, 8.0, "m/s", "multirotors climb and descend at most about 6-8 m/s; the "
-                    "planner is verified from 1 m/s")
+                      "insulators, at 10 m/s 4 of 4 (measured); below 0.1 m/s a multirotor's "
+                      "position hold wanders more than it moves")
+_V_VERTICAL = Limit(0.1, 8.0, "m/s", "multirotors climb and descend at most about 6-8 m/s; below "
+                    "0.1 m/s the altitude hold wanders more than it moves")
 _ACCELERATION = Limit(0.1, 20.0, "m/s^2", "about 2 g, a multirotor's thrust-to-weight ratio")
 _TOWER_HEIGHT = Limit(0.0, 400.0, "m", "the tallest transmission towers in service are about "
                       "380 m (Zhoushan crossing)", lo_open=True)

@@ -187,5 +187,5 @@ def check_insulator_shape(shape: ClusterShape | None, *, insulator_length: float
     elif relief < MIN_RELIEF:
         reasons.append(f"no shed relief ({relief:.3f} m)")
     if aspect_ratio is not None and not (1 / ASPECT_TOLERANCE <= aspect_ratio <= ASPECT_TOLERANCE):
-        reasons.append(f"box aspect {aspect_ratio:.2f}x the predicted one")
+        reasons.append(f"box aspect ({aspect_ratio:.2f}x the predicted one)")
     return ShapeVerdict(not reasons, tuple(reasons), shape, aspect_ratio)

@@ -40,6 +40,8 @@ from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 # The fifth method (ir.localize_bounded): the LiDAR line, its ends from the events' boxes.
 BOUNDED = "bounded"
+#: every localization method the pipeline offers: the paper's four and the box-bounded fifth
+METHODS: tuple[str, ...] = ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", BOUNDED)
 EVENTS_PER_LOCALIZATION = 3
 # m: a box whose anchor lies this close to a track's belongs to it. Anchors are in W, so
 # they do not move with the vehicle; the gate is below the spacing of neighbouring
@@ -111,9 +113,9 @@ class PerceptionPipeline:
     """
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
-                 method: str = "dbscan+ransac", insulator_length: float | None = None,
+                 method: str = BOUNDED, insulator_length: float | None = None,
                  pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None) -> None:
-        if method not in ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", BOUNDED):
+        if method not in METHODS:
             raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac, dbscan+pca or {BOUNDED}, "
                              f"got {method!r}")
         if not (np.isfinite(pairing_window) and pairing_window > 0):

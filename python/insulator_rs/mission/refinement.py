@@ -13,6 +13,7 @@ from typing import Protocol, TypeVar
 
 import numpy as np
 
+from insulator_rs.exceptions import PlanningError
 from insulator_rs.mission.safety import SafetyVolumes
 
 
@@ -40,12 +41,12 @@ def refine_until_clear(waypoints: np.ndarray, plan: Callable[[np.ndarray], T],
     (times, positions), and insert a midpoint into every segment that comes within
     ``max_speed * dt / 2`` of a safety volume (the conservative continuous-curve check of
     :meth:`SafetyVolumes.samples_clear`) or strays more than ``max_deviation`` m from its
-    straight segment; repeat until clear. The straight polyline must be clear (ValueError
+    straight segment; repeat until clear. The straight polyline must be clear (PlanningError
     otherwise). If only the deviation bound still fails after ``max_refinements``, the safe
-    trajectory is returned; if safety still fails, ValueError."""
+    trajectory is returned; if safety still fails, PlanningError."""
     p = np.asarray(waypoints, dtype=np.float64)
     if not volumes.polyline_clear(p):
-        raise ValueError("waypoints: the straight path through them enters a safety volume")
+        raise PlanningError("waypoints: the straight path through them enters a safety volume")
     max_step = max_speed * dt
     for refinement in range(max_refinements + 1):
         traj = plan(p)
@@ -65,4 +66,4 @@ def refine_until_clear(waypoints: np.ndarray, plan: Callable[[np.ndarray], T],
                 new.append((p[i] + p[i + 1]) / 2)
             new.append(p[i + 1])
         p = np.array(new)
-    raise ValueError(f"waypoints: no safe trajectory after {max_refinements} refinements")
+    raise PlanningError(f"waypoints: no safe trajectory after {max_refinements} refinements")

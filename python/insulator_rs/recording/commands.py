@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.exceptions import BagError, ConfigError, ModelError
+from insulator_rs.mission.perception import METHODS
 from insulator_rs.recording.types import Topics
 
 DEFAULT_DETECTOR = "insulator-sim"
@@ -66,10 +67,11 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
 
             mission = load_mission(options.mission)
         else:
-            mission = meta.mission(path)
-            if mission is None:
+            recorded = meta.mission(path)
+            if recorded is None:
                 raise ConfigError(f"--mission: {path} does not carry its mission (not recorded by insulator_rs); "
                                   f"give the mission file")
+            mission = recorded
         scene = options.scene or meta.scene or None
         truth = _ground_truth(scene) if scene else None
         detector = _detector(options.detector)
@@ -105,9 +107,10 @@ def _ground_truth(scene: str) -> list[Any]:
 
 def _detector(name: str) -> Any:
     from insulator_rs.detection.commands import open_detector
+    from insulator_rs.flight.detector import NetworkDetector
 
     try:
-        return open_detector(name, conf=DETECT_CONF, threads=1)
+        return NetworkDetector(open_detector(name, conf=DETECT_CONF))  # as the flight's --detector
     except ValueError as exc:
         raise ModelError(f"--detector: {exc}") from exc
 
@@ -138,7 +141,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", default=None, help="scene whose ground truth scores the replay (simulated flights)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR,
                    help=f"shipped model name or ONNX file (default {DEFAULT_DETECTOR})")
-    p.add_argument("--method", default="dbscan+ransac", choices=("dbscan", "ransac", "dbscan+ransac", "dbscan+pca"))
+    p.add_argument("--method", default="dbscan+ransac", choices=METHODS)
     p.add_argument("--no-deskew", action="store_true", help="do not motion-compensate the LiDAR scans")
     p.add_argument("--detect-period", type=float, default=0.0,
                    help="s between detection events (default 0: every recorded frame)")

@@ -23,6 +23,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 import insulator_rs as ir
 from insulator_rs.exceptions import BagError
@@ -81,14 +82,14 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     return -qa if qa[0] < 0 else qa
 
 
-def matrix_from_quat(q: np.ndarray, name: str) -> np.ndarray:
+def matrix_from_quat(q: ArrayLike, name: str) -> np.ndarray:
     """Rotation matrix of a (w, x, y, z) quaternion; BagError naming ``name`` if it is not
     close to unit length (a zero or garbage quaternion)."""
-    q = np.asarray(q, dtype=np.float64)
-    n = float(np.linalg.norm(q))
+    qa = np.asarray(q, dtype=np.float64)
+    n = float(np.linalg.norm(qa))
     if not (math.isfinite(n) and abs(n - 1.0) < 1e-3):
         raise BagError(f"{name}: not a unit quaternion (norm {n:.6g})")
-    w, x, y, z = q / n
+    w, x, y, z = qa / n
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
@@ -106,9 +107,9 @@ def scan_to_pointcloud2(scan: LidarScan, frame_id: str) -> tuple[float, Any]:
     times = np.asarray(scan.times, dtype=np.float64)
     rec["timestamp"] = times * 1e9
     t0 = float(times.min()) if n else 0.0
-    fields = [_types["sensor_msgs/msg/PointField"](name=name, offset=LIVOX_POINT_DTYPE.fields[name][1],
-                                                   datatype=_POINTFIELD_OF[LIVOX_POINT_DTYPE.fields[name][0].str],
-                                                   count=1)
+    layout: Any = LIVOX_POINT_DTYPE.fields or {}
+    fields = [_types["sensor_msgs/msg/PointField"](name=name, offset=layout[name][1],
+                                                   datatype=_POINTFIELD_OF[layout[name][0].str], count=1)
               for name in LIVOX_POINT_DTYPE.names or ()]
     msg = _types[T.POINTCLOUD2](header=_header(t0, frame_id), height=1, width=n, fields=fields,
                                 is_bigendian=False, point_step=LIVOX_POINT_DTYPE.itemsize,

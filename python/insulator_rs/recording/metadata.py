@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 from insulator_rs._toml import tomllib
-from insulator_rs.exceptions import BagError, ConfigError
+from insulator_rs.exceptions import ConfigError
 from insulator_rs.mission.config import Mission, parse_mission
 
 RECORD_NAME = "insulator_rs"
@@ -62,18 +62,28 @@ def read_metadata(path: Path) -> FlightMetadata:
     another recorder's file). A file that is not readable MCAP is left for the reader to refuse."""
     from mcap.reader import make_reader
 
+    from mcap.stream_reader import StreamReader
+
     f = mcap_file(path)
     if f is None:
         return FlightMetadata()
+    records: list[Any] = []
     try:
         with f.open("rb") as stream:
-            for record in make_reader(stream).iter_metadata():
-                if record.name == RECORD_NAME:
-                    m = dict(record.metadata)
-                    return FlightMetadata(m.get("mission_text", ""), m.get("mission_suffix", ".toml"),
-                                          m.get("mission_source", ""), m.get("scene", ""))
-    except Exception as exc:  # mcap raises several kinds for a damaged file
-        if isinstance(exc, BagError):
-            raise
+            records = [r for r in make_reader(stream).iter_metadata() if r.name == RECORD_NAME]
+    except Exception:  # no summary (a file cut short): look for the record from the start
+        records = []
+        try:
+            with f.open("rb") as stream:
+                for rec in StreamReader(stream).records:
+                    r: Any = rec
+                    if type(r).__name__ == "Metadata" and r.name == RECORD_NAME:
+                        records.append(r)
+                        break
+        except Exception:  # the cut came first: no metadata to be had
+            pass
+    if not records:
         return FlightMetadata()
-    return FlightMetadata()
+    m = dict(records[0].metadata)
+    return FlightMetadata(m.get("mission_text", ""), m.get("mission_suffix", ".toml"), m.get("mission_source", ""),
+                          m.get("scene", ""))

@@ -101,11 +101,12 @@ class FlightBag:
         self.max_gap = max_gap
         paths = bag_paths(self.path)
         self._store = T.typestore()
+        self.truncated = False
         try:
-            self._reader = AnyReader(paths, default_typestore=self._store)
+            self._reader: Any = AnyReader(paths, default_typestore=self._store)
             self._reader.open()
         except Exception as exc:  # rosbags raises several kinds for a damaged file
-            raise BagError(f"{self.path}: cannot open the recording: {type(exc).__name__}: {exc}") from exc
+            self._reader = self._salvage(paths, exc)
         try:
             self._select()
             self.T_b_l, self.T_b_c = self._extrinsics()
@@ -114,6 +115,19 @@ class FlightBag:
             raise
 
     # -- opening ------------------------------------------------------------------------------
+    def _salvage(self, paths: list[Path], exc: Exception) -> Any:
+        """A single MCAP file rosbags refuses (no summary: cut short) is read up to the cut."""
+        f = paths[0]
+        if len(paths) == 1 and f.is_file() and f.suffix == ".mcap":
+            try:
+                reader = TruncatedMcap(f, self._store)
+            except Exception:
+                reader = None
+            if reader is not None and reader.break_error is not None and reader.connections:
+                self.truncated = True
+                return reader
+        raise BagError(f"{self.path}: cannot open the recording: {type(exc).__name__}: {exc}") from exc
+
     def _conn(self, topic: str, accepted: tuple[str, ...], role: str) -> Any:
         conns = [c for c in self._reader.connections if c.topic == topic]
         if not conns:
@@ -165,8 +179,12 @@ class FlightBag:
     def _extrinsics(self) -> tuple[np.ndarray, np.ndarray]:
         tp = self.topics
         edges: dict[tuple[str, str], np.ndarray] = {}
-        for conn, ns, raw in self._messages([c for c in self._conns if c.topic == tp.tf_static]):
-            edges.update(C.transforms_from(self._deserialize(raw, conn, ns * 1e-9), tp.tf_static))
+        try:
+            for conn, ns, raw in self._messages([c for c in self._conns if c.topic == tp.tf_static]):
+                edges.update(C.transforms_from(self._deserialize(raw, conn, ns * 1e-9), tp.tf_static))
+        except BagError:
+            if not self.truncated:
+                raise  # a cut file's break is named once, by the stream (items)
         out = []
         for child in (tp.lidar_frame, tp.camera_frame):
             T_bc = _tf_lookup(edges, tp.body_frame, child)
@@ -266,3 +284,80 @@ class FlightBag:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+
+
+class _Conn:
+    """What the reader needs of a connection (rosbags' Connection has these fields too)."""
+
+    def __init__(self, id: int, topic: str, msgtype: str) -> None:
+        self.id, self.topic, self.msgtype, self.msgcount = id, topic, msgtype, 0
+
+
+class TruncatedMcap:
+    """A ROS 2 MCAP file cut short (a crash or power loss mid-recording: no summary, no end
+    magic), read record by record up to the break with the ``mcap`` library. It offers the
+    part of rosbags' AnyReader the flight stream uses; after the last whole message it raises
+    the break, so a replay processes everything recorded before it and then names it."""
+
+    is2 = True
+
+    def __init__(self, path: Path, store: Any) -> None:
+        from rosbags.typesys import get_types_from_msg
+
+        self.path = path
+        self.store = store
+        self.stack: Any = object()  # "open", as AnyReader's
+        self.connections: list[_Conn] = []
+        self.break_error: str | None = None
+        schemas: dict[int, tuple[str, str]] = {}
+        by_id: dict[int, _Conn] = {}
+        times: list[int] = []
+        self._count = 0
+        for rec in self._records():
+            kind = type(rec).__name__
+            if kind == "Schema":
+                schemas[rec.id] = (rec.name, rec.data.decode("utf-8", "replace"))
+            elif kind == "Channel" and rec.id not in by_id:
+                name, text = schemas.get(rec.schema_id, ("", ""))
+                if name and name not in store.fielddefs and text:
+                    try:
+                        store.register(get_types_from_msg(text.split("=" * 80)[0], name))
+                    except Exception:  # an unreadable definition: that topic fails to deserialise, named
+                        pass
+                by_id[rec.id] = _Conn(rec.id, rec.topic, name)
+                self.connections.append(by_id[rec.id])
+            elif kind == "Message" and rec.channel_id in by_id:
+                by_id[rec.channel_id].msgcount += 1
+                times.append(rec.log_time)
+        self._by_id = by_id
+        self.start_time = min(times) if times else 0
+        self.end_time = max(times) if times else 0
+
+    def _records(self) -> Iterator[Any]:
+        from mcap.stream_reader import StreamReader
+
+        with self.path.open("rb") as f:
+            it = StreamReader(f).records
+            while True:
+                try:
+                    rec = next(it)
+                except StopIteration:
+                    return
+                except Exception as exc:  # the cut: an incomplete record or chunk
+                    self.break_error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                    return
+                yield rec
+
+    def messages(self, connections: Any = ()) -> Iterator[tuple[Any, int, bytes]]:
+        wanted = {c.id for c in connections} if connections else None
+        for rec in self._records():
+            if type(rec).__name__ == "Message" and rec.channel_id in self._by_id:
+                if wanted is None or rec.channel_id in wanted:
+                    yield self._by_id[rec.channel_id], rec.log_time, rec.data
+        raise OSError(f"the file ends mid-record ({self.break_error or 'no footer'})")
+
+    def deserialize(self, raw: bytes, msgtype: str) -> Any:
+        return self.store.deserialize_cdr(raw, msgtype)
+
+    def close(self) -> None:
+        self.stack = None

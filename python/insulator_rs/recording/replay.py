@@ -1,14 +1,13 @@
 """Re-process one recorded flight offline: detection, fusion, localization, registry, report.
 
-The recording is read as a :class:`~insulator_rs.recording.reader.FlightBag` stream. Each
-camera frame goes through the detector; a frame with boxes is paired with the LiDAR scan
-that spans (or is nearest) its time within ``pairing_window``, that scan is deskewed to the
-frame's time with the recorded pose stream (``ir.deskew``, Rust: slerp + lerp of the poses
-around each point's time) and handed with the boxes and the pose at the frame's time to the
-flight's own perception (:class:`~insulator_rs.mission.perception.PerceptionPipeline`), whose
-localizations feed the flight's :class:`~insulator_rs.mission.registry.InsulatorRegistry`.
-A frame waits until the pose stream covers its scan (the stream is read ahead, as a live
-system waits for the next odometry sample).
+The recording is read as a :class:`~insulator_rs.recording.reader.FlightBag` stream and fed
+to the flight's own :class:`~insulator_rs.mission.perception.PerceptionPipeline` as the
+flight loop feeds it: every pose (``add_pose``), every scan (``add_scan``), and each camera
+frame with the flight's detector's boxes (``process``: paired with the scans' points of
++-``pairing_window``, deskewed with the pose history) once the stream has passed the frame's
+time by the pairing window, as the loop waits for the scan after a frame. Localizations feed
+the flight's :class:`~insulator_rs.mission.registry.InsulatorRegistry`. With deskew off, a
+frame's nearest scan is used as measured at the frame's pose (``PerceptionPipeline.event``).
 
 The report folder has the flight's layout (``summary.json``, ``insulators.csv``,
 ``trajectory.csv``, ``trajectory.png``). A broken recording (a :class:`BagError` mid-way) ends
@@ -28,6 +27,7 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.exceptions import BagError
+from insulator_rs.flight.detector import detector_name
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
@@ -125,6 +125,7 @@ class ReplayRun:
         self.poses = _Poses()
         self.scans: deque[LidarScan] = deque(maxlen=8)
         self.pending: deque[CameraFrame] = deque()
+        self._early: list[tuple[str, Any]] = []
         self.counts = {"poses": 0, "scans": 0, "frames": 0, "detection_events": 0, "unpaired_frames": 0,
                        "localizations": 0}
         self.status = "running"
@@ -167,10 +168,15 @@ class ReplayRun:
         if self.t0 is None:
             self.t0 = item.time
         self.t_last = max(self.t_last, item.time)
+        # A frame is handed over once the stream has passed its time by the pairing window:
+        # the flight loop waits as long for the scan after the frame (flight.loop._pair_pending).
+        while self.pending and item.time >= self.pending[0].time + self.settings.pairing_window - 1e-9:
+            self._event(self.pending.popleft())
         if item.kind == "pose":
             p: PoseStamped = item.value
             self.poses.add(p)
             self.counts["poses"] += 1
+            self._feed("pose", p)
             R = p.T_w_b[:3, :3]
             self.report.log_pose(p.time - self.t0, p.T_w_b[:3, 3], math.atan2(R[1, 0], R[0, 0]), "replay")
             if self.rerun is not None:
@@ -178,29 +184,41 @@ class ReplayRun:
         elif item.kind == "scan":
             self.scans.append(item.value)
             self.counts["scans"] += 1
+            self._feed("scan", item.value)
         else:
             self.counts["frames"] += 1
             frame: CameraFrame = item.value
             if self.settings.detect_period > 0 and frame.time < self._next_detect:
                 return
             self._next_detect = frame.time + self.settings.detect_period
+            if self.perception is None:
+                self._start_perception(frame)
             self.pending.append(frame)
-        self._flush_pending(final=False)
-
-    def _flush_pending(self, final: bool) -> None:
-        while self.pending:
-            frame = self.pending[0]
-            scan = self._paired_scan(frame.time)
-            newest_pose = self.poses.times[-1] if self.poses.times else -math.inf
-            newest_scan = self.scans[-1].time_end if self.scans else -math.inf
-            need = max(frame.time, scan.time_end if scan is not None else frame.time)
-            # Wait for the poses to cover the scan and for a later scan that might pair better.
-            if not final and (newest_pose < need or newest_scan < frame.time):
-                return
-            self.pending.popleft()
-            self._event(frame, scan)
         if self.scans:
             self.poses.drop_before(self.scans[0].time_start - POSE_KEEP)
+
+    def _feed(self, kind: str, value: Any) -> None:
+        """Poses and scans go to the perception pipeline as the flight loop feeds it (kept
+        until the first frame brings the camera the pipeline is built with)."""
+        if self.perception is None:
+            self._early.append((kind, value))
+        elif kind == "pose":
+            self.perception.add_pose(value)
+        else:
+            self.perception.add_scan(value)
+
+    def _start_perception(self, frame: CameraFrame) -> None:
+        self.perception = PerceptionPipeline(frame.camera, frame.T_b_c, self.bag.T_b_l, method=self.settings.method,
+                                             insulator_length=self.mission.inspection.insulator_length,
+                                             pairing_window=self.settings.pairing_window)
+        early, self._early = self._early, []
+        for kind, value in early:
+            self._feed(kind, value)
+
+    def _flush_pending(self, final: bool) -> None:
+        """At the end of the stream (or at a break) the waiting frames go with what there is."""
+        while final and self.pending:
+            self._event(self.pending.popleft())
 
     def _paired_scan(self, t: float) -> LidarScan | None:
         best, gap = None, math.inf
@@ -211,25 +229,26 @@ class ReplayRun:
         return best if gap <= self.settings.pairing_window else None
 
     # -- one detection event ------------------------------------------------------------------
-    def _event(self, frame: CameraFrame, scan: LidarScan | None) -> None:
-        det = self.detector(frame.image)
-        boxes = np.asarray(det.boxes, dtype=np.float64).reshape(-1, 4)
+    def _event(self, frame: CameraFrame) -> None:
+        """The flight's detection event: detector, then the pipeline pairs the frame with the
+        buffered scans' points of +-pairing_window, deskewed with the pose history (or, with
+        deskew off, the nearest scan as measured at the frame's pose)."""
+        boxes = np.asarray(self.detector(frame.image), dtype=np.float64)
         if self.rerun is not None:
-            self.rerun.frame(frame, boxes)
-        if len(boxes) == 0:
-            return
-        if scan is None or not self.poses.times:
-            self.counts["unpaired_frames"] += 1
+            self.rerun.frame(frame, boxes[:, :4])
+        if len(boxes) == 0 or self.perception is None:
             return
         self.counts["detection_events"] += 1
-        if self.perception is None:
-            self.perception = PerceptionPipeline(frame.camera, frame.T_b_c, scan.T_b_l, method=self.settings.method,
-                                                insulator_length=self.mission.inspection.insulator_length)
-        T_w_b = _interpolate(self.poses.times, self.poses.T, frame.time)
-        points_l = self._deskewed(scan, frame.time)
-        locs = self.perception.event(boxes, points_l, T_w_b)
-        if self.rerun is not None:
-            self.rerun.culled(frame, scan.T_b_l, points_l, boxes)
+        scan = self._paired_scan(frame.time)
+        if self.settings.deskew:
+            locs = self.perception.process(frame, boxes)
+        elif scan is None or not self.poses.times:
+            self.counts["unpaired_frames"] += 1
+            return
+        else:
+            locs = self.perception.event(boxes, scan.points_l, _interpolate(self.poses.times, self.poses.T, frame.time))
+        if self.rerun is not None and scan is not None:
+            self.rerun.culled(frame, scan.T_b_l, self._deskewed(scan, frame.time), boxes[:, :4])
         for loc in locs:
             self.counts["localizations"] += 1
             self.registry.observe(loc.center, loc.axis)
@@ -237,8 +256,8 @@ class ReplayRun:
             self.rerun.insulators(frame.time, self.registry.insulators)
 
     def _deskewed(self, scan: LidarScan, t_ref: float) -> np.ndarray:
-        """The scan's points in L at ``t_ref`` (deskewed), or as measured with deskew off or
-        with fewer than two poses."""
+        """The scan's points in L at ``t_ref``, deskewed with ``ir.deskew`` against the recorded
+        poses (for the Rerun view; as measured with deskew off or fewer than two poses)."""
         if not self.settings.deskew or len(self.poses.times) < 2:
             return np.asarray(scan.points_l)
         lo, hi = self.poses.times[0], self.poses.times[-1]
@@ -270,7 +289,7 @@ class ReplayRun:
             "recording": str(self.bag.path),
             "topics": {"lidar": self.bag.lidar_topic, "image": self.bag.image_topic,
                        "odometry": self.bag.odometry_topic},
-            "detector": getattr(getattr(self.detector, "path", None), "stem", type(self.detector).__name__),
+            "detector": detector_name(self.detector),
             "method": self.settings.method,
             "deskew": self.settings.deskew,
             "flight_time_s": duration,

@@ -92,7 +92,8 @@ class McapRecorder:
             self.write(tp.tf_static, T.TF_MESSAGE, t, C.tf_message(tfs))
             self._static_written = True
             self._T_b_c = np.asarray(T_b_c, dtype=np.float64)
-        elif self._static_written and T_b_c is not None and not np.allclose(T_b_c, self._T_b_c, atol=1e-9):
+        elif (self._static_written and T_b_c is not None and self._T_b_c is not None
+              and not np.allclose(T_b_c, self._T_b_c, atol=1e-9)):
             tf = C.transform_stamped(np.asarray(T_b_c), t, tp.body_frame, tp.camera_frame)
             self.write("/tf", T.TF_MESSAGE, t, C.tf_message([tf]))
 

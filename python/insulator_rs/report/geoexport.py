@@ -83,6 +83,13 @@ def _position(lat: float, lon: float, alt: float) -> list[float]:
     return [round(lon, DEG_DECIMALS), round(lat, DEG_DECIMALS), round(alt, ALT_DECIMALS)]
 
 
+def _positions(geo: np.ndarray) -> list[list[float]]:
+    """:func:`_position` of (N, 3) lat, lon, alt rows, vectorised (a long flown path)."""
+    g = np.asarray(geo, dtype=np.float64).reshape(-1, 3)
+    return np.stack([np.round(g[:, 1], DEG_DECIMALS), np.round(g[:, 0], DEG_DECIMALS),
+                     np.round(g[:, 2], ALT_DECIMALS)], axis=1).tolist()
+
+
 def geojson_document(layers: MapLayers) -> dict[str, Any]:
     """A GeoJSON FeatureCollection: one Point per map point, the flown path as a LineString."""
     features: list[dict[str, Any]] = []
@@ -92,7 +99,7 @@ def geojson_document(layers: MapLayers) -> dict[str, Any]:
     if len(layers.path_geo) >= 2:  # RFC 7946 3.1.4: a LineString has two or more positions
         features.append({"type": "Feature",
                          "geometry": {"type": "LineString",
-                                      "coordinates": [_position(*g) for g in layers.path_geo.tolist()]},
+                                      "coordinates": _positions(layers.path_geo)},
                          "properties": {"name": "flown path", "kind": "flight_path",
                                         "sample_spacing_m": PATH_SPACING}})
     return {"type": "FeatureCollection", "features": features}
@@ -100,7 +107,7 @@ def geojson_document(layers: MapLayers) -> dict[str, Any]:
 
 def write_geojson(path: Path, layers: MapLayers) -> Path:
     """``path`` (``.geojson``), written atomically."""
-    text = json.dumps(geojson_document(layers), indent=1, allow_nan=False)
+    text = json.dumps(geojson_document(layers), allow_nan=False)
     return write_atomic(Path(path), text)
 
 
@@ -119,7 +126,7 @@ def kml_text(layers: MapLayers, *, title: str = "insulator inspection") -> str:
         if p.kind == "photo" and "file" in p.properties:
             pnt.description = f'<img src="{p.properties["file"]}" width="480"/>'
     if len(layers.path_geo) >= 2:
-        line = kml.newlinestring(name="flown path", coords=[tuple(_position(*g)) for g in layers.path_geo.tolist()])
+        line = kml.newlinestring(name="flown path", coords=[tuple(c) for c in _positions(layers.path_geo)])
         line.altitudemode = simplekml.AltitudeMode.absolute
         line.style.linestyle.width = 2
         line.style.linestyle.color = simplekml.Color.yellow
