@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+import insulator_rs
 from insulator_rs._toml import tomllib
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.mission import bounds
@@ -26,6 +27,8 @@ from insulator_rs.mission.config import load_mission, parse_mission
 from insulator_rs.sim.scene import SceneError, load_scene, parse_scene
 
 ROOT = Path(__file__).resolve().parents[1]
+# where the insulator_rs under test was imported from (the source tree, or site-packages in CI)
+PACKAGE_PARENT = Path(insulator_rs.__file__).resolve().parents[1]
 PACKAGE = ROOT / "python" / "insulator_rs"
 MISSION_A = PACKAGE / "missions" / "tower_a.toml"
 SCENE_A = PACKAGE / "scenes" / "tower_a.toml"
@@ -254,7 +257,7 @@ def _cli_cases(tmp_path: Path) -> dict[str, tuple[list[str], list[str]]]:
 def test_cli_refuses_hostile_options_and_files_before_flight(tmp_path):
     """``insulator-rs inspect`` as a subprocess (concurrently, each under a timeout): status 2,
     the flag or the file and field named on stderr, no traceback, no report folder."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "python")}
+    env = {**os.environ, "PYTHONPATH": str(PACKAGE_PARENT)}
     cases = _cli_cases(tmp_path)
     runs = {}
     for name, (args, _) in cases.items():

@@ -27,7 +27,8 @@ from test_core_dbscan import assert_same_as_sklearn
 import insulator_rs as ir
 from insulator_rs.synthetic import insulator_cloud, line_clusters
 
-ROOT = Path(__file__).resolve().parents[1]
+# where the insulator_rs under test was imported from (the source tree, or site-packages in CI)
+PACKAGE_PARENT = Path(ir.__file__).resolve().parents[1]
 FAR_POINTS = [(1e7, 0.0, 0.0), (0.0, -1e7, 2.0), (3.0, 1.0, 1e12), (-1e300, 0.0, 0.0)]
 MEMORY_CAP = 3 << 30  # bytes of address space for the child (the old path needed 6.4 GB)
 CHILD_TIMEOUT = 300  # s: only so a regression cannot hang the suite
@@ -102,7 +103,7 @@ CHILD = textwrap.dedent("""
 def test_far_point_needs_no_more_memory() -> None:
     """The 60k-dense-plus-one-far dbscan and the 30k-plus-one-far localize complete under a
     3 GiB address-space cap (before: 6.4 GB and 1.8 GB through the kd-tree fallback)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "python"), "OPENBLAS_NUM_THREADS": "1",
+    env = {**os.environ, "PYTHONPATH": str(PACKAGE_PARENT), "OPENBLAS_NUM_THREADS": "1",
            "OMP_NUM_THREADS": "1", "RAYON_NUM_THREADS": "2"}
     proc = subprocess.run([sys.executable, "-c", CHILD.format(cap=MEMORY_CAP)], env=env,
                           capture_output=True, text=True, timeout=CHILD_TIMEOUT)

@@ -25,13 +25,15 @@ import pymap3d
 import pytest
 from PIL import Image
 
+import insulator_rs
 from insulator_rs.cli import main
 from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.report import ReportWriter, check_out_folder
 from insulator_rs.report import folder as folder_mod
 from test_mission_inspect import ARGS, small_scene  # the small scene of the inspect tests (tests/ is on sys.path)
 
-REPO = Path(__file__).resolve().parents[1]
+# where the insulator_rs under test was imported from (the source tree, or site-packages in CI)
+PACKAGE_PARENT = Path(insulator_rs.__file__).resolve().parents[1]
 ORIGIN = GeoPoint(49.5, 15.0, 420.0)
 CHILD_TIMEOUT = 120.0  # s: a child that never reaches its checkpoint fails the test instead of hanging it
 
@@ -159,7 +161,7 @@ CHILD = textwrap.dedent("""
 
 def _kill_child_after_first_photo(tmp_path: Path, out: Path, overwrite: bool) -> None:
     ready = tmp_path / "ready"
-    env = {**os.environ, "PYTHONPATH": str(REPO / "python")}
+    env = {**os.environ, "PYTHONPATH": str(PACKAGE_PARENT)}
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(out), "1" if overwrite else "0", str(ready)],
                             env=env)
     try:
@@ -224,7 +226,7 @@ def _inspect_cmd(tmp_path: Path, out: Path, *extra: str) -> list[str]:
 
 def _run_until_first_photo(cmd: list[str], watch: Path, pattern: str) -> subprocess.Popen:
     """Start ``inspect`` and return once a photo matching ``watch.glob(pattern)`` exists."""
-    env = {**os.environ, "PYTHONPATH": str(REPO / "python")}
+    env = {**os.environ, "PYTHONPATH": str(PACKAGE_PARENT)}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     t0 = time.monotonic()
     while not list(watch.glob(pattern)):
