@@ -104,6 +104,11 @@ def test_client_against_mavsdk_server_plugins() -> None:
         threading.Thread(target=publish, daemon=True).start()
         # MAVSDK answers from its own threads: allow more than PX4's usual ACK time.
         client = MavlinkVehicle(f"udpout:127.0.0.1:{port}", heartbeat_timeout=5.0, command_timeout=3.0)
+        # the client is up once it has a position; ATTITUDE may come a few samples later on a
+        # loaded machine (CI saw yaw 0.0 read before the first one): wait for it, bounded
+        deadline = time.monotonic() + 5.0
+        while abs(client.state().yaw - math.radians(60.0)) > 1e-5 and time.monotonic() < deadline:
+            time.sleep(0.02)
         state = client.state()
         np.testing.assert_allclose(state.position, [2.0, 1.0, 3.0])  # NED (1, 2, -3) in ENU
         np.testing.assert_allclose(state.velocity, [0.0, 0.5, 0.0])

@@ -38,6 +38,8 @@ pytestmark = [
                                               "repository and INSULATOR_RS_PX4_SITL not set"),
 ]
 SPEED = float(os.environ.get("INSULATOR_RS_PX4_SPEED", "1"))
+# s of wall time to wait for PX4's own disarm after the landing (COM_DISARM_LAND 2 s; loaded box)
+DISARM_WAIT = 20.0
 # Detection twice a second, as the simulated-PX4 flight of the same scene
 # (test_mission_inspect_mavlink): each insulator is in view for a few seconds only.
 ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
@@ -121,6 +123,11 @@ def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
                "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"])
     s = json.loads((out / "summary.json").read_text())
     g = json.loads((out / "score.json").read_text())  # the post-flight scorer's, against the scene
+    # PX4 disarms COM_DISARM_LAND (2 s) after it detects the landing, which may come after the
+    # client has returned (CI saw the landing line without the disarm): wait for it, bounded
+    deadline = time.monotonic() + DISARM_WAIT
+    while "Disarmed by landing" not in px4.log() and time.monotonic() < deadline:
+        time.sleep(0.2)
     log = px4.log()
     assert FAILSAFE_LINE not in log, [line for line in log.splitlines() if "WARN" in line or "ERROR" in line]
     assert rc == 0 and s["status"] == "finished", s["status"]
