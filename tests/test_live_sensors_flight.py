@@ -139,29 +139,34 @@ def test_flight_with_live_sensor_adapters(tmp_path: Path) -> None:
 
 
 def test_wire_lidar_serves_whole_sensor_windows_on_request() -> None:
-    """Requests once a simulated second while hovering: each answer (after the first two,
-    while the clock estimate settles) is one whole 100 ms
+    """Requests once a simulated second while hovering, then one after a 3 s silence: each
+    answer (after the first two, while the clock estimate settles) is one whole 100 ms
     window of the sensor clock (about 20,000 shots, fewer where nothing returns), ending
-    at or before ``now``; pauses are resyncs, never losses; the points lie on the room
-    (floor z = 0, walls at |x|, |y| = 12 m) within 5 cm (2 cm noise + quantisation)."""
-    from insulator_rs.sim.livox_wire import WireLidar
+    at or before ``now``; the sensor streams between requests (every 100 ms window between
+    them assembled, no resync), and only the real silence restarts it (one resync, never a
+    loss); the points lie on the room (floor z = 0, walls at |x|, |y| = 12 m) within 5 cm
+    (2 cm noise + quantisation)."""
+    from insulator_rs.sim.livox_wire import SILENCE_S, WireLidar
 
-    state = {"t": 10.0}
     position = np.array([1.0, -2.0, 3.0])
     wire = WireLidar(room(), lambda t: body_pose(position, 0.4), default_T_b_l(),
                      clock=SensorClock(offset_s=333.0, drift=10e-6))
+    times = [10.0 + k for k in range(6)] + [15.0 + SILENCE_S + 1.0]
     try:
         scans = []
-        for k in range(6):
-            state["t"] = 10.0 + k
-            scan = wire.lidar_scan(state["t"])
-            assert scan is not None and scan.time_end <= state["t"]
+        for t in times:
+            scan = wire.lidar_scan(t)
+            assert scan is not None and scan.time_end <= t
             scans.append(scan)
+            if t == 15.0:
+                streamed = wire.health()
         health = wire.health()
     finally:
         wire.close()
     assert health["lidar_lost"] == 0 and health["lidar_malformed"] == 0
-    assert health["lidar_resyncs"] == 5
+    # 10.0 - 0.3 .. 15.0: 53 windows begun, the last one still open
+    assert streamed["lidar_resyncs"] == 0 and streamed["lidar_scans"] >= 50
+    assert health["lidar_resyncs"] == 1
     T_w_l = body_pose(position, 0.4) @ default_T_b_l()
     for scan in scans[2:]:
         # 20,000 shots 5 us apart: 99.995 ms, to the drift estimate's accuracy (< 2000 ppm).

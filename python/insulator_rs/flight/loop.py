@@ -3,8 +3,9 @@
 The paper's online algorithm: take off, fly the exploration path (minimum-snap trajectories,
 safety-checked), and every ``detect_period`` s take a detection frame from the sensors, run
 the detector, and hand the frame, its boxes and the LiDAR points of that instant (the scans
-ending at it and one scan later) to the perception pipeline (paired and deskewed with the
-pose history the loop feeds every control tick); new insulators get inspection waypoints, which the state machine visits (a photo at
+up to it and those after it, until the sensors have delivered the points of the whole pairing
+window, see :meth:`FlightLoop._pair_pending`) to the perception pipeline (paired and deskewed
+with the pose history the loop feeds every control tick); new insulators get inspection waypoints, which the state machine visits (a photo at
 each, from the companion computer's camera through ``Sensors.photo``, gimbal aimed), then the
 flight goes on, crosses over the top, finishes and lands.
 
@@ -45,7 +46,7 @@ from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoi
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.rig import SensorRig
-from insulator_rs.sensors import PoseStamped, Sensors
+from insulator_rs.sensors import LidarScan, PoseStamped, Sensors
 from insulator_rs.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
 
 CONTROL_PERIOD = 0.05  # s: 20 Hz setpoint stream, as PX4 offboard wants
@@ -58,6 +59,13 @@ SUMMARY_PERIOD = 5.0  # s of flight between summary rewrites
 LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
 TAKEOFF_TIMEOUT = 60.0  # s of vehicle time for the climb to the first pass height
 LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
+# s past the pairing window a frame may wait for the scan that covers the window's end: a live
+# 10 Hz LiDAR delivers a scan once its 100 ms window is closed (plus the driver's reorder grace
+# and the link's latency); a frame still short after that goes to perception with what is there
+PAIRING_WAIT = 0.3
+# s: a scan ending this close before the window's end covers it (the last shots of a window
+# may have no return; shots are 5 us apart)
+PAIRING_SLACK = 0.01
 
 
 @dataclass(frozen=True)
@@ -123,7 +131,9 @@ class FlightLoop:
         self.localizations = 0
         self.sensor_errors = 0
         self._airborne = False
-        self._pending: tuple[Any, np.ndarray] | None = None  # a detection frame and its boxes
+        self._pending: list[tuple[Any, np.ndarray]] = []  # detection frames and their boxes, oldest first
+        self._scan_horizon = -math.inf  # vehicle time of the newest LiDAR point handed to perception
+        self.pairing_short = 0  # frames handed over before the scans covered their whole window
         self._printed_transitions = 0
         self._next_detect = 0.0
         self._next_status = STATUS_PERIOD
@@ -177,34 +187,59 @@ class FlightLoop:
         except SensorError as exc:
             self._sensor_error(exc)
             return
+        scan = self._take_scan(scan, frame.T_b_c)
         if self.recorder is not None:
-            if scan is not None:
-                self.recorder.scan(scan, frame.T_b_c)
             self.recorder.frame(frame, scan.T_b_l if scan is not None else self.rig.T_b_l)
         if len(boxes) == 0:
             return
-        if scan is not None:
-            self.perception.add_scan(scan)
-        self._pending = (frame, boxes)
+        self._pending.append((frame, boxes))
+
+    def _take_scan(self, scan: Any, T_b_c: np.ndarray) -> Any:
+        """Hand perception (and the recorder) the points of ``scan`` it does not have yet: a live
+        source returns the same newest scan until the next is complete, and the simulator's
+        scans may overlap; None when nothing in it is new."""
+        if scan is None or len(scan) == 0 or not scan.time_end > self._scan_horizon:
+            return None
+        if scan.time_start <= self._scan_horizon:
+            new = np.asarray(scan.times) > self._scan_horizon
+            scan = LidarScan(np.asarray(scan.points_l)[new], np.asarray(scan.times)[new], scan.T_b_l,
+                             None if scan.intensity is None else np.asarray(scan.intensity)[new])
+        self._scan_horizon = scan.time_end
+        self.perception.add_scan(scan)
+        if self.recorder is not None:
+            self.recorder.scan(scan, T_b_c)
+        return scan
 
     def _pair_pending(self, st: VehicleState) -> None:
-        """Once the scan after a pending frame is complete (the pairing window past the frame),
-        hand the frame with the points of both sides of its instant to perception; tell the
-        state machine of each localization. As a live pipeline pairs a frame with the LiDAR
-        points of +-100 ms: a frame waits one scan."""
-        if self._pending is None or st.time < self._pending[0].time + self.perception.pairing_window - 1e-9:
+        """Pair the pending frames with the LiDAR points of both sides of their instant (+- the
+        pairing window) and tell the state machine of each localization.
+
+        Driven by the data: once the window past a frame is over, the newest scan is asked for
+        every control tick and its new points go to perception, until a scan reaches the
+        window's end (a live 10 Hz driver delivers the scan covering it up to a frame period
+        and its reorder grace later; the simulator renders it at once). A frame still short
+        ``PAIRING_WAIT`` s after its window goes with what is there, counted in
+        ``pairing_short`` (a LiDAR that stopped delivering costs the pairing, never the flight)."""
+        window = self.perception.pairing_window
+        if not self._pending or st.time < self._pending[0][0].time + window - 1e-9:
             return
-        frame, boxes = self._pending
-        self._pending = None
         try:
-            scan = self.sensors.lidar_scan(st.time)
+            self._take_scan(self.sensors.lidar_scan(st.time), self._pending[0][0].T_b_c)
         except SensorError as exc:
             self._sensor_error(exc)
-            scan = None
-        if scan is not None:
-            self.perception.add_scan(scan)
-            if self.recorder is not None:
-                self.recorder.scan(scan, frame.T_b_c)
+        while self._pending:
+            frame, boxes = self._pending[0]
+            due = frame.time + window
+            if st.time < due - 1e-9:
+                break
+            if self._scan_horizon < due - PAIRING_SLACK:
+                if st.time < due + PAIRING_WAIT:
+                    break
+                self.pairing_short += 1
+            self._pending.pop(0)
+            self._localize(frame, boxes, st)
+
+    def _localize(self, frame: Any, boxes: np.ndarray, st: VehicleState) -> None:
         for loc in self.perception.process(frame, boxes):
             self.localizations += 1
             outcome = self.sm.localized(loc.center, loc.axis, st.position, st.time)

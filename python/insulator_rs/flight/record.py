@@ -55,6 +55,7 @@ def flight_summary(loop: FlightLoop) -> dict[str, Any]:
         "perception": asdict(loop.perception.counters),
         "refused_not_insulator": dict(loop.perception.not_insulator),
         "sensor_errors": loop.sensor_errors,
+        "pairing_short": loop.pairing_short,
         "sensors_health": loop.sensors.health(),
         "insulators_found": len(insulators),
         "insulators_inspected": sum(1 for r in insulators if r["inspected"]),

@@ -1,18 +1,21 @@
 """The simulated Mid-360 through the wire: simulator -> our emitter -> loopback UDP ->
 the live driver (:class:`~insulator_rs.drivers.livox.LivoxMid360`).
 
-For flights that exercise the live LiDAR path without a sensor: when the flight loop
-asks for a scan at vehicle time ``now``, the last 0.3 s of shots are rendered from the
-pose source (position, yaw, velocity of the airframe, now; the trajectory before it is
-extrapolated back at that velocity), turned into protocol datagrams on the sensor's own
-clock, sent to the driver on loopback, and the driver's newest complete scan is returned
--- its points and per-point times as the driver parsed and mapped them (the time map is
-the driver's own, estimated from arrivals, which are stamped as if the shots had
-streamed in real time: chunk by chunk, the vehicle time of the chunk's last sample). 0.3 s always holds one whole 100 ms window
-of the sensor clock ending at least the reorder grace before ``now``.
+For flights that exercise the live LiDAR path without a sensor. The sensor streams as a
+Mid-360 does, whatever the caller's pattern: when the flight loop asks for a scan at
+vehicle time ``now``, every whole 100 ms frame of the sensor's grid that has begun by
+``now`` and was not rendered yet is rendered from the pose source (the airframe's
+position, yaw and velocity, carried along the velocity to the shots' times), turned into
+protocol datagrams on the sensor's own clock, and the datagrams whose arrival time has come
+(the vehicle time of the last sample of their chunk of ``CHUNK`` datagrams, plus
+``LATENCY_S``: fixed by the data, not by when the caller asks) are sent to the driver on
+loopback; the rest wait for a later call. The driver's newest complete scan is returned --
+its points and per-point times as the driver parsed and mapped them (the time map is the
+driver's own, estimated from those arrival stamps).
 
-Between requests the sensor is silent (only the requested windows are rendered): the
-driver is told so with a short resync gap, and counts each pause as a resync.
+Only after a real silence (nobody asked for ``SILENCE_S``: before take-off, after landing)
+does the stream restart ``RESTART_SPAN_S`` before ``now``: the driver sees the gap and
+counts a resync.
 
 :class:`SplitSensors` pairs this LiDAR with another ``Sensors`` for the cameras.
 """
@@ -22,6 +25,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+from collections import deque
 from collections.abc import Callable
 
 import numpy as np
@@ -34,60 +38,66 @@ from insulator_rs.sim.mesh import Mesh
 
 #: The airframe's pose T_w_b (4x4) at a vehicle time (s): the simulator's pose sources.
 PoseSource = Callable[[float], np.ndarray]
-#: Rendered before each request (s): one whole sensor window + the reorder grace fit in it.
-RENDER_SPAN_S = 0.3
+#: A stream (re)starts this long before the request (s): one whole sensor window + the
+#: reorder grace fit in it.
+RESTART_SPAN_S = 0.3
+#: The caller asked nothing for this long (s): the sensor is taken as silent, and restarts.
+SILENCE_S = 2.0
 #: Datagrams sent together (7.7 ms of data): the driver's arrival clock advances per chunk.
 CHUNK = 16
 #: Latency the arrivals are stamped with, past the chunk's last sample (s).
 LATENCY_S = 0.0005
 
 
-class WireLidar:
-    """The LiDAR half of a ``Sensors``: rendered, encoded, sent and parsed back."""
+class LidarStream:
+    """A simulated Mid-360 streaming its datagrams: :meth:`due` renders the frames begun by
+    ``now`` (vehicle clock) and returns the chunks of datagrams whose arrival time has come,
+    each with that time (the chunk's last sample + ``LATENCY_S``). ``restart_span``: how far
+    before ``now`` the stream starts, at the first call and after ``SILENCE_S`` without one."""
 
-    def __init__(self, mesh: Mesh, pose: PoseSource, T_b_l: np.ndarray, *,
-                 clock: SensorClock | None = None, faults: Faults | None = None, seed: int = 0,
-                 data_type: int = 1) -> None:
+    def __init__(self, mesh: Mesh, pose: PoseSource, T_b_l: np.ndarray, *, clock: SensorClock | None = None,
+                 faults: Faults | None = None, seed: int = 0, data_type: int = 1,
+                 restart_span: float = RESTART_SPAN_S) -> None:
         self.mesh = mesh
         self.pose = pose
         self.lidar = Mid360(T_b_l)
         self.emitter = LivoxEmitter(point_rate=self.lidar.point_rate, clock=clock or SensorClock(),
                                     faults=faults or Faults(), data_type=data_type)
-        # Arrivals are stamped as if the shots had streamed in real time (a real Mid-360
-        # sends as it scans): the vehicle time of each chunk's last sample + LATENCY_S.
-        self._arrival = 0.0
-        self.driver = LivoxMid360(now=lambda: self._arrival, T_b_l=T_b_l, host_ip="127.0.0.1", point_port=0, imu_port=None,
-                                  resync_gap_s=0.2).start()
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sent = 0
-        self._frames = 0
         self.seed = seed
+        self.restart_span = float(restart_span)
+        self.frames = 0
+        self.restarts = 0
+        self._rendered_until: float | None = None  # vehicle time where the next frame starts
+        self._last_call = -math.inf
+        self._datagrams: list[bytes] = []  # rendered, not yet chunked
+        self._chunks: deque[tuple[float, list[bytes]]] = deque()  # (arrival, datagrams) not yet due
 
-    def _render(self, now: float) -> list[bytes]:
-        start = now - RENDER_SPAN_S
-        first = math.ceil(start * self.lidar.point_rate / DOTS_PER_PACKET - 1e-9)
-        if self.emitter._next_packet < first:  # the sensor was silent since the last request
-            self.emitter.start_at(start)
-        out: list[bytes] = []
-        n = round(RENDER_SPAN_S * self.lidar.frame_rate)
-        for k in range(n):
-            t0 = start + k * self.lidar.frame_period
-            frame = self.lidar.scan(self.mesh, self.pose, t0, seed=self.seed + self._frames)
-            self._frames += 1
-            out += self.emitter.add_frame(frame)
+    def due(self, now: float) -> list[tuple[float, list[bytes]]]:
+        self._render(now)
+        out = []
+        while self._chunks and self._chunks[0][0] <= now:
+            out.append(self._chunks.popleft())
         return out
 
-    def lidar_scan(self, now: float) -> LidarScan | None:
-        datagrams = self._render(now)
-        target = self.driver.point_address
+    def _render(self, now: float) -> None:
+        period = self.lidar.frame_period
+        if self._rendered_until is None or now - self._last_call > SILENCE_S:
+            # (re)start on the frame grid, dropping what a silent sensor never sent
+            self._rendered_until = math.floor((now - self.restart_span) / period + 1e-9) * period
+            self.emitter.start_at(self._rendered_until)
+            self._datagrams.clear()
+            self._chunks.clear()
+            self.restarts += 1
+        self._last_call = now
+        while self._rendered_until <= now + 1e-9:
+            frame = self.lidar.scan(self.mesh, self.pose, self._rendered_until, seed=self.seed + self.frames)
+            self.frames += 1
+            self._rendered_until = round((self._rendered_until + period) / period) * period
+            self._datagrams += self.emitter.add_frame(frame)
         span = DOTS_PER_PACKET / self.lidar.point_rate
-        for i in range(0, len(datagrams), CHUNK):
-            chunk = datagrams[i:i + CHUNK]
-            last_start = max(self._vehicle_start(d) for d in chunk)
-            self._arrival = min(now, last_start + span + LATENCY_S)
-            self._sent += send(chunk, self._sock, target)
-            wait_for(lambda: self.driver.received() >= self._sent, 5.0, poll=0.0002)
-        return self.driver.lidar_scan(now)
+        while len(self._datagrams) >= CHUNK:
+            chunk, self._datagrams = self._datagrams[:CHUNK], self._datagrams[CHUNK:]
+            self._chunks.append((max(self._vehicle_start(d) for d in chunk) + span + LATENCY_S, chunk))
 
     def _vehicle_start(self, datagram: bytes) -> float:
         """Vehicle time of a datagram's first sample (its header timestamp, on the sensor clock)."""
@@ -95,6 +105,28 @@ class WireLidar:
             return -math.inf
         (ts,) = struct.unpack_from("<Q", datagram, 28)
         return float(self.emitter.clock.to_vehicle(ts * 1e-9))
+
+
+class WireLidar:
+    """The LiDAR half of a ``Sensors``: a :class:`LidarStream` sent to the live driver in process,
+    each chunk when the caller's ``now`` reaches its arrival time, stamped with that time."""
+
+    def __init__(self, mesh: Mesh, pose: PoseSource, T_b_l: np.ndarray, *,
+                 clock: SensorClock | None = None, faults: Faults | None = None, seed: int = 0,
+                 data_type: int = 1) -> None:
+        self.stream = LidarStream(mesh, pose, T_b_l, clock=clock, faults=faults, seed=seed, data_type=data_type)
+        self._arrival = 0.0  # the vehicle time the driver stamps the datagrams being sent with
+        self.driver = LivoxMid360(now=lambda: self._arrival, T_b_l=T_b_l, host_ip="127.0.0.1", point_port=0, imu_port=None,
+                                  resync_gap_s=0.2).start()
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sent = 0
+
+    def lidar_scan(self, now: float) -> LidarScan | None:
+        target = self.driver.point_address
+        for self._arrival, chunk in self.stream.due(now):
+            self._sent += send(chunk, self._sock, target)
+            wait_for(lambda: self.driver.received() >= self._sent, 5.0, poll=0.0002)
+        return self.driver.lidar_scan(now)
 
     def health(self) -> dict[str, object]:
         return {f"lidar_{k}": v for k, v in self.driver.health().items()}
