@@ -105,3 +105,56 @@ def test_frames_before_the_vehicle_clock_exists_are_counted_not_fatal(tmp_path: 
         while not source.ended and time.monotonic() < deadline:
             time.sleep(0.01)
         assert (source.unstamped, source.frames) == (4, 6)
+
+
+def test_an_mjpeg_http_stream_is_read_as_an_ip_camera_and_survives_its_server_restarting() -> None:
+    """An MJPEG-over-HTTP stream (``multipart/x-mixed-replace``, what IP cameras and the SITL
+    sensor head serve) read through OpenCV's FFmpeg backend: the source is a stream, not a
+    file (no end), and the frames show what is published (grey level within 8: JPEG); when the
+    server goes away the reads fail and are counted, and once a server is back on the same
+    port the stream is reopened (counted) and frames flow again."""
+    import threading
+
+    from insulator_rs.sim.sensor_head import MjpegServer
+
+    state = {"level": 40, "server": MjpegServer().start()}
+    port = int(state["server"].url.rsplit(":", 1)[1].split("/")[0])
+    url = state["server"].url
+    stop = threading.Event()
+
+    def publisher() -> None:  # a camera at 20 fps
+        while not stop.wait(0.05):
+            ok, jpeg = cv2.imencode(".jpg", np.full((H, W, 3), state["level"], np.uint8))
+            state["server"].publish(jpeg.tobytes())
+
+    def wait_level(source: OpenCvCamera, level: int, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            frame = source.latest(time.monotonic())
+            if frame is not None and abs(float(frame.image.mean()) - level) < 8:
+                return True
+            time.sleep(0.02)
+        return False
+
+    thread = threading.Thread(target=publisher, daemon=True)
+    thread.start()
+    try:
+        with OpenCvCamera(url, camera=cam(), T_b_c=np.eye(4), now=time.monotonic) as source:
+            assert source.kind == "stream"
+            source.start()
+            for level in (40, 120, 200):
+                state["level"] = level
+                assert wait_level(source, level, 5.0), level
+            state["server"].close()
+            deadline = time.monotonic() + 40
+            while source.read_failures == 0 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert source.read_failures > 0 and not source.ended
+            state["level"] = 90
+            state["server"] = MjpegServer(port=port).start()
+            assert wait_level(source, 90, 40.0)
+            assert source.reopens >= 1 and source.health()["camera_reopens"] == source.reopens
+    finally:
+        stop.set()
+        thread.join(timeout=2)
+        state["server"].close()

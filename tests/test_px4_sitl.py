@@ -16,6 +16,12 @@ tests are skipped, saying so, only when it is absent.
   simulated sensors' rendering takes wall time while PX4 flies on, so a loaded two-core box
   then gets too few detection events to find both insulators every time (measured: 1 of 2
   at -s 4; 2 of 2 in two runs and 1 of 2 in one at -s 2, beside other jobs).
+* ``test_small_scene_live_sensor_inspection_against_px4_sitl``: the same flight with the LIVE
+  drivers: ``insulator-rs inspect --lidar mid360://listen:PORT --camera http://...`` in a
+  subprocess, fed by the sensor head (``insulator_rs.sim.sensor_head``, a process of its own)
+  that reads PX4's pose from PX4's GCS link and streams Livox SDK2 datagrams on UDP (sensor
+  clock offset 1234.5 s, +25 ppm) and an MJPEG stream OpenCV reads; the shipped
+  ``insulator-sim`` network detects. Scored here against the scene's ground truth.
 """
 
 from __future__ import annotations
@@ -23,7 +29,11 @@ from __future__ import annotations
 import json
 import math
 import os
+import socket
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 from px4_sitl import FAILSAFE_LINE, Px4Sitl, mission_at_home, sitl_folder
@@ -215,3 +225,102 @@ def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch,
     assert stats[0]["foreign_address"] >= sent["truncated"] + sent["heartbeats"]
     assert sent["replies"] == 0  # nothing streamed to the stranger
     assert f"foreign_address {stats[0]['foreign_address']}" in capsys.readouterr().out  # reported
+
+
+# A live flight's camera: the simulator's lens at 320 x 240 (the rig's calibration must match
+# the frames the camera delivers), rendered and served at 3 fps by the sensor head.
+LIVE_SCALE = 0.25
+LIVE_TIMEOUT = 600.0  # s of wall time for the whole flight (measured: see the test's docstring)
+
+
+def _live_rig(folder: Path) -> Path:
+    """A rig file: the simulator rig's extrinsics, its camera scaled to ``LIVE_SCALE``."""
+    from insulator_rs.rig import scaled_camera, simulator_rig
+
+    rig = simulator_rig()
+    cam = scaled_camera(rig.camera, LIVE_SCALE)
+    k = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
+    (folder / "live_camera.yaml").write_text(
+        f"image_width: {cam.width}\nimage_height: {cam.height}\ncamera_name: live\n"
+        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: {k}\n"
+        f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
+        f"  data: {[float(d) for d in cam.dist]}\n")
+    matrix = lambda T: "[" + ", ".join(str([float(v) for v in row]) for row in T) + "]"  # noqa: E731
+    path = folder / "live_rig.toml"
+    path.write_text(f'[camera]\ncalibration = "live_camera.yaml"\nT_b_c = {matrix(rig.T_b_c)}\n\n'
+                    f"[lidar]\nT_b_l = {matrix(rig.T_b_l)}\n")
+    return path
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _stop(proc: subprocess.Popen) -> str:
+    """SIGTERM (then SIGKILL) one process we started; its output."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+    return proc.stdout.read() if proc.stdout is not None else ""
+
+
+def test_small_scene_live_sensor_inspection_against_px4_sitl(px4, tmp_path) -> None:
+    """The live-sensor path against PX4 itself (see the module docstring). Reference: the small
+    scene's ground truth (each insulator found within 0.3 m), the drivers' own counters (no
+    LiDAR datagram lost or malformed, every scan mapped to the vehicle clock, camera frames of
+    the calibrated size) and PX4's log (no failsafe)."""
+    import insulator_rs
+    from insulator_rs.sim.towers import load_tower
+
+    scene, mission = small_scene(tmp_path)
+    _live_rig(tmp_path)
+    text = mission.read_text()
+    assert 'rig = "simulator"' in text
+    mission.write_text(text.replace('rig = "simulator"', 'rig = "live_rig.toml"') + "confirmations = 1\n")
+    mission = mission_at_home(mission, tmp_path / "at_home.toml")
+    env = {**os.environ, "PYTHONPATH": str(Path(insulator_rs.__file__).parents[1])}
+    port = _free_udp_port()
+    head = subprocess.Popen([sys.executable, "-m", "insulator_rs.sim.sensor_head", "--scene", str(scene),
+                             "--mission", str(mission), "--px4", f"udpout:127.0.0.1:{18570 + px4.instance}",
+                             "--lidar-to", f"127.0.0.1:{port}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    out = tmp_path / "report"
+    try:
+        line = head.stdout.readline() if head.stdout is not None else ""
+        assert line.startswith("sensor head ready"), line + _stop(head)
+        url = line.split("camera ", 1)[1].strip()
+        t0 = time.monotonic()
+        flight = subprocess.run([sys.executable, "-m", "insulator_rs.cli", "inspect", "--scene", str(scene),
+                                 "--mission", str(mission), "--out", str(out), "--connection", px4.connection,
+                                 "--lidar", f"mid360://listen:{port}", "--camera", url,
+                                 "--detector", "insulator-sim", "--detect-period", "0.5", "--quiet"],
+                                capture_output=True, text=True, env=env, timeout=LIVE_TIMEOUT)
+        wall = time.monotonic() - t0
+    finally:
+        head_out = _stop(head)
+    s = json.loads((out / "summary.json").read_text())
+    truth = [ins.center for ins in load_tower(str(scene)).insulators]
+    found = [r["center"] for r in s["insulators"]]
+    errors = [min((math.dist(t, f) for f in found), default=math.inf) for t in truth]
+    h = s["sensors_health"]
+    print(f"live SITL flight: {s['status']}, flight {s['flight_time_s']:.0f} s, wall {wall:.0f} s, "
+          f"errors {[round(e, 3) for e in errors]}, found {len(found)}, photos {len(s['photos'])}, "
+          f"pairing_short {s['pairing_short']}, health {h}; {head_out.strip()}")
+    deadline = time.monotonic() + DISARM_WAIT
+    while "Disarmed by landing" not in px4.log() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert FAILSAFE_LINE not in px4.log()
+    assert flight.returncode == 0 and s["status"] == "finished", (s["status"], flight.stdout[-2000:],
+                                                                  flight.stderr[-2000:])
+    assert len(truth) == 2 and max(errors) < 0.3, errors
+    assert h["lidar_scans"] > 0 and h["lidar_lost"] == 0 and h["lidar_malformed"] == 0
+    assert h["lidar_unmapped_scans"] == 0 and h["lidar_receive_errors"] == 0 and h["lidar_foreign_datagrams"] == 0
+    assert h["camera_frames"] > 0 and h["camera_size_mismatch"] == 0 and h["camera_read_failures"] == 0
+    assert s["insulators_inspected"] >= 2 and len(s["photos"]) >= 2 * 2
+    assert all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])

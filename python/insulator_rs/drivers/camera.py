@@ -5,7 +5,10 @@ Sources (``source`` argument, as on the command line):
 * an integer or a string of digits: a V4L2 device index (``/dev/videoN``);
 * a string containing ``!``: a GStreamer pipeline ending in ``appsink`` (the Jetson's CSI
   cameras: ``nvarguscamerasrc ! ... ! appsink``), opened with ``cv2.CAP_GSTREAMER``;
-* anything else: a video file (or a URL OpenCV's FFmpeg backend reads).
+* a URL (``scheme://...``): a network stream OpenCV's FFmpeg backend reads (an IP camera's
+  MJPEG over HTTP, RTSP); a read that fails is retried, the stream reopened after
+  ``REOPEN_AFTER`` failures in a row (counted in ``camera_reopens``), never taken as its end;
+* anything else: a video file (its end stops the source).
 
 A thread reads frames as they come (for a file: at its own rate when ``realtime``) and
 stamps each with ``now()``, the vehicle time at arrival; the newest ``keep_frames`` are
@@ -28,6 +31,9 @@ from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import InsulatorError, SensorError
 from insulator_rs.sensors import CameraFrame
 
+#: Failed reads in a row after which a network stream is reopened.
+REOPEN_AFTER = 10
+
 
 def open_capture(source: int | str) -> tuple[cv2.VideoCapture, str]:
     """Opens ``source`` (see the module docstring); returns the capture and its kind."""
@@ -36,8 +42,10 @@ def open_capture(source: int | str) -> tuple[cv2.VideoCapture, str]:
         cap, kind = cv2.VideoCapture(index, cv2.CAP_V4L2), "v4l2"
     elif "!" in source:
         cap, kind = cv2.VideoCapture(source, cv2.CAP_GSTREAMER), "gstreamer"
+    elif "://" in source:
+        cap, kind = cv2.VideoCapture(source), "stream"
     else:
-        if "://" not in source and not os.path.exists(source):
+        if not os.path.exists(source):
             raise SensorError(f"camera: no such video file {source!r}")
         cap, kind = cv2.VideoCapture(source), "file"
     if not cap.isOpened():
@@ -78,6 +86,7 @@ class OpenCvCamera:
         self.read_failures = 0
         self.size_mismatch = 0
         self.unstamped = 0
+        self.reopens = 0
         self.ended = False
 
     def start(self) -> OpenCvCamera:
@@ -98,6 +107,8 @@ class OpenCvCamera:
                 self.read_failures += 1
                 failures_in_row += 1
                 time.sleep(min(0.5, 0.01 * failures_in_row))
+                if self.kind == "stream" and failures_in_row % REOPEN_AFTER == 0:
+                    self._reopen()
                 continue
             failures_in_row = 0
             try:
@@ -109,6 +120,16 @@ class OpenCvCamera:
             if period:
                 next_t += period
                 time.sleep(max(0.0, next_t - time.monotonic()))
+
+    def _reopen(self) -> None:
+        """A network stream that stopped answering: open it again (the server may be back)."""
+        try:
+            cap, _ = open_capture(self.source)
+        except SensorError:
+            return
+        self._cap.release()
+        self._cap = cap
+        self.reopens += 1
 
     def _take(self, image: np.ndarray, stamp: float) -> None:
         if image.ndim == 2:
@@ -133,7 +154,7 @@ class OpenCvCamera:
     def health(self) -> dict[str, object]:
         return {"camera_source": str(self.source), "camera_kind": self.kind, "camera_frames": self.frames,
                 "camera_read_failures": self.read_failures, "camera_size_mismatch": self.size_mismatch, "camera_unstamped": self.unstamped,
-                "camera_ended": self.ended}
+                "camera_reopens": self.reopens, "camera_ended": self.ended}
 
     def close(self) -> None:
         self._stop.set()

@@ -1,0 +1,407 @@
+"""A sensor head for SITL flights: the Mid-360 and the camera a real airframe carries, played
+by the simulator from the autopilot's own pose estimate, in a process of its own.
+
+Run beside PX4 SITL and ``insulator-rs inspect --connection ... --lidar mid360://listen:PORT
+--camera http://127.0.0.1:CPORT/stream.mjpg``; the client's live drivers read it as they
+read real sensors, and it reads nothing of the client:
+
+* pose: PX4's GCS MAVLink link (UDP 18570 + instance; PX4 answers the address that talks to
+  it): LOCAL_POSITION_NED and ATTITUDE at 50 Hz, and HOME_POSITION, which puts PX4's local
+  frame in W (ENU, origin at the tower base, as the client puts it); poses between samples
+  are interpolated, past the newest one carried along its velocity and yaw rate;
+* clock: PX4's ``time_boot_ms`` (the vehicle clock), carried to "now" from the host clock by
+  a :class:`~insulator_rs.timesync.TelemetryClock`;
+* LiDAR: a :class:`~insulator_rs.sim.livox_wire.LidarStream` (10 Hz frames, encoded as Livox
+  SDK2 datagrams on a sensor clock with its own offset and drift) sent on UDP to the driver
+  as the stream's arrival times come round on the vehicle clock;
+* camera: frames rendered at the rig's calibration, at the pose of the instant they will be
+  published (the render time is predicted), JPEG-encoded and served as an MJPEG stream
+  (``multipart/x-mixed-replace``, what IP cameras serve and OpenCV's FFmpeg backend reads).
+
+``--attitude yaw`` (default) renders with the body level at PX4's heading, as the flight
+loop's pose model has it (position and yaw); ``full`` adds PX4's roll and pitch (what a
+rigidly mounted sensor would see: the loop does not yet correct for tilt).
+
+Not part of the onboard package's dependency graph: nothing onboard imports this.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import socket
+import sys
+import threading
+import time
+from collections import deque
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from insulator_rs.exceptions import InsulatorError
+from insulator_rs.sim.livox_emitter import SensorClock, send
+from insulator_rs.sim.livox_wire import LidarStream
+from insulator_rs.timesync import TelemetryClock
+
+#: PX4 SITL's GCS link listens on this UDP port + instance.
+PX4_GCS_PORT = 18570
+#: Pose samples kept (s of 50 Hz telemetry).
+HISTORY = 500
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+MSG_LOCAL_POSITION_NED, MSG_ATTITUDE, MSG_HOME_POSITION = 32, 30, 242
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _body_rotation(yaw_enu: float, roll: float, pitch: float, full: bool) -> np.ndarray:
+    """R_w_b (ENU world, FLU body) from PX4's Euler angles (NED/FRD, ZYX)."""
+    if not full:
+        return _rot_z(yaw_enu)
+    yaw_ned = math.pi / 2 - yaw_enu
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    R_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    R_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    R_ned_frd = _rot_z(yaw_ned) @ R_y @ R_x
+    ned_enu = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # its own inverse
+    frd_flu = np.diag([1.0, -1.0, -1.0])
+    return ned_enu @ R_ned_frd @ frd_flu
+
+
+class Px4PoseFeed:
+    """PX4's pose estimate in W from its GCS link (see the module docstring).
+
+    ``origin``: W's origin (lat, lon deg, alt m AMSL): the mission's tower base."""
+
+    def __init__(self, connection: str, origin: tuple[float, float, float], *, full_attitude: bool = False) -> None:
+        from pymavlink import mavutil  # type: ignore[import-untyped]
+
+        self.origin = origin
+        self.full_attitude = full_attitude
+        # component id of a camera (100): a payload, not a second ground station
+        self.link = mavutil.mavlink_connection(connection, source_system=1, source_component=100)
+        self._lock = threading.Lock()
+        self._pos: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=HISTORY)  # t, p_w, v_w
+        self._att: deque[tuple[float, float, float, float, float]] = deque(maxlen=HISTORY)  # t, yaw_enu, roll, pitch, rate
+        self.local_origin_w: np.ndarray | None = None
+        self.messages = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="px4-pose-feed", daemon=True)
+
+    def start(self) -> Px4PoseFeed:
+        self._thread.start()
+        return self
+
+    def _request(self) -> None:
+        """Targeted commands (PX4 does not forward them to its other links): the streams, home."""
+        mav = self.link.mav
+        for msg_id in (MSG_LOCAL_POSITION_NED, MSG_ATTITUDE):
+            mav.command_long_send(1, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 20_000, 0, 0, 0, 0, 0)
+        mav.command_long_send(1, 1, MAV_CMD_REQUEST_MESSAGE, 0, MSG_HOME_POSITION, 0, 0, 0, 0, 0, 0)
+
+    def _run(self) -> None:
+        next_request = 0.0
+        while not self._stop.is_set():
+            if time.monotonic() >= next_request and (self.local_origin_w is None or not self._pos):
+                self._request()
+                next_request = time.monotonic() + 1.0
+            msg = self.link.recv_match(type=["LOCAL_POSITION_NED", "ATTITUDE", "HOME_POSITION"], blocking=True,
+                                       timeout=0.1)
+            if msg is None:
+                continue
+            self.messages += 1
+            kind = msg.get_type()
+            if kind == "HOME_POSITION":
+                self._home(msg)
+            elif kind == "LOCAL_POSITION_NED":
+                p = np.array([msg.y, msg.x, -msg.z])
+                v = np.array([msg.vy, msg.vx, -msg.vz])
+                with self._lock:
+                    if not self._pos or msg.time_boot_ms / 1e3 > self._pos[-1][0]:
+                        self._pos.append((msg.time_boot_ms / 1e3, p, v))
+            else:
+                with self._lock:
+                    if not self._att or msg.time_boot_ms / 1e3 > self._att[-1][0]:
+                        self._att.append((msg.time_boot_ms / 1e3, math.pi / 2 - msg.yaw, msg.roll, msg.pitch,
+                                          -msg.yawspeed))
+
+    def _home(self, msg: Any) -> None:
+        import pymap3d  # type: ignore[import-untyped]
+
+        home_w = np.array(pymap3d.geodetic2enu(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3,
+                                               *self.origin))
+        self.local_origin_w = home_w - np.array([msg.y, msg.x, -msg.z])
+
+    def ready(self) -> bool:
+        return self.local_origin_w is not None and bool(self._pos) and bool(self._att)
+
+    def newest_time(self) -> float:
+        """PX4's time of the newest position sample (s): the vehicle clock."""
+        with self._lock:
+            if not self._pos:
+                raise InsulatorError("no LOCAL_POSITION_NED from PX4 yet")
+            return self._pos[-1][0]
+
+    def pose(self, t: float) -> np.ndarray:
+        """T_w_b at vehicle time ``t``."""
+        with self._lock:
+            pos, att = list(self._pos), list(self._att)
+        origin = self.local_origin_w
+        if origin is None or not pos or not att:
+            raise InsulatorError("no pose from PX4 yet")
+        T = np.eye(4)
+        T[:3, 3] = origin + self._position(pos, t)
+        T[:3, :3] = self._rotation(att, t)
+        return T
+
+    @staticmethod
+    def _position(pos: list[tuple[float, np.ndarray, np.ndarray]], t: float) -> np.ndarray:
+        times = [s[0] for s in pos]
+        i = int(np.searchsorted(times, t))
+        if i >= len(pos):
+            t0, p0, v0 = pos[-1]
+            return p0 + v0 * (t - t0)
+        if i == 0:
+            t0, p0, v0 = pos[0]
+            return p0 + v0 * (t - t0)
+        (ta, pa, _), (tb, pb, _) = pos[i - 1], pos[i]
+        return pa + (pb - pa) * ((t - ta) / (tb - ta))
+
+    def _rotation(self, att: list[tuple[float, float, float, float, float]], t: float) -> np.ndarray:
+        times = [s[0] for s in att]
+        i = int(np.searchsorted(times, t))
+        if i >= len(att) or i == 0:
+            ta, yaw, roll, pitch, rate = att[-1] if i else att[0]
+            return _body_rotation(yaw + rate * (t - ta), roll, pitch, self.full_attitude)
+        (ta, ya, ra, pa, _), (tb, yb, rb, pb, _) = att[i - 1], att[i]
+        f = (t - ta) / (tb - ta)
+        dy = math.remainder(yb - ya, 2 * math.pi)
+        return _body_rotation(ya + f * dy, ra + f * (rb - ra), pa + f * (pb - pa), self.full_attitude)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.link.close()
+
+
+class MjpegServer:
+    """Serves the newest JPEG as ``multipart/x-mixed-replace`` on every path, to every client."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
+        self._cond = threading.Condition()
+        self._jpeg: bytes | None = None
+        self._seq = 0
+        self._stop = threading.Event()
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+                self.send_response(200)
+                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
+                self.send_header("Cache-Control", "no-cache")
+                self.end_headers()
+                seen = 0
+                try:
+                    while not server._stop.is_set():
+                        with server._cond:
+                            server._cond.wait_for(lambda: server._seq != seen or server._stop.is_set(), timeout=1.0)
+                            seen, jpeg = server._seq, server._jpeg
+                        if jpeg is None or server._stop.is_set():
+                            continue
+                        self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n"
+                                         % len(jpeg) + jpeg + b"\r\n")
+                        self.wfile.flush()
+                except (BrokenPipeError, ConnectionResetError):
+                    return
+
+            def log_message(self, *args: object) -> None:
+                return
+
+        self.httpd = ThreadingHTTPServer((host, port), Handler)
+        self.httpd.daemon_threads = True
+        self._thread = threading.Thread(target=self.httpd.serve_forever, name="mjpeg-server", daemon=True)
+
+    @property
+    def url(self) -> str:
+        host, port = self.httpd.server_address[:2]
+        return f"http://{host}:{port}/stream.mjpg"
+
+    def start(self) -> MjpegServer:
+        self._thread.start()
+        return self
+
+    def publish(self, jpeg: bytes) -> None:
+        with self._cond:
+            self._jpeg, self._seq = jpeg, self._seq + 1
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+class SensorHead:
+    """The LiDAR and camera threads over one pose feed and clock (see the module docstring)."""
+
+    def __init__(self, mesh: Any, rig: Any, feed: Px4PoseFeed, *, lidar_to: tuple[str, int],
+                 camera_port: int = 0, fps: float = 3.0, sensor_clock: SensorClock | None = None,
+                 seed: int = 0) -> None:
+        from insulator_rs.sim.camera_render import Camera
+
+        self.feed = feed
+        self.clock = TelemetryClock(feed.newest_time)
+        self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0)
+        self.camera = Camera(rig.camera, rig.T_b_c)
+        self.mesh = mesh
+        self.lidar_to = lidar_to
+        self.period = 1.0 / fps
+        self.seed = seed
+        self.server = MjpegServer(port=camera_port)
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._lidar, name="head-lidar", daemon=True),
+                         threading.Thread(target=self._camera, name="head-camera", daemon=True)]
+        self.datagrams = 0
+        self.images = 0
+        self.render_ms: deque[float] = deque(maxlen=50)
+        self.errors: list[str] = []
+
+    def start(self) -> SensorHead:
+        self.clock.start()
+        self.server.start()
+        for t in self._threads:
+            t.start()
+        return self
+
+    def _now(self) -> float | None:
+        try:
+            return self.clock.now()
+        except InsulatorError:
+            return None
+
+    def _lidar(self) -> None:
+        while not self._stop.is_set():
+            now = self._now()
+            if now is None or not self.feed.ready():
+                time.sleep(0.01)
+                continue
+            try:
+                for _, chunk in self.stream.due(now):
+                    self.datagrams += send(chunk, self._sock, self.lidar_to)
+            except (OSError, ValueError, InsulatorError) as exc:
+                self._error(f"lidar: {exc}")
+            time.sleep(0.002)
+
+    def _camera(self) -> None:
+        render_s = 0.1  # predicted render + encode time (s), learnt as it goes
+        while not self._stop.is_set():
+            now = self._now()
+            if now is None or not self.feed.ready():
+                time.sleep(0.01)
+                continue
+            t0 = time.monotonic()
+            exposure = now + render_s  # the vehicle time the frame will be published at
+            try:
+                frame = self.camera.render(self.mesh, self.feed.pose(exposure), seed=self.seed + self.images,
+                                           time=exposure)
+                ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(frame.rgb[:, :, ::-1]),
+                                        [cv2.IMWRITE_JPEG_QUALITY, 92])
+            except (ValueError, InsulatorError, cv2.error) as exc:
+                self._error(f"camera: {exc}")
+                time.sleep(self.period)
+                continue
+            spent = time.monotonic() - t0
+            render_s = 0.7 * render_s + 0.3 * spent
+            self.render_ms.append(spent * 1e3)
+            while (now := self._now()) is not None and now < exposure and not self._stop.is_set():
+                time.sleep(0.001)
+            if ok:
+                self.server.publish(jpeg.tobytes())
+                self.images += 1
+            self._stop.wait(max(0.0, self.period - (time.monotonic() - t0)))
+
+    def _error(self, text: str) -> None:
+        if len(self.errors) < 20:
+            self.errors.append(text)
+            print(f"sensor head: {text}", file=sys.stderr, flush=True)
+
+    def stats(self) -> dict[str, object]:
+        return {"lidar_frames": self.stream.frames, "datagrams": self.datagrams, "camera_images": self.images,
+                "camera_render_ms": round(float(np.mean(self.render_ms)), 1) if self.render_ms else None,
+                "pose_messages": self.feed.messages, "errors": len(self.errors)}
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        self.server.close()
+        self._sock.close()
+        self.clock.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Play a Mid-360 and a camera for a SITL flight until SIGTERM/SIGINT (module docstring)."""
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.rig import simulator_rig
+    from insulator_rs.sim.towers import load_tower
+
+    parser = argparse.ArgumentParser(prog="python -m insulator_rs.sim.sensor_head", description=main.__doc__)
+    parser.add_argument("--scene", required=True, help="built-in scene name or scene TOML file")
+    parser.add_argument("--mission", type=Path, required=True,
+                        help="the mission file the client flies (its tower base is W's origin; its rig is worn)")
+    parser.add_argument("--px4", required=True, help="PX4's GCS link, e.g. udpout:127.0.0.1:18571")
+    parser.add_argument("--lidar-to", default="127.0.0.1:56301", help="HOST:PORT the driver listens on")
+    parser.add_argument("--camera-port", type=int, default=0, help="MJPEG HTTP port (0: a free one, printed)")
+    parser.add_argument("--fps", type=float, default=3.0, help="camera frames per second")
+    parser.add_argument("--clock-offset", type=float, default=1234.5, help="LiDAR clock offset (s)")
+    parser.add_argument("--clock-drift-ppm", type=float, default=25.0, help="LiDAR clock drift (ppm)")
+    parser.add_argument("--attitude", choices=("yaw", "full"), default="yaw",
+                        help="render level at PX4's heading (the loop's pose model) or with its roll and pitch")
+    parser.add_argument("--ready-timeout", type=float, default=60.0, help="s to wait for PX4's pose")
+    args = parser.parse_args(argv)
+    host, _, port = args.lidar_to.rpartition(":")
+    if not host or not port.isdigit():
+        parser.error(f"--lidar-to: expected HOST:PORT, got {args.lidar_to!r}")
+    if not (math.isfinite(args.fps) and 0 < args.fps <= 30):
+        parser.error(f"--fps: must be in (0, 30], got {args.fps}")
+    tower = load_tower(args.scene)
+    mission = load_mission(args.mission)
+    rig = mission.rig if mission.rig is not None else simulator_rig()
+    feed = Px4PoseFeed(args.px4, (mission.tower.lat, mission.tower.lon, mission.tower.alt),
+                       full_attitude=args.attitude == "full").start()
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    deadline = time.monotonic() + args.ready_timeout
+    while not feed.ready():
+        if stop.is_set() or time.monotonic() > deadline:
+            feed.close()
+            print(f"sensor head: no pose from PX4 on {args.px4} within {args.ready_timeout:g} s", file=sys.stderr)
+            return 2
+        time.sleep(0.05)
+    head = SensorHead(tower.mesh, rig, feed, lidar_to=(host, int(port)), camera_port=args.camera_port,
+                      fps=args.fps, sensor_clock=SensorClock(offset_s=args.clock_offset,
+                                                             drift=args.clock_drift_ppm * 1e-6)).start()
+    print(f"sensor head ready: lidar -> {host}:{port}, camera {head.server.url}", flush=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        head.close()
+        feed.close()
+        print(f"sensor head stats: {head.stats()}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
