@@ -107,11 +107,15 @@ def test_flight_with_live_sensor_adapters(tmp_path: Path) -> None:
                 assert scan.time_end <= clock["t"]
         health = sensors.health()
         scans = list(sensors.lidar._scans)
+        merged = sensors.lidar_scan(clock["t"])
         frame_seen = sensors.detection_frame(clock["t"])
     finally:
         out.close()
         sensors.close()
     assert scans_seen >= 30
+    # lidar_scan is the driver's last 10 complete scans (1 s) merged: a slow caller loses nothing
+    assert len(scans) == 10 and merged is not None and len(merged) == sum(len(x) for x in scans)
+    assert np.all(np.diff(merged.times) >= 0) and merged.time_start == scans[0].time_start
     assert health["lidar_lost"] == 0 and health["lidar_malformed"] == 0
     assert abs(health["lidar_clock_drift_ppm"] - (1 / (1 - 20e-6) - 1) * 1e6) < 100.0
     assert frame_seen is not None and frame_seen.image.shape == (48, 64, 3)

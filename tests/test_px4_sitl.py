@@ -22,6 +22,16 @@ tests are skipped, saying so, only when it is absent.
   that reads PX4's pose from PX4's GCS link and streams Livox SDK2 datagrams on UDP (sensor
   clock offset 1234.5 s, +25 ppm) and an MJPEG stream OpenCV reads; the shipped
   ``insulator-sim`` network detects. Scored here against the scene's ground truth.
+  Measured (PX4 -s 1, this 2-core box shared with other jobs, load 4-7; five runs): the
+  mission finishes in 150-192 s of flight (+8 s of wall time), both insulators found at
+  0.04-0.25 m (the larger errors along the string's axis: its ends come from the network's
+  boxes on 320 x 240 frames; the same detector in process on the same frames: 0.03 / 0.05 m),
+  no LiDAR datagram lost, malformed, unmapped or unstamped, ~480 camera frames; 0-3 false
+  finds on the tower body (inspected too: the flight cannot know), 12-27 of 90-165 frames
+  paired short when the sensor head fell behind (its sends up to 0.2-0.3 s late at p99).
+  The LiDAR drift estimate (sensor clock -25 ppm in truth) reads +120..+490 ppm here: the
+  sensor head's and the client's vehicle clocks are each a fit to PX4's telemetry, so it is
+  reported, not asserted (the in-process wire flight asserts it to 5 ppm).
 """
 
 from __future__ import annotations

@@ -90,7 +90,9 @@ class Sensors(Protocol):
         ...
 
     def lidar_scan(self, now: float) -> LidarScan | None:
-        """The newest complete LiDAR scan ending at or before ``now``."""
+        """The newest complete LiDAR scan ending at or before ``now``; a live source may return
+        its last few complete scans merged (a caller polling slower than the scan rate then
+        loses no point; callers keep the points newer than those they already have)."""
         ...
 
     def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:

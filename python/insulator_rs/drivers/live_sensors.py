@@ -4,6 +4,12 @@ Either may be absent (a LiDAR-only or camera-only rig): its methods then return 
 The camera is fixed to the airframe (no gimbal is commanded from here), so ``photo``
 returns the newest frame with the camera's own ``T_b_c``, whatever pose was asked for;
 the flight loop must aim the vehicle (yaw) for an inspection photo.
+
+``lidar_scan(now)`` returns the driver's recent complete scans (the last ``LIDAR_KEEP_SCANS``,
+1 s) merged into one: a caller that polls slower than the sensor's 10 Hz (a flight loop busy
+with a detection, on a loaded computer) still gets every point; it keeps those newer than the
+ones it has (the flight loop does). Measured against PX4 SITL on a loaded two-core box: with the
+newest scan alone, 60 of 152 detection frames had no LiDAR point within their +-100 ms.
 """
 
 from __future__ import annotations
@@ -19,6 +25,21 @@ from insulator_rs.drivers.livox import HOST_PORT_POINT, LivoxMid360, TimeMap, pa
 from insulator_rs.exceptions import SensorError
 from insulator_rs.sensors import CameraFrame, LidarScan
 
+#: Scans the Mid-360 driver keeps for ``lidar_scan`` (1 s at 10 Hz).
+LIDAR_KEEP_SCANS = 10
+
+
+def merge_scans(scans: list[LidarScan]) -> LidarScan | None:
+    """Consecutive scans of one sensor as one (points and times concatenated, in order)."""
+    if not scans:
+        return None
+    if len(scans) == 1:
+        return scans[0]
+    intensity = (None if any(s.intensity is None for s in scans)
+                 else np.concatenate([np.asarray(s.intensity) for s in scans]))
+    return LidarScan(np.concatenate([np.asarray(s.points_l) for s in scans]),
+                     np.concatenate([np.asarray(s.times) for s in scans]), scans[-1].T_b_l, intensity)
+
 
 class LiveSensors:
     """``Sensors`` over live drivers (both already started)."""
@@ -33,7 +54,7 @@ class LiveSensors:
         return None if self.camera is None else self.camera.latest(now)
 
     def lidar_scan(self, now: float) -> LidarScan | None:
-        return None if self.lidar is None else self.lidar.lidar_scan(now)
+        return None if self.lidar is None else merge_scans(self.lidar.scans_until(now))
 
     def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
         return self.detection_frame(now)
@@ -83,7 +104,7 @@ def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[]
                 now=now, T_b_l=T_b_l, point_port=HOST_PORT_POINT if port is None else port,
                 lidar_ip=None if listen_only else host,
                 announce_ip=None if listen_only else local_address_towards(host),
-                time_map=time_map,
+                time_map=time_map, keep_scans=LIDAR_KEEP_SCANS,
             ).start()
         if camera is not None:
             if camera_model is None:

@@ -50,17 +50,23 @@ LATENCY_S = 0.0005
 
 
 class LidarStream:
-    """A simulated Mid-360 streaming its datagrams: :meth:`due` renders the frames begun by
-    ``now`` (vehicle clock) and returns the chunks of datagrams whose arrival time has come,
-    each with that time (the chunk's last sample + ``LATENCY_S``). ``restart_span``: how far
-    before ``now`` the stream starts, at the first call and after ``SILENCE_S`` without one."""
+    """A simulated Mid-360 streaming its datagrams: :meth:`due` renders the shots up to ``now``
+    (vehicle clock) and returns the chunks of datagrams whose arrival time has come, each with
+    that time (the chunk's last sample + ``LATENCY_S``). ``restart_span``: how far before
+    ``now`` the stream starts, at the first call and after ``SILENCE_S`` without one.
+
+    The shots are rendered in slices of ``1 / slice_rate`` s (the 10 Hz scan windows of the
+    datagrams do not depend on it: the shot grid is global). ``ahead``: render a slice once it
+    has begun (the pose source knows the future: the in-process simulator), else once it has
+    ended (a pose source that extrapolates past its newest sample: render late, not wrong)."""
 
     def __init__(self, mesh: Mesh, pose: PoseSource, T_b_l: np.ndarray, *, clock: SensorClock | None = None,
                  faults: Faults | None = None, seed: int = 0, data_type: int = 1,
-                 restart_span: float = RESTART_SPAN_S) -> None:
+                 restart_span: float = RESTART_SPAN_S, slice_rate: float = 10.0, ahead: bool = True) -> None:
         self.mesh = mesh
         self.pose = pose
-        self.lidar = Mid360(T_b_l)
+        self.ahead = ahead
+        self.lidar = Mid360(T_b_l, frame_rate=slice_rate)
         self.emitter = LivoxEmitter(point_rate=self.lidar.point_rate, clock=clock or SensorClock(),
                                     faults=faults or Faults(), data_type=data_type)
         self.seed = seed
@@ -89,7 +95,7 @@ class LidarStream:
             self._chunks.clear()
             self.restarts += 1
         self._last_call = now
-        while self._rendered_until <= now + 1e-9:
+        while self._rendered_until + (0.0 if self.ahead else period) <= now + 1e-9:
             frame = self.lidar.scan(self.mesh, self.pose, self._rendered_until, seed=self.seed + self.frames)
             self.frames += 1
             self._rendered_until = round((self._rendered_until + period) / period) * period

@@ -11,9 +11,12 @@ read real sensors, and it reads nothing of the client:
   are interpolated, past the newest one carried along its velocity and yaw rate;
 * clock: PX4's ``time_boot_ms`` (the vehicle clock), carried to "now" from the host clock by
   a :class:`~insulator_rs.timesync.TelemetryClock`;
-* LiDAR: a :class:`~insulator_rs.sim.livox_wire.LidarStream` (10 Hz frames, encoded as Livox
-  SDK2 datagrams on a sensor clock with its own offset and drift) sent on UDP to the driver
-  as the stream's arrival times come round on the vehicle clock;
+* LiDAR: a :class:`~insulator_rs.sim.livox_wire.LidarStream` (10 Hz scan windows, encoded as
+  Livox SDK2 datagrams on a sensor clock with its own offset and drift) sent on UDP to the
+  driver as the stream's arrival times come round on the vehicle clock; the shots are
+  rendered in 20 ms slices once each is over, at PX4's pose of those instants (rendered
+  ahead, a 100 ms frame carried PX4's pose forward too far: up to 1 m off the tower at 10 m
+  while PX4 turned);
 * camera: frames rendered at the rig's calibration, at the pose of the instant they will be
   published (the render time is predicted), JPEG-encoded and served as an MJPEG stream
   (``multipart/x-mixed-replace``, what IP cameras serve and OpenCV's FFmpeg backend reads).
@@ -28,6 +31,7 @@ Not part of the onboard package's dependency graph: nothing onboard imports this
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import signal
 import socket
@@ -43,6 +47,7 @@ import cv2
 import numpy as np
 
 from insulator_rs.exceptions import InsulatorError
+from insulator_rs.mavlink.frames import attitude_ned_frd_to_enu_flu, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from insulator_rs.sim.livox_emitter import SensorClock, send
 from insulator_rs.sim.livox_wire import LidarStream
 from insulator_rs.timesync import TelemetryClock
@@ -51,6 +56,8 @@ from insulator_rs.timesync import TelemetryClock
 PX4_GCS_PORT = 18570
 #: Pose samples kept (s of 50 Hz telemetry).
 HISTORY = 500
+#: LiDAR shots are rendered in slices of 1/this s, each once it is over.
+LIDAR_SLICE_RATE = 50.0
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_LOCAL_POSITION_NED, MSG_ATTITUDE, MSG_HOME_POSITION = 32, 30, 242
@@ -62,17 +69,23 @@ def _rot_z(a: float) -> np.ndarray:
 
 
 def _body_rotation(yaw_enu: float, roll: float, pitch: float, full: bool) -> np.ndarray:
-    """R_w_b (ENU world, FLU body) from PX4's Euler angles (NED/FRD, ZYX)."""
+    """R_w_b (ENU world, FLU body): level at the heading, or with PX4's roll and pitch too."""
     if not full:
         return _rot_z(yaw_enu)
-    yaw_ned = math.pi / 2 - yaw_enu
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    R_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    R_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    R_ned_frd = _rot_z(yaw_ned) @ R_y @ R_x
-    ned_enu = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # its own inverse
-    frd_flu = np.diag([1.0, -1.0, -1.0])
-    return ned_enu @ R_ned_frd @ frd_flu
+    return attitude_ned_frd_to_enu_flu(roll, pitch, yaw_enu_to_ned(yaw_enu))
+
+
+def _around(samples: deque, t: float) -> list[Any]:
+    """The two samples (time first) around ``t``, or the one to carry: the newest when ``t`` is
+    past it, the oldest when before it."""
+    if t >= samples[-1][0]:
+        return [samples[-1]]
+    if t < samples[0][0]:
+        return [samples[0]]
+    i = len(samples) - 2
+    while samples[i][0] > t:
+        i -= 1
+    return [samples[i], samples[i + 1]]
 
 
 class Px4PoseFeed:
@@ -121,15 +134,15 @@ class Px4PoseFeed:
             if kind == "HOME_POSITION":
                 self._home(msg)
             elif kind == "LOCAL_POSITION_NED":
-                p = np.array([msg.y, msg.x, -msg.z])
-                v = np.array([msg.vy, msg.vx, -msg.vz])
+                p = ned_to_enu([msg.x, msg.y, msg.z])
+                v = ned_to_enu([msg.vx, msg.vy, msg.vz])
                 with self._lock:
                     if not self._pos or msg.time_boot_ms / 1e3 > self._pos[-1][0]:
                         self._pos.append((msg.time_boot_ms / 1e3, p, v))
             else:
                 with self._lock:
                     if not self._att or msg.time_boot_ms / 1e3 > self._att[-1][0]:
-                        self._att.append((msg.time_boot_ms / 1e3, math.pi / 2 - msg.yaw, msg.roll, msg.pitch,
+                        self._att.append((msg.time_boot_ms / 1e3, yaw_ned_to_enu(msg.yaw), msg.roll, msg.pitch,
                                           -msg.yawspeed))
 
     def _home(self, msg: Any) -> None:
@@ -137,7 +150,7 @@ class Px4PoseFeed:
 
         home_w = np.array(pymap3d.geodetic2enu(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3,
                                                *self.origin))
-        self.local_origin_w = home_w - np.array([msg.y, msg.x, -msg.z])
+        self.local_origin_w = home_w - ned_to_enu([msg.x, msg.y, msg.z])
 
     def ready(self) -> bool:
         return self.local_origin_w is not None and bool(self._pos) and bool(self._att)
@@ -150,37 +163,32 @@ class Px4PoseFeed:
             return self._pos[-1][0]
 
     def pose(self, t: float) -> np.ndarray:
-        """T_w_b at vehicle time ``t``."""
+        """T_w_b at vehicle time ``t`` (called for every LiDAR slice and camera image: the
+        samples around ``t`` are found from the newest end, where ``t`` almost always is)."""
         with self._lock:
-            pos, att = list(self._pos), list(self._att)
-        origin = self.local_origin_w
-        if origin is None or not pos or not att:
-            raise InsulatorError("no pose from PX4 yet")
+            origin = self.local_origin_w
+            if origin is None or not self._pos or not self._att:
+                raise InsulatorError("no pose from PX4 yet")
+            pos = _around(self._pos, t)
+            att = _around(self._att, t)
         T = np.eye(4)
         T[:3, 3] = origin + self._position(pos, t)
         T[:3, :3] = self._rotation(att, t)
         return T
 
     @staticmethod
-    def _position(pos: list[tuple[float, np.ndarray, np.ndarray]], t: float) -> np.ndarray:
-        times = [s[0] for s in pos]
-        i = int(np.searchsorted(times, t))
-        if i >= len(pos):
-            t0, p0, v0 = pos[-1]
-            return p0 + v0 * (t - t0)
-        if i == 0:
+    def _position(pos: list[Any], t: float) -> np.ndarray:
+        if len(pos) == 1:  # before the first sample or past the newest: along its velocity
             t0, p0, v0 = pos[0]
             return p0 + v0 * (t - t0)
-        (ta, pa, _), (tb, pb, _) = pos[i - 1], pos[i]
+        (ta, pa, _), (tb, pb, _) = pos
         return pa + (pb - pa) * ((t - ta) / (tb - ta))
 
-    def _rotation(self, att: list[tuple[float, float, float, float, float]], t: float) -> np.ndarray:
-        times = [s[0] for s in att]
-        i = int(np.searchsorted(times, t))
-        if i >= len(att) or i == 0:
-            ta, yaw, roll, pitch, rate = att[-1] if i else att[0]
+    def _rotation(self, att: list[Any], t: float) -> np.ndarray:
+        if len(att) == 1:
+            ta, yaw, roll, pitch, rate = att[0]
             return _body_rotation(yaw + rate * (t - ta), roll, pitch, self.full_attitude)
-        (ta, ya, ra, pa, _), (tb, yb, rb, pb, _) = att[i - 1], att[i]
+        (ta, ya, ra, pa, _), (tb, yb, rb, pb, _) = att
         f = (t - ta) / (tb - ta)
         dy = math.remainder(yb - ya, 2 * math.pi)
         return _body_rotation(ya + f * dy, ra + f * (rb - ra), pa + f * (pb - pa), self.full_attitude)
@@ -255,12 +263,15 @@ class SensorHead:
 
     def __init__(self, mesh: Any, rig: Any, feed: Px4PoseFeed, *, lidar_to: tuple[str, int],
                  camera_port: int = 0, fps: float = 3.0, sensor_clock: SensorClock | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, log: Any = None) -> None:
         from insulator_rs.sim.camera_render import Camera
 
         self.feed = feed
         self.clock = TelemetryClock(feed.newest_time)
-        self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0)
+        # 20 ms slices rendered once over: PX4's pose of the past, interpolated (at most a
+        # telemetry period carried forward), sent a render time late
+        self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
+                                  slice_rate=LIDAR_SLICE_RATE, ahead=False)
         self.camera = Camera(rig.camera, rig.T_b_c)
         self.mesh = mesh
         self.lidar_to = lidar_to
@@ -275,6 +286,12 @@ class SensorHead:
         self.images = 0
         self.render_ms: deque[float] = deque(maxlen=50)
         self.errors: list[str] = []
+        self.log = log  # a text file: one JSON line per camera image and per LiDAR send (timing)
+        self.lidar_late_s: deque[float] = deque(maxlen=2000)  # how late each chunk went out (s)
+
+    def _log(self, **record: object) -> None:
+        if self.log is not None:
+            self.log.write(json.dumps(record) + "\n")
 
     def start(self) -> SensorHead:
         self.clock.start()
@@ -296,8 +313,10 @@ class SensorHead:
                 time.sleep(0.01)
                 continue
             try:
-                for _, chunk in self.stream.due(now):
+                for arrival, chunk in self.stream.due(now):
                     self.datagrams += send(chunk, self._sock, self.lidar_to)
+                    self.lidar_late_s.append(now - arrival)
+                    self._log(kind="lidar", arrival=arrival, sent=now)
             except (OSError, ValueError, InsulatorError) as exc:
                 self._error(f"lidar: {exc}")
             time.sleep(0.002)
@@ -328,6 +347,7 @@ class SensorHead:
             if ok:
                 self.server.publish(jpeg.tobytes())
                 self.images += 1
+                self._log(kind="camera", exposure=exposure, published=now, mean=float(frame.rgb.mean()))
             self._stop.wait(max(0.0, self.period - (time.monotonic() - t0)))
 
     def _error(self, text: str) -> None:
@@ -338,6 +358,8 @@ class SensorHead:
     def stats(self) -> dict[str, object]:
         return {"lidar_frames": self.stream.frames, "datagrams": self.datagrams, "camera_images": self.images,
                 "camera_render_ms": round(float(np.mean(self.render_ms)), 1) if self.render_ms else None,
+                "lidar_late_ms_p50_p99": [round(float(np.percentile(self.lidar_late_s, q)) * 1e3, 1) for q in (50, 99)]
+                if self.lidar_late_s else None,
                 "pose_messages": self.feed.messages, "errors": len(self.errors)}
 
     def close(self) -> None:
@@ -367,6 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clock-drift-ppm", type=float, default=25.0, help="LiDAR clock drift (ppm)")
     parser.add_argument("--attitude", choices=("yaw", "full"), default="yaw",
                         help="render level at PX4's heading (the loop's pose model) or with its roll and pitch")
+    parser.add_argument("--log", type=Path, default=None, help="timing log (JSON lines) of every image and send")
     parser.add_argument("--ready-timeout", type=float, default=60.0, help="s to wait for PX4's pose")
     args = parser.parse_args(argv)
     host, _, port = args.lidar_to.rpartition(":")
@@ -389,9 +412,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"sensor head: no pose from PX4 on {args.px4} within {args.ready_timeout:g} s", file=sys.stderr)
             return 2
         time.sleep(0.05)
+    log = args.log.open("w") if args.log is not None else None
     head = SensorHead(tower.mesh, rig, feed, lidar_to=(host, int(port)), camera_port=args.camera_port,
                       fps=args.fps, sensor_clock=SensorClock(offset_s=args.clock_offset,
-                                                             drift=args.clock_drift_ppm * 1e-6)).start()
+                                                             drift=args.clock_drift_ppm * 1e-6), log=log).start()
     print(f"sensor head ready: lidar -> {host}:{port}, camera {head.server.url}", flush=True)
     try:
         while not stop.wait(0.5):
@@ -399,6 +423,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         head.close()
         feed.close()
+        if log is not None:
+            log.close()
         print(f"sensor head stats: {head.stats()}", flush=True)
     return 0
 

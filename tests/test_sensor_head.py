@@ -1,0 +1,50 @@
+"""The SITL sensor head's pose feed (``insulator_rs.sim.sensor_head``): PX4's pose in W between
+and past its telemetry samples. Reference: straight-line motion at constant velocity and yaw
+rate, whose pose at any instant is known in closed form; the attitude conversion against the
+MAVLink boundary's own (``insulator_rs.mavlink.frames``), which the flight client uses."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+
+import numpy as np
+import pytest
+
+from insulator_rs.exceptions import InsulatorError
+from insulator_rs.mavlink.frames import attitude_ned_frd_to_enu_flu
+from insulator_rs.sim.sensor_head import Px4PoseFeed, _body_rotation
+
+
+def feed(samples: int = 100) -> Px4PoseFeed:
+    """A feed holding ``samples`` 50 Hz samples of x = 1 m/s * t, yaw_enu = 0.1 rad/s * t."""
+    f = Px4PoseFeed.__new__(Px4PoseFeed)  # no MAVLink link: only the pose arithmetic under test
+    f._lock, f.full_attitude, f.local_origin_w = threading.Lock(), False, np.array([1.0, 2.0, 3.0])
+    ts = [k * 0.02 for k in range(samples)]
+    f._pos = deque([(t, np.array([t, 0.0, 5.0]), np.array([1.0, 0.0, 0.0])) for t in ts], maxlen=500)
+    f._att = deque([(t, 0.1 * t, 0.0, 0.0, 0.1) for t in ts], maxlen=500)
+    return f
+
+
+@pytest.mark.parametrize("t", [-0.5, 0.0, 0.511, 1.0, 1.98, 2.5])
+def test_pose_between_and_past_samples(t: float) -> None:
+    T = feed().pose(t)
+    assert np.allclose(T[:3, 3], [1.0 + t, 2.0, 8.0], atol=1e-12)
+    assert math.isclose(math.atan2(T[1, 0], T[0, 0]), 0.1 * t, abs_tol=1e-12)
+    assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3)) and np.allclose(T[2, :3], [0, 0, 1])
+
+
+def test_no_pose_before_telemetry() -> None:
+    f = feed()
+    f._pos.clear()
+    with pytest.raises(InsulatorError, match="no pose"):
+        f.pose(0.0)
+
+
+@pytest.mark.parametrize("roll,pitch,yaw_enu", [(0.0, 0.0, 0.3), (0.1, -0.05, 2.0), (-0.2, 0.15, -1.2)])
+def test_full_attitude_is_the_mavlink_boundary_conversion(roll: float, pitch: float, yaw_enu: float) -> None:
+    R = _body_rotation(yaw_enu, roll, pitch, True)
+    assert np.allclose(R, attitude_ned_frd_to_enu_flu(roll, pitch, math.pi / 2 - yaw_enu), atol=1e-12)
+    level = _body_rotation(yaw_enu, roll, pitch, False)
+    assert math.isclose(math.atan2(level[1, 0], level[0, 0]), yaw_enu, abs_tol=1e-12) and level[2, 2] == 1.0
