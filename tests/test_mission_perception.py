@@ -193,26 +193,3 @@ def test_a_track_of_weak_boxes_is_not_handed_on_until_a_confident_box_joins_it()
         out = plain.event(box_of(ins, T_w_b), (ins - T_w_b[:3, 3]) @ T_w_b[:3, :3], T_w_b)
     assert len(out) == 1
 
-
-def test_a_box_cut_by_the_image_border_is_skipped():
-    """A box reaching the image border (BORDER_MARGIN_PX) does not bound its object: it makes no
-    event (counted); the same insulator's boxes inside the frame localize it."""
-    rng = np.random.default_rng(5)
-    center, axis = np.array([8.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0])
-    per = PerceptionPipeline(CAM, T_B_C, T_B_L)
-    for k in range(EVENTS_PER_LOCALIZATION):
-        T_w_b = np.eye(4)
-        T_w_b[:3, 3] = [0.0, 0.3 * k, 10.0]
-        ins = insulator(center, axis, 40, rng)
-        box = box_of(ins, T_w_b)
-        box[0, 1] = 0.0  # its top edge on the frame's
-        out = per.event(box, (ins - T_w_b[:3, 3]) @ T_w_b[:3, :3], T_w_b)
-        assert out == []
-    assert per.counters.truncated_boxes == EVENTS_PER_LOCALIZATION and per.tracks == []
-    inside = PerceptionPipeline(CAM, T_B_C, T_B_L)
-    for k in range(EVENTS_PER_LOCALIZATION):
-        T_w_b = np.eye(4)
-        T_w_b[:3, 3] = [0.0, 0.3 * k, 10.0]
-        ins = insulator(center, axis, 40, rng)
-        out = inside.event(box_of(ins, T_w_b), (ins - T_w_b[:3, 3]) @ T_w_b[:3, :3], T_w_b)
-    assert len(out) == 1 and inside.counters.truncated_boxes == 0

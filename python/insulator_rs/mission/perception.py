@@ -9,9 +9,7 @@ a bag replay and the studies call, so that what is measured offline is what flie
 2. **Deskew**: each point goes to W with the vehicle's pose at its own time, interpolated
    from the pose history (the vehicle's estimate, not ground truth), ``T_w_b(t_i) @ T_b_l``.
 3. **Cull** to each detection box with ``ir.points_in_boxes`` in the camera at the frame's
-   instant, ``T_w_c = T_w_b(t_frame) @ T_b_c``. A box cut by the image border
-   (:data:`BORDER_MARGIN_PX`) is skipped: it does not bound its object, and the bounded method
-   takes the insulator's ends from the box's edges.
+   instant, ``T_w_c = T_w_b(t_frame) @ T_b_c``.
 4. **Accumulate**: boxes are associated across events by the W position of their nearest
    points (median), so each track holds the culled points of the last
    :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
@@ -64,10 +62,6 @@ MIN_POINTS_PER_BOX = 3
 # detection box to within this factor: a far-side insulator seen through the lattice
 # gets localized on the nearer lattice, and then looks too long for its box.
 SCALE_TOLERANCE = 1.5
-# px: a box with an edge this close to the image border is truncated by the frame (skipped).
-# On tower A, two of the three boxes that confirmed a lattice strut as an insulator touched the top
-# border (the strut ran out of the frame); true strings lose 5 % of their localizations to it.
-BORDER_MARGIN_PX = 2.0
 # A track's localizations count only once one of its boxes scored at least this (see the module
 # docstring, step 6; ByteTrack's high-score threshold). With the shipped insulator-sim network at
 # 320 px every true string's track on towers A and B has a box of 0.6-0.9, the tracks on tower
@@ -120,7 +114,6 @@ class PerceptionCounters:
     implausible: int = 0
     not_insulator: int = 0  # refused by the false-find filter (reasons in ``not_insulator``)
     unconfirmed: int = 0  # of a track without a confident box yet (BIRTH_SCORE)
-    truncated_boxes: int = 0  # boxes cut by the image border, skipped (BORDER_MARGIN_PX)
     localizations: int = 0
 
 
@@ -230,9 +223,6 @@ class PerceptionPipeline:
         T_b_w = np.linalg.inv(T_w_b)
         out = []
         for box, idx in zip(boxes, culled):
-            if _truncated(box, camera):
-                self.counters.truncated_boxes += 1
-                continue
             if len(idx) < MIN_POINTS_PER_BOX:
                 continue
             pts_w = points_w[idx]
@@ -321,12 +311,6 @@ class PerceptionPipeline:
         track = Track(anchor=anchor)
         self.tracks.append(track)
         return track
-
-
-def _truncated(box: np.ndarray, camera: ir.CameraModel) -> bool:
-    """Whether ``box`` (x1, y1, x2, y2 px) reaches the image border (BORDER_MARGIN_PX)."""
-    m = BORDER_MARGIN_PX
-    return bool(box[0] <= m or box[1] <= m or box[2] >= camera.width - 1 - m or box[3] >= camera.height - 1 - m)
 
 
 def _as_boxes(boxes: np.ndarray) -> np.ndarray:
