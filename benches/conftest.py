@@ -3,7 +3,8 @@
 * Collects ``bench_*.py`` files (they are not tests and stay out of the test suite).
 * After the run, prints a ratio table: in every benchmark group that holds an
   ``insulator_rs`` row (``benchmark.extra_info["impl"]``), how many times slower each
-  other implementation is, against the target where one is set; and for groups whose
+  other implementation is, against the target where one is set; the real-time factor of
+  rows that carry ``extra_info["flight_s"]`` (a replay); and for groups whose
   rows carry ``extra_info["n_points"]``, the scaling of time per point with N.
 """
 
@@ -82,6 +83,13 @@ def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> Non
             f"  {group}: insulator_rs {_fmt(base_min)} / {_fmt(base_med)}"
             + (f"   (absolute target {target})" if target else "")
         )
+        flight_s = ours[0].extra_info.get("flight_s")
+        if flight_s:  # a replay: recorded flight time over replay wall time
+            goal = ours[0].extra_info.get("target_realtime")
+            write(f"      real time: {flight_s:.0f} s of flight -> {flight_s / base_min:.1f}x (min) / "
+                  f"{flight_s / base_med:.1f}x (median)"
+                  + ("" if goal is None else f"   target >= {goal:g}x: "
+                     + ("met" if flight_s / base_med >= goal else "missed on median")))
         for other in benches:
             if other is ours[0]:
                 continue

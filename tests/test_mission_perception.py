@@ -151,3 +151,45 @@ def test_a_frame_without_a_scan_or_a_pose_is_counted_not_localized():
     per.add_pose(PoseStamped(1.0, np.eye(4)))
     assert per.process(frame, box) == [] and per.counters.unpaired == 2  # no scan near the frame
     assert per.process(frame, np.zeros((0, 4))) == [] and per.counters.frames == 3
+
+
+def _scored_events(per, scores, rng):
+    """One detection event per score, of the synthetic insulator ahead, its box carrying the score."""
+    center, axis = np.array([8.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0])
+    outs = []
+    for k, score in enumerate(scores):
+        T_w_b = np.eye(4)
+        T_w_b[:3, 3] = [0.0, 0.3 * k, 10.0]
+        ins = insulator(center, axis, 40, rng)
+        pts_l = (ins - T_w_b[:3, 3]) @ T_w_b[:3, :3]
+        box = np.column_stack([box_of(ins, T_w_b), [score]])
+        outs.append(per.event(box, pts_l, T_w_b))
+    return outs
+
+
+def test_a_track_of_weak_boxes_is_not_handed_on_until_a_confident_box_joins_it():
+    """ByteTrack's birth rule (BIRTH_SCORE): boxes below it gather evidence but a track made only
+    of them yields no localization (counted as unconfirmed); the first confident box releases
+    it, and its weaker boxes then keep it going. Reference: the same events with confident boxes."""
+    from insulator_rs.mission.perception import BIRTH_SCORE
+
+    weak = BIRTH_SCORE - 0.1
+    per = PerceptionPipeline(CAM, T_B_C, T_B_L)
+    outs = _scored_events(per, [weak] * 5, np.random.default_rng(3))
+    assert all(out == [] for out in outs)
+    assert per.counters.unconfirmed == 5 - EVENTS_PER_LOCALIZATION + 1 and per.counters.localizations == 0
+    outs = _scored_events(per, [BIRTH_SCORE, weak, weak], np.random.default_rng(4))
+    assert all(len(out) == 1 for out in outs) and len(per.tracks) == 1
+    reference = PerceptionPipeline(CAM, T_B_C, T_B_L)
+    ref = _scored_events(reference, [0.9] * 3, np.random.default_rng(3))
+    assert len(ref[-1]) == 1 and reference.counters.unconfirmed == 0
+    # boxes without a score column are taken as confident (a detector that gives none)
+    plain = PerceptionPipeline(CAM, T_B_C, T_B_L)
+    rng = np.random.default_rng(3)
+    for k in range(EVENTS_PER_LOCALIZATION):
+        T_w_b = np.eye(4)
+        T_w_b[:3, 3] = [0.0, 0.3 * k, 10.0]
+        ins = insulator(np.array([8.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0]), 40, rng)
+        out = plain.event(box_of(ins, T_w_b), (ins - T_w_b[:3, 3]) @ T_w_b[:3, :3], T_w_b)
+    assert len(out) == 1
+

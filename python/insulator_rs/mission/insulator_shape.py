@@ -56,8 +56,8 @@ MAX_SPREAD_FRACTION = 0.5
 MIN_RELIEF = 0.026
 # A track's relief is judged from its 3rd localization on, as the median of its first ones: one
 # figure from 10-50 points is too noisy to tell a strut from a string, and the registry confirms an
-# insulator at its 3rd localization (the mission's default confirmations), so the confirming
-# localization carries the evidence of three. A string gets tens of localizations in a pass.
+# insulator at its 4th localization (the mission's default confirmations), so the confirming
+# localization carries the evidence of three or more. A string gets tens of localizations in a pass.
 MIN_RELIEF_SAMPLES = 3
 # The box's aspect (width/height) may differ from the predicted one by this factor. The network's
 # boxes round true strings in simulation: 0.43-2.09 of the prediction (1st-99th percentile

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.exceptions import BagError, ConfigError, ModelError
-from insulator_rs.mission.perception import METHODS
+from insulator_rs.mission.perception import BOUNDED, METHODS
 from insulator_rs.recording.types import Topics
 
 DEFAULT_DETECTOR = "insulator-sim"
@@ -39,7 +39,7 @@ class ReplayOptions:
 
     topics: Topics = field(default_factory=Topics)
     detector: str = DEFAULT_DETECTOR
-    method: str = "dbscan+ransac"
+    method: str = BOUNDED  # the flight's default (inspect --method)
     deskew: bool = True
     detect_period: float = 0.0
     mission: str | None = None
@@ -141,7 +141,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", default=None, help="scene whose ground truth scores the replay (simulated flights)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR,
                    help=f"shipped model name or ONNX file (default {DEFAULT_DETECTOR})")
-    p.add_argument("--method", default="dbscan+ransac", choices=METHODS)
+    p.add_argument("--method", default=BOUNDED, choices=METHODS,
+                   help="localization method (default %(default)s, as inspect)")
     p.add_argument("--no-deskew", action="store_true", help="do not motion-compensate the LiDAR scans")
     p.add_argument("--detect-period", type=float, default=0.0,
                    help="s between detection events (default 0: every recorded frame)")

@@ -31,14 +31,12 @@ from insulator_rs.flight.detector import detector_name
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.perception import PerceptionPipeline
+from insulator_rs.mission.perception import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
 from insulator_rs.mission.registry import InsulatorRegistry
 from insulator_rs.report.writer import ReportWriter
 from insulator_rs.recording.reader import FlightBag, Item
 from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
 
-# s: a scan is paired with a frame when its time span comes this close to the frame's time.
-PAIRING_WINDOW = 0.1
 # s of poses kept behind the oldest pending scan.
 POSE_KEEP = 2.0
 RERUN_FILE = "replay.rrd"
@@ -51,7 +49,7 @@ class ReplaySettings:
     """``method``: localization method; ``deskew``: motion-compensate scans (default on);
     ``detect_period``: s between detection events (0: every frame); ``pairing_window`` s."""
 
-    method: str = "dbscan+ransac"
+    method: str = BOUNDED  # the flight's default
     deskew: bool = True
     detect_period: float = 0.0
     pairing_window: float = PAIRING_WINDOW
