@@ -61,18 +61,19 @@ def _flight_seconds(bag: Path) -> float:
     return float(last - first)
 
 
+@pytest.mark.benchmark(group="replay tower A")
 def test_replay_tower_a(benchmark: Any, tower_a_bag: Path, tmp_path: Path) -> None:
     flight_s = _flight_seconds(tower_a_bag)
     options = ReplayOptions(overwrite=True)
     summary = benchmark.pedantic(lambda: replay_one(tower_a_bag, tmp_path / "replay", options), rounds=2,
                                  iterations=1, warmup_rounds=0)
     assert summary["status"] == "finished", summary["status"]
-    benchmark.group = "replay tower A"
     benchmark.extra_info.update(impl="insulator_rs", flight_s=flight_s, target_realtime=TARGET_REALTIME,
                                 insulators=summary["insulators_found"])
     (tmp_path / "summary.json").write_text(json.dumps(summary, default=str))
 
 
+@pytest.mark.benchmark(group="replay tower A")
 def test_network_alone_on_the_recorded_frames(benchmark: Any, tower_a_bag: Path) -> None:
     """The detector on every recorded detection frame, decoded beforehand: its share of the replay."""
     from insulator_rs.recording.reader import FlightBag
@@ -88,6 +89,5 @@ def test_network_alone_on_the_recorded_frames(benchmark: Any, tower_a_bag: Path)
 
     t0 = time.perf_counter()
     benchmark.pedantic(run, rounds=2, iterations=1, warmup_rounds=0)
-    benchmark.group = "replay tower A"
     benchmark.extra_info.update(impl="network alone (decoded frames)", frames=len(images),
                                 per_frame_ms=(time.perf_counter() - t0) / 2 / len(images) * 1e3)
