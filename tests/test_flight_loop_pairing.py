@@ -114,3 +114,22 @@ def test_a_lidar_that_stops_costs_the_pairing_not_the_flight(tmp_path) -> None:
     assert handed == [round(t_frame + 0.1 + PAIRING_WAIT, 2)] == [10.43]
     assert loop.pairing_short == 1 and loop.summary()["pairing_short"] == 1
     assert loop._pending == []
+
+
+class RenderingLidar(LateLidar):
+    """A source that renders up to the instant asked for (the simulator): it says so with
+    ``window_end``, though its last return is 30 ms earlier (nothing hit after it)."""
+
+    def lidar_scan(self, now: float) -> LidarScan | None:
+        self.calls.append(now)
+        t = now - 0.1 + np.linspace(0.0, 0.07, 100)
+        pts = np.column_stack([np.full(100, 5.0), np.zeros(100), np.zeros(100)])
+        return LidarScan(pts, t, self.rig.T_b_l, window_end=now)
+
+
+def test_a_source_that_knows_its_window_pairs_at_once(tmp_path) -> None:
+    sensors = RenderingLidar(simulator_rig())
+    loop = _loop(tmp_path, sensors)
+    handed = _run(loop, 10.03, 11.0)
+    assert handed == [10.13] and loop.pairing_short == 0  # not held for the returns it lacks
+    assert [round(c, 2) for c in sensors.calls] == [10.03, 10.13]

@@ -47,13 +47,22 @@ class LidarScan:
 
     ``points_l``: (N, 3) float32 or float64 in L, metres. ``times``: (N,) float64 vehicle
     clock (s) of each point. ``T_b_l``: the LiDAR's extrinsics. ``intensity``: (N,)
-    reflectivity 0..255 where the sensor gives it.
+    reflectivity 0..255 where the sensor gives it. ``window_end``: the end (vehicle clock) of
+    the time the scan covers, where the source knows it (the simulator renders up to the
+    instant asked for); None: its last point's time.
     """
 
     points_l: np.ndarray
     times: np.ndarray
     T_b_l: np.ndarray
     intensity: np.ndarray | None = None
+    window_end: float | None = None
+
+    @property
+    def covered_until(self) -> float:
+        """The vehicle time up to which the scan holds every return: ``window_end`` or
+        ``time_end``."""
+        return self.time_end if self.window_end is None else float(self.window_end)
 
     @property
     def time_start(self) -> float:

@@ -64,7 +64,8 @@ LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
 # and the link's latency); a frame still short after that goes to perception with what is there
 PAIRING_WAIT = 0.3
 # s: a scan ending this close before the window's end covers it (the last shots of a window
-# may have no return; shots are 5 us apart)
+# may have no return; shots are 5 us apart; a source that knows its window says so:
+# LidarScan.window_end)
 PAIRING_SLACK = 0.01
 
 
@@ -198,13 +199,14 @@ class FlightLoop:
         """Hand perception (and the recorder) the points of ``scan`` it does not have yet: a live
         source returns the same newest scan until the next is complete, and the simulator's
         scans may overlap; None when nothing in it is new."""
-        if scan is None or len(scan) == 0 or not scan.time_end > self._scan_horizon:
+        if scan is None or not scan.covered_until > self._scan_horizon:  # nan (no point, no window): nothing
             return None
         if scan.time_start <= self._scan_horizon:
             new = np.asarray(scan.times) > self._scan_horizon
             scan = LidarScan(np.asarray(scan.points_l)[new], np.asarray(scan.times)[new], scan.T_b_l,
-                             None if scan.intensity is None else np.asarray(scan.intensity)[new])
-        self._scan_horizon = scan.time_end
+                             None if scan.intensity is None else np.asarray(scan.intensity)[new],
+                             window_end=scan.window_end)
+        self._scan_horizon = scan.covered_until
         self.perception.add_scan(scan)
         if self.recorder is not None:
             self.recorder.scan(scan, T_b_c)

@@ -109,7 +109,7 @@ class SimulatedSensors:
             scan = self.lidar.scan(self.mesh, self.pose, t0, seed=self.seed + 100_000 + n)
         except ValueError as exc:
             raise self._fail("LiDAR", exc) from exc
-        return LidarScan(scan.points_l, scan.timestamps, self.lidar.T_b_l)
+        return LidarScan(scan.points_l, scan.timestamps, self.lidar.T_b_l, window_end=now)
 
     def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
         T_w_b = self.pose(now)
