@@ -47,9 +47,11 @@ def test_refused_combinations_name_the_flag(argv: tuple[str, ...], message: str)
 
 def test_open_from_arguments_starts_clock_lidar_and_camera(tmp_path: Path) -> None:
     video = tmp_path / "cam.avi"
+    # 4 s of video at its own rate: frames that arrive before the vehicle clock has its first
+    # telemetry pair are dropped (unstamped), which on a loaded machine can take a second
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (64, 48))
-    for i in range(30):
-        writer.write(np.full((48, 64, 3), 5 * i, np.uint8))
+    for i in range(120):
+        writer.write(np.full((48, 64, 3), 2 * i, np.uint8))
     writer.release()
     args = parse("--lidar", "mid360://listen:0", "--camera", str(video), "--connection", "c", "--detector", "d")
     assert cli_options.check_arguments(args)
@@ -59,7 +61,7 @@ def test_open_from_arguments_starts_clock_lidar_and_camera(tmp_path: Path) -> No
     sensors = cli_options.open_from_arguments(args, vehicle, rig)
     try:
         assert isinstance(sensors, Sensors)
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 10.0
         while sensors.detection_frame(1e9) is None and time.monotonic() < deadline:
             time.sleep(0.02)
         frame = sensors.detection_frame(1e9)

@@ -193,3 +193,33 @@ def test_a_track_of_weak_boxes_is_not_handed_on_until_a_confident_box_joins_it()
         out = plain.event(box_of(ins, T_w_b), (ins - T_w_b[:3, 3]) @ T_w_b[:3, :3], T_w_b)
     assert len(out) == 1
 
+
+
+def test_paired_points_match_the_numpy_pose_track_reference():
+    """The pipeline deskews with fusion_core (``ir.deskew``); reference: the numpy ``PoseTrack``
+    (geodesic rotation, linear translation, clamped outside the history), which the simulator
+    casts its scans with. Tolerance 1e-9 m. Includes points newer than the newest pose (clamped)."""
+    from insulator_rs.poses import pose_from_yaw
+    from insulator_rs.sensors import LidarScan, PoseStamped
+
+    rng = np.random.default_rng(8)
+    per = PerceptionPipeline(CAM, T_B_C, T_B_L)
+    for k in range(60):  # 50 Hz, flying and turning
+        t = 0.02 * k
+        T = pose_from_yaw([1.5 * t, 0.3 * t, 10.0 + 0.2 * t], 0.9 * t)
+        T[:3, :3] = T[:3, :3] @ np.array([[1, 0, 0], [0, np.cos(0.05 * t), -np.sin(0.05 * t)],
+                                           [0, np.sin(0.05 * t), np.cos(0.05 * t)]])
+        per.add_pose(PoseStamped(t, T))
+    T_b_l = np.eye(4)
+    T_b_l[:3, :3] = [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]
+    T_b_l[:3, 3] = [0.1, 0.0, -0.08]
+    times = np.sort(rng.uniform(0.95, 1.25, 5000))  # the newest pose is at 1.18 s
+    pts = rng.uniform(-20, 20, (5000, 3)).astype(np.float32)
+    per.add_scan(LidarScan(pts, times, T_b_l))
+    got = per._paired_points_w(1.1)
+    near = np.abs(times - 1.1) <= per.pairing_window
+    track = per.poses.track()
+    pts_b = pts[near].astype(np.float64) @ T_b_l[:3, :3].T + T_b_l[:3, 3]
+    expected = track.rotate(times[near], pts_b) + track.position(times[near])
+    assert got.shape == expected.shape and np.any(times[near] > track.knots_t[-1])
+    np.testing.assert_allclose(got, expected, atol=1e-9, rtol=0)

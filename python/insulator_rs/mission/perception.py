@@ -188,16 +188,19 @@ class PerceptionPipeline:
         """The buffered scans' points within the pairing window of ``time``, each moved to W with
         the pose at its own time."""
         track = self.poses.track()
+        knots_t, knots_T = track.knots_t, track.knots_T
         parts = []
         for scan in self.scans:
             near = np.abs(scan.times - time) <= self.pairing_window
             if not np.any(near):
                 continue
-            pts_l = np.asarray(scan.points_l, dtype=np.float64)[near]
-            t = np.asarray(scan.times, dtype=np.float64)[near]
+            # the history clamps outside its span (a point newer than the newest pose): as PoseTrack
+            t = np.clip(np.asarray(scan.times, dtype=np.float64)[near], knots_t[0], knots_t[-1])
             T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
-            pts_b = pts_l @ T_b_l[:3, :3].T + T_b_l[:3, 3]
-            parts.append(track.rotate(t, pts_b) + track.position(t))
+            # fusion_core's deskew (slerp + lerp per point) to L at the newest pose, then to W
+            pts_l = ir.deskew(np.asarray(scan.points_l)[near], t, knots_t, knots_T, float(knots_t[-1]), T_b_l)
+            T_w_l = knots_T[-1] @ T_b_l
+            parts.append(pts_l @ T_w_l[:3, :3].T + T_w_l[:3, 3])
         return np.vstack(parts) if parts else np.zeros((0, 3))
 
     # -- one frame and one scan at a known pose -----------------------------------------------
