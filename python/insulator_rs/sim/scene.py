@@ -151,6 +151,14 @@ class SceneSpec:
         return (dy, -dx, 0.0)
 
 
+def _finite(c: int | float) -> bool:
+    """Whether ``c`` is a finite float (a TOML integer beyond float's range is not)."""
+    try:
+        return math.isfinite(float(c))
+    except OverflowError:
+        return False
+
+
 class _Fields:
     """Typed access to one TOML table; every error names the file and the dotted field."""
 
@@ -229,7 +237,7 @@ class _Fields:
     def point(self, value: Any, name: str) -> tuple[float, float, float]:
         if (not isinstance(value, list) or len(value) != 3
                 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in value)
-                or not all(math.isfinite(float(c)) for c in value)):
+                or not all(_finite(c) for c in value)):
             raise self.error(name, f"must be [x, y, z] of 3 finite numbers, got {value!r}")
         for c in value:
             problem = bounds.SCENE_NEIGHBOUR.problem(float(c))
