@@ -31,8 +31,8 @@ tests are skipped, saying so, only when it is absent.
   insulator is registered) decides: with 1 (the ``--sim-sensors`` flights'), 3 of 4 runs
   passed with 1-3 false finds each, and one aborted (a false find's inspection waypoint had
   no safe trajectory); with the mission default 4, 2 of 3 passed (no false find) and one
-  found only 1 of 2; with ``LIVE_CONFIRMATIONS`` = 2, 2 of 2 passed (0.075 / 0.135 and
-  0.129 / 0.053 m; 0 and 1 false find). 1-17 frames per flight were paired short (the sensor
+  found only 1 of 2; with ``LIVE_CONFIRMATIONS`` = 2, 3 of 3 passed (0.075 / 0.135,
+  0.129 / 0.053 and 0.037 / 0.086 m; 0, 1 and 0 false finds). 1-17 frames per flight were paired short (the sensor
   head's sends are up to 0.15-0.3 s late at p99 on this box). The LiDAR drift estimate
   (sensor clock -25 ppm in truth) read -68 to +490 ppm: the sensor head's and the client's
   vehicle clocks are each a fit to PX4's telemetry, so it is reported, not asserted (the
