@@ -91,8 +91,10 @@ def test_sensor_errors_cost_events_not_the_flight(tmp_path, monkeypatch):
 
 
 def test_a_planning_failure_mid_flight_aborts_and_lands(tmp_path, monkeypatch, capsys):
-    """The third leg cannot be planned (as when the vehicle cannot stop before a safety volume):
-    the mission aborts with the planner's reason and lands, no traceback."""
+    """From the third leg on nothing can be planned (as when the vehicle cannot stop before a
+    safety volume): the mission aborts with the planner's reason and lands, no traceback. (An
+    inspection leg that fails is skipped first, see the next test; the exploration leg after it
+    fails too, and that aborts.)"""
     from insulator_rs.exceptions import PlanningError
     from insulator_rs.flight import segment
 
@@ -105,16 +107,45 @@ def test_a_planning_failure_mid_flight_aborts_and_lands(tmp_path, monkeypatch, c
 
     def fails_on_the_third_leg(*args, **kwargs):
         calls.append(kwargs.get("v_start"))
-        if len(calls) == 3:
+        if len(calls) >= 3:
             raise PlanningError("v_start: slowing from [3.0, 0.0, 0.0] m/s within a_max takes 2.81 m "
                                 "and enters the tower safety box")
         return original_plan(*args, **kwargs)
 
     monkeypatch.setattr(segment, "plan_min_snap_safe", fails_on_the_third_leg)
     rc, out, s = _run(tmp_path, "--max-flight-time", "300")
-    assert rc == 1 and len(calls) == 3
+    assert rc == 1 and len(calls) >= 3
     assert s["status"] == ("aborted: planning failed: v_start: slowing from [3.0, 0.0, 0.0] m/s within "
                            "a_max takes 2.81 m and enters the tower safety box"), s["status"]
     assert s["state"] == "abort"
     assert made[0].landed and made[0].mode.value == "LAND"
     assert "planning failed" in capsys.readouterr().out
+
+
+def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(tmp_path, monkeypatch):
+    """The first inspection waypoint cannot be planned to (as a find inside a safety volume): it is
+    dropped and reported (``inspections_skipped``, its insulator not inspected), and the flight
+    finishes with the other insulator inspected. A failure on an exploration leg still aborts
+    (test above)."""
+    from insulator_rs.exceptions import PlanningError
+    from insulator_rs.flight import loop
+
+    original = loop.plan_segment
+    refused = []
+
+    def first_inspection_unreachable(geom, start, velocity, items, **kwargs):
+        last = items[-1]
+        if last.kind == "inspect" and (not refused or refused[0] is last):
+            refused.append(last)
+            raise PlanningError("the waypoint lies in the tower safety box")
+        return original(geom, start, velocity, items, **kwargs)
+
+    monkeypatch.setattr(loop, "plan_segment", first_inspection_unreachable)
+    rc, out, s = _run(tmp_path)
+    assert rc == 0 and s["status"] == "finished", s["status"]
+    assert len(refused) == 1
+    skipped = s["inspections_skipped"]
+    assert len(skipped) == 1 and skipped[0]["reason"] == "the waypoint lies in the tower safety box"
+    by_id = {r["id"]: r for r in s["insulators"]}
+    assert not by_id[skipped[0]["insulator_id"]]["inspected"]
+    assert s["insulators_found"] == 2 and s["insulators_inspected"] == 1

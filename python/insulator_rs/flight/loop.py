@@ -457,6 +457,15 @@ class FlightLoop:
         self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
         self.write_summary()
 
+    def skip_inspection(self, item: PlanItem, exc: PlanningError) -> None:
+        """No safe trajectory to an inspection waypoint (a find inside a safety volume, or one
+        the vehicle cannot reach without entering one): that photo is dropped, reported, and the
+        mission goes on; one unreachable waypoint must not cost the rest of the tower."""
+        self.sm.skip(item, self.vehicle.state().time, str(exc))
+        iid = item.waypoint.insulator_id if item.waypoint is not None else None
+        self.say(f"[{self.now():7.1f} s] inspection waypoint of insulator {iid} skipped: no safe trajectory ({exc})")
+        self.write_summary()
+
     def on_planning_failure(self, exc: PlanningError) -> None:
         """No safe trajectory from where the vehicle is (it cannot stop before a safety volume, or
         the route cannot be cleared): reported, and the mission aborts (then lands, see
@@ -515,7 +524,12 @@ class FlightLoop:
                 items.append(it)
                 if it.kind == "inspect":
                     break
-            self.fly_segment(items)
+            try:
+                self.fly_segment(items)
+            except PlanningError as exc:
+                if items[-1].kind != "inspect":
+                    raise  # the exploration itself cannot go on: abort (on_planning_failure)
+                self.skip_inspection(items[-1], exc)
 
     # -- report --------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:

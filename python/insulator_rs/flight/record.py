@@ -52,6 +52,9 @@ def flight_summary(loop: FlightLoop) -> dict[str, Any]:
         "distance_m": float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
         "detection_events": loop.events,
         "localizations": loop.localizations,
+        "inspections_skipped": [{"insulator_id": it.waypoint.insulator_id if it.waypoint is not None else None,
+                                 "position": np.asarray(it.position).tolist(), "reason": reason}
+                                for it, reason in loop.sm.skipped],
         "perception": asdict(loop.perception.counters),
         "refused_not_insulator": dict(loop.perception.not_insulator),
         "sensor_errors": loop.sensor_errors,

@@ -90,6 +90,7 @@ class InspectionStateMachine:
     deferred: dict[int, list[InspectionWaypoint]] = field(default_factory=dict)
     transitions: list[Transition] = field(default_factory=list)
     visited: list[PlanItem] = field(default_factory=list)
+    skipped: list[tuple[PlanItem, str]] = field(default_factory=list)
     side: int = 0
     _held_from: State | None = None
     _remaining: dict[int, int] = field(default_factory=dict)
@@ -165,6 +166,16 @@ class InspectionStateMachine:
                 reason += f", {len(released)} deferred waypoints released"
         self._derive(time, reason)
         return item
+
+    def skip(self, item: PlanItem, time: float, reason: str) -> None:
+        """An inspection waypoint of the plan that cannot be flown to (no safe trajectory) is
+        dropped: its insulator stays uninspected (``skipped`` keeps the item and the reason)
+        and the mission goes on. Only inspection waypoints may be skipped."""
+        if item.kind != "inspect" or not any(it is item for it in self.plan):
+            raise RuntimeError(f"skip: only a planned inspection waypoint can be skipped, got {item.kind}")
+        self.plan = [it for it in self.plan if it is not item]
+        self.skipped.append((item, reason))
+        self._derive(time, f"inspection waypoint skipped: {reason}")
 
     def localized(self, center: np.ndarray, axis: np.ndarray, position: np.ndarray,
                   time: float) -> str:
