@@ -171,3 +171,22 @@ def test_viewpoints_aim_at_the_insulator_and_see_it_whole():
         assert math.atan(1.1 / dist) <= 0.7 * math.radians(20) + 1e-9
         assert abs(d @ AXIS) < 1e-6 * dist * 10  # perpendicular to the axis
         assert VOL.points_clear(w.position[None])[0] and w.position[0] > 5  # near (+) side
+
+
+def test_an_unreachable_inspection_waypoint_is_skipped_not_the_mission():
+    """``skip`` drops one inspection waypoint: its insulator stays uninspected, the reason is kept,
+    the plan goes on to the end; anything but a planned inspection waypoint is refused."""
+    sm = machine()
+    sm.localized(NEAR, AXIS, TAKEOFF, 1.0)
+    assert sm.state == State.INSPECT
+    first = sm.plan[0]
+    assert first.kind == "inspect"
+    with pytest.raises(RuntimeError, match="only a planned inspection waypoint"):
+        sm.skip(next(it for it in sm.plan if it.kind == "scan"), 2.0, "x")
+    sm.skip(first, 2.0, "no safe trajectory")
+    assert sm.skipped == [(first, "no safe trajectory")] and all(it is not first for it in sm.plan)
+    with pytest.raises(RuntimeError):
+        sm.skip(first, 2.5, "again")  # no longer planned
+    kinds = fly_to_end(sm, 3.0)
+    assert kinds[-1] == "land" and kinds.count("inspect") == 1
+    assert not sm.registry.insulators[0].inspected
