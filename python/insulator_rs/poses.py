@@ -184,17 +184,22 @@ class PoseHistory:
     def newest(self) -> PoseStamped | None:
         return PoseStamped(self._times[-1], self._poses[-1]) if self._times else None
 
-    def track(self) -> PoseTrack:
-        """The history as a :class:`PoseTrack` (clamped outside its span). Needs one pose."""
+    def knots(self) -> tuple[np.ndarray, np.ndarray]:
+        """The history as interpolation knots: times (K,) strictly increasing and poses (K, 4, 4),
+        K >= 2. Needs one pose."""
         if not self._times:
             raise ValueError("pose history: empty (no pose received yet)")
         t = np.array(self._times)
         T = np.stack(list(self._poses))
         if len(t) == 1:  # one pose: the vehicle stands there at every time
             t, T = np.array([t[0], t[0] + 1.0]), np.stack([T[0], T[0]])
-        return PoseTrack(t, T)
+        return t, T
+
+    def track(self) -> PoseTrack:
+        """The history as a :class:`PoseTrack` (clamped outside its span). Needs one pose."""
+        return PoseTrack(*self.knots())
 
     def pose_at(self, time: float) -> np.ndarray:
         """T_w_b at ``time`` (interpolated; clamped to the first/last pose outside the span)."""
-        track = self.track()
-        return interpolate_poses(track.knots_t, track.knots_T, np.array([float(time)]))[0]
+        knots_t, knots_T = self.knots()
+        return interpolate_poses(knots_t, knots_T, np.array([float(time)]))[0]

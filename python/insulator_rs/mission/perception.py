@@ -65,7 +65,8 @@ SCALE_TOLERANCE = 1.5
 # A track's localizations count only once one of its boxes scored at least this (see the module
 # docstring, step 6; ByteTrack's high-score threshold). With the shipped insulator-sim network at
 # 320 px every true string's track on towers A and B has a box of 0.6-0.9, the tracks on tower
-# steel that passed the shape filter peak at 0.3-0.4. Boxes without a score count as confident.
+# steel that passed the shape filter peak at 0.3-0.5 (the one at 0.5 gathered 3 localizations:
+# the mission's 4 confirmations stop it). Boxes without a score count as confident.
 BIRTH_SCORE = 0.5
 # A localization resting on fewer points than this is discarded: a handful of returns
 # is as likely a lattice member or a conductor clamp as the insulator.
@@ -187,8 +188,7 @@ class PerceptionPipeline:
     def _paired_points_w(self, time: float) -> np.ndarray:
         """The buffered scans' points within the pairing window of ``time``, each moved to W with
         the pose at its own time."""
-        track = self.poses.track()
-        knots_t, knots_T = track.knots_t, track.knots_T
+        knots_t, knots_T = self.poses.knots()
         parts = []
         for scan in self.scans:
             near = np.abs(scan.times - time) <= self.pairing_window
