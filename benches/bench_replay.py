@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 import insulator_rs
-from insulator_rs.recording.commands import ReplayOptions, _detector, replay_one
+from insulator_rs.app.replay_command import ReplayOptions, _detector, replay_one
 
 CACHE = Path(__file__).resolve().parent / ".cache"
 TARGET_REALTIME = 20.0
@@ -41,7 +41,7 @@ def tower_a_bag() -> Path:
     if not bag.exists():
         CACHE.mkdir(exist_ok=True)
         env = {**os.environ, "PYTHONPATH": str(Path(insulator_rs.__file__).parents[1])}
-        subprocess.run([sys.executable, "-m", "insulator_rs.cli", "inspect", "--quiet", "--record", str(bag),
+        subprocess.run([sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--quiet", "--record", str(bag),
                         "--out", str(CACHE / "tower_a_report"), "--overwrite"], check=True, env=env, timeout=1800)
     return bag
 

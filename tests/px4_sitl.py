@@ -196,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no PX4 SITL folder (set {ENV_VAR} or put it at {REPO.parent / 'shared' / 'px4_sitl'})",
               file=sys.stderr)
         return 2
-    from insulator_rs.cli import main as cli
+    from insulator_rs.app.cli import main as cli
 
     args.out.mkdir(parents=True, exist_ok=True)
     mission = mission_at_home(REPO / "python" / "insulator_rs" / "missions" / f"{args.scene}.toml",

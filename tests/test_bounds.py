@@ -1,4 +1,4 @@
-"""Mission, scene and CLI bounds (insulator_rs.mission.bounds): hostile values are refused
+"""Mission, scene and CLI bounds (insulator_rs.bounds): hostile values are refused
 before anything flies, with the file and the field (or the flag) named; no traceback, no hang.
 
 Each case here used to fly (issue 13 items 3 and 7): ``max_height = 1e300`` and
@@ -22,7 +22,7 @@ import yaml
 import insulator_rs
 from insulator_rs._toml import tomllib
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.mission import bounds
+from insulator_rs import bounds
 from insulator_rs.mission.config import load_mission, parse_mission
 from insulator_rs.sim.scene import SceneError, load_scene, parse_scene
 
@@ -262,7 +262,7 @@ def test_cli_refuses_hostile_options_and_files_before_flight(tmp_path):
     runs = {}
     for name, (args, _) in cases.items():
         out = tmp_path / f"out-{name.replace(' ', '_')}"
-        cmd = [sys.executable, "-m", "insulator_rs.cli", "inspect", "--quiet", "--out", str(out), *args]
+        cmd = [sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--quiet", "--out", str(out), *args]
         runs[name] = (out, subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                             text=True, env=env))
     failures = []
@@ -286,7 +286,7 @@ def test_cli_refuses_hostile_options_and_files_before_flight(tmp_path):
     (["detect", "run", "--threads", "100000", "x.png"], "--threads"),  # was 23k threads, 16.8 GB
 ])
 def test_runaway_counts_are_refused(argv, flag, capsys):
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
 
     with pytest.raises(SystemExit) as exit_info:
         main(argv)
@@ -302,7 +302,7 @@ def test_runaway_counts_are_refused(argv, flag, capsys):
 ])
 def test_empty_out_folder_is_refused(argv, capsys):
     """``--out ''`` used to write into the current folder (issue 13 item 7)."""
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
 
     with pytest.raises(SystemExit) as exit_info:
         main(argv)

@@ -102,7 +102,7 @@ def test_data_yaml_is_what_ultralytics_reads(tmp_path):
 # --- the dataset command end to end ----------------------------------------------------
 
 def _make(tmp_path, name="ds", seed=1):
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
 
     out = tmp_path / name
     code = main(["dataset", "--images", "6", "--width", "160", "--height", "120",
@@ -145,7 +145,7 @@ def test_training_card_counts_a_rendered_dataset(dataset):
     per split (reference: the files and views.csv the writer made)."""
     import csv
 
-    from insulator_rs.detection.train_command import describe_yolo_dataset
+    from insulator_rs.app.train_command import describe_yolo_dataset
 
     summary = describe_yolo_dataset(dataset / "data.yaml")
     assert summary["images"] == {"train": 4, "val": 1, "test": 1}
@@ -205,7 +205,7 @@ def test_dataset_is_deterministic_under_a_seed(dataset, tmp_path):
 
 
 def test_dataset_refuses_to_overwrite_and_bad_arguments(dataset):
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
 
     with pytest.raises(ValueError, match="out: .*already holds a dataset"):
         main(["dataset", "--images", "1", "--out", str(dataset), "--quiet"])

@@ -23,11 +23,11 @@ PYTHON_DIR = Path(insulator_rs.__file__).resolve().parents[1]
 ALLOWED_TO_USE_SIM = (
     "insulator_rs.sim",  # the simulator's own adapters
     "insulator_rs.evaluation",  # scorer and studies: ground truth, after a flight
-    "insulator_rs.inspect_command",  # composition root: wires the adapters a run asks for
-    "insulator_rs.cli",  # composition root: registers every command
+    "insulator_rs.app.inspect_command",  # composition root: wires the adapters a run asks for
+    "insulator_rs.app.cli",  # composition root: registers every command
 )
 # Offline tools with heavy optional dependencies, not part of the flying software.
-OFFLINE_TOOLS = ("insulator_rs.detection.train", "insulator_rs.detection.train_command")
+OFFLINE_TOOLS = ("insulator_rs.detection.train", "insulator_rs.app.train_command")
 
 
 def onboard_modules() -> list[str]:
@@ -42,10 +42,10 @@ def onboard_modules() -> list[str]:
 
 def test_the_walk_covers_every_onboard_layer() -> None:
     names = set(onboard_modules())
-    for required in ("insulator_rs._core", "insulator_rs.vehicle", "insulator_rs.sensors",
+    for required in ("insulator_rs._core", "insulator_rs.ports.vehicle", "insulator_rs.ports.sensors",
                      "insulator_rs.exceptions", "insulator_rs.rig", "insulator_rs.poses",
-                     "insulator_rs.flight.loop", "insulator_rs.flight.detector",
-                     "insulator_rs.mission.perception", "insulator_rs.mission.state_machine",
+                     "insulator_rs.flight.loop", "insulator_rs.ports.detector",
+                     "insulator_rs.perception.pipeline", "insulator_rs.mission.state_machine",
                      "insulator_rs.mavlink.client", "insulator_rs.mavlink.frames",
                      "insulator_rs.detection.detector"):
         assert required in names, required
@@ -69,7 +69,7 @@ def test_no_onboard_module_imports_the_simulator() -> None:
 
 def test_the_check_would_see_a_simulator_import() -> None:
     """The same probe, on a module that does import the simulator, reports it (the test can fail)."""
-    code = ("import sys, insulator_rs.inspect_command\n"
+    code = ("import sys, insulator_rs.app.inspect_command\n"
             "print(any(m.startswith('insulator_rs.sim') for m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": str(PYTHON_DIR)})

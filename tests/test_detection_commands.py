@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.detection.evaluate import coco_evaluate, load_split
 
 PHOTOS = Path(__file__).parent / "data" / "photos"
@@ -127,7 +127,7 @@ def test_detect_run_keeps_results_when_an_image_fails(tmp_path: Path, capsys: py
 
 @pytest.mark.parametrize("threads", ["100000", "0", "-3", "two"])
 def test_detect_run_threads_bounded(threads: str, capsys: pytest.CaptureFixture[str]) -> None:
-    """The bound itself is mission/bounds.py's (robust's validation layer); here: detect run refuses cleanly."""
+    """The bound itself is bounds.py's (robust's validation layer); here: detect run refuses cleanly."""
     photo = str(sorted(PHOTOS.glob("*.jpg"))[0])
     with pytest.raises(SystemExit) as exc:
         main(["detect", "run", photo, "--threads", threads])

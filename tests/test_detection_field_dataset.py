@@ -81,7 +81,7 @@ def test_verify_reports_a_misnamed_copy(tmp_path: Path) -> None:
 
 def test_detect_eval_field_test_scores_the_held_back_photos(tmp_path: Path) -> None:
     """`detect eval --split field-test` scores exactly the photos the dataset builder held back."""
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
     from insulator_rs.detection.field_dataset import field_test_images
 
     field, _ = _make_sets(tmp_path, n=40)
@@ -99,7 +99,7 @@ def test_detect_eval_field_test_scores_the_held_back_photos(tmp_path: Path) -> N
 
 def test_field_comparison_before_and_after(tmp_path: Path) -> None:
     """Same model before and after: identical figures; a different input size is scored separately."""
-    from insulator_rs.detection.train_command import PAPER_MAP, field_comparison
+    from insulator_rs.app.train_command import PAPER_MAP, field_comparison
     from insulator_rs.models import model_path
 
     field, _ = _make_sets(tmp_path, n=40)
@@ -124,7 +124,7 @@ def _field_photos() -> Path | None:
 def test_shipped_field_model_reproduces_its_card(tmp_path: Path) -> None:
     """`detect eval --split field-test --model insulator-field` gives the card's figures (pycocotools, exact
     to 1e-9: same photos, same model, deterministic onnxruntime CPU), and they meet issue 12's goal."""
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
     from insulator_rs.models import model_card
 
     field = _field_photos()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.detection.detector import Detector
 from insulator_rs.detection.evaluate import EVAL_CONF, coco_evaluate, load_split
 from insulator_rs.models import available_models, model_card, model_path

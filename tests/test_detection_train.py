@@ -34,7 +34,7 @@ NO_NETWORK_RUNNER = textwrap.dedent(
     socket.socket.connect_ex = refuse
     socket.getaddrinfo = refuse
     socket.create_connection = refuse
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
     sys.exit(main(sys.argv[2:]))
     """
 )

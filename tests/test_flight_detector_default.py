@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from insulator_rs.detection.detector import Detector
-from insulator_rs.flight.detector import (REAL_PHOTO_MODEL, SIMULATOR_MODEL, NetworkDetector, default_model,
+from insulator_rs.ports.detector import (REAL_PHOTO_MODEL, SIMULATOR_MODEL, NetworkDetector, default_model,
                                           detections_dropped)
-from insulator_rs.inspect_command import load_network
+from insulator_rs.app.inspect_command import load_network
 from test_detection_sanitize import hostile_model  # tests/ is on sys.path (conftest)
 
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from test_mission_inspect import small_scene
 
-from insulator_rs import inspect_command
-from insulator_rs.cli import main
+from insulator_rs.app import inspect_command
+from insulator_rs.app.cli import main
 from insulator_rs.exceptions import CommandRejected, SensorError
 from insulator_rs.sim.sensors import SimulatedSensors
 
@@ -96,7 +96,7 @@ def test_a_planning_failure_mid_flight_aborts_and_lands(tmp_path, monkeypatch, c
     inspection leg that fails is skipped first, see the next test; the exploration leg after it
     fails too, and that aborts.)"""
     from insulator_rs.exceptions import PlanningError
-    from insulator_rs.flight import segment
+    from insulator_rs.planning import segments as segment
 
     made = []
     original_vehicle = inspect_command.kinematic_vehicle

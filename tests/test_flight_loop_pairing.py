@@ -12,12 +12,12 @@ import numpy as np
 from test_mission_inspect import small_scene
 
 from insulator_rs.flight.loop import CONTROL_PERIOD, PAIRING_WAIT, FlightLoop, FlightSettings
-from insulator_rs.inspect_command import kinematic_vehicle
+from insulator_rs.app.inspect_command import kinematic_vehicle
 from insulator_rs.mission.config import load_mission
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.rig import simulator_rig
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
-from insulator_rs.vehicle import VehicleState
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.ports.vehicle import VehicleState
 
 FRAME = 0.1  # s: the LiDAR's scan period
 GRACE = 0.005  # s: the driver closes a scan once a packet this far past its end arrives

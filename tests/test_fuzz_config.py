@@ -4,7 +4,7 @@ Contract (mission/config.py, sim/scene.py, textfile.py): any file, any bytes, an
 structure gives either a valid object or a ``ConfigError`` (``SceneError`` for scenes) whose
 message starts with the file's name; never another exception, never a hang. And the other
 half, so the suite cannot pass by refusing everything: missions generated inside the limits of
-``mission/bounds.py`` (random tower, neighbours, take-off point, vehicle and inspection values)
+``bounds.py`` (random tower, neighbours, take-off point, vehicle and inspection values)
 load from TOML and YAML, equal what was written, and round-trip; scenes scaled from the
 built-in towers load and round-trip.
 """
@@ -25,9 +25,9 @@ from hypothesis import strategies as st
 
 from insulator_rs._toml import tomllib
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.mission import bounds
+from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission, parse_mission
-from insulator_rs.mission.geodesy import GeoPoint, enu_to_gps
+from insulator_rs.geodesy import GeoPoint, enu_to_gps
 from insulator_rs.sim.scene import SCENES_DIR, SceneError, SceneSpec, load_scene, parse_scene
 
 MISSION_A = Path(__file__).resolve().parents[1] / "python" / "insulator_rs" / "missions" / "tower_a.toml"

@@ -1,4 +1,4 @@
-"""The false-find filter (mission/insulator_shape): clusters of insulators pass, clusters of tower
+"""The false-find filter (perception/insulator_shape): clusters of insulators pass, clusters of tower
 steel and conductor do not.
 
 The clusters are what the simulated Mid-360 (sim.lidar: 2 cm range noise, its scan pattern) returns
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import insulator_rs as ir
-from insulator_rs.mission.insulator_shape import (
+from insulator_rs.perception.insulator_shape import (
     MIN_RELIEF_SAMPLES,
     MIN_SHAPE_POINTS,
     box_aspect_ratio,

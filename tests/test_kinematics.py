@@ -19,7 +19,7 @@ from insulator_rs.sim.kinematics import (
     Setpoint,
     SimClock,
 )
-from insulator_rs.vehicle import FlightMode, Vehicle
+from insulator_rs.ports.vehicle import FlightMode, Vehicle
 
 DT = 0.05  # control tick, s (20 Hz, as the mission streams setpoints)
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from insulator_rs._core import CameraModel
-from insulator_rs.drivers import cli_options
-from insulator_rs.sensors import Sensors
+from insulator_rs.app import live_options as cli_options
+from insulator_rs.ports.sensors import Sensors
 
 
 def parse(*argv: str) -> argparse.Namespace:
@@ -74,7 +74,7 @@ def test_open_from_arguments_starts_clock_lidar_and_camera(tmp_path: Path) -> No
 
 def test_inspect_refuses_live_flags_that_cannot_fly(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Through ``insulator-rs inspect``: status 2, the flag named, nothing flown."""
-    from insulator_rs.cli import main
+    from insulator_rs.app.cli import main
 
     base = ["inspect", "--out", str(tmp_path / "r")]
     for extra, message in (

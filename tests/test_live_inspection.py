@@ -28,7 +28,7 @@ from test_mission_inspect import small_scene
 
 from insulator_rs.evaluation.scoring import score_flight
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
-from insulator_rs.inspect_command import kinematic_vehicle, mavlink_vehicle
+from insulator_rs.app.inspect_command import kinematic_vehicle, mavlink_vehicle
 from insulator_rs.mission.config import load_mission
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector

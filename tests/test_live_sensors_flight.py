@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 from insulator_rs._core import CameraModel
 from insulator_rs.drivers.live_sensors import open_live_sensors
 from insulator_rs.drivers.livox import wait_for
-from insulator_rs.sensors import Sensors
+from insulator_rs.ports.sensors import Sensors
 from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.poses import interpolate_poses
 from insulator_rs.sim.lidar import Mid360, default_T_b_l

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.evaluation import localization_study as study
 from insulator_rs.evaluation.localization_study import EventResult, StudyConfig
 

@@ -26,7 +26,7 @@ from insulator_rs.sim.px4 import SimulatedPx4
 from insulator_rs.mavlink.signing import key_from_passphrase
 from insulator_rs.mavlink.wire import mavlink2 as M
 from insulator_rs.mavlink.wire import mavutil
-from insulator_rs.vehicle import Vehicle
+from insulator_rs.ports.vehicle import Vehicle
 
 TIME_SCALE = 4.0
 DT = 0.05

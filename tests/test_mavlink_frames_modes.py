@@ -15,7 +15,7 @@ from insulator_rs.mavlink import frames, px4_modes
 from insulator_rs.sim.px4 import setpoint_from_target_local_ned
 from insulator_rs.mavlink.signing import KEY_LENGTH, key_from_passphrase, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2 as M
-from insulator_rs.vehicle import FlightMode
+from insulator_rs.ports.vehicle import FlightMode
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 angles = st.floats(-math.pi, math.pi, allow_nan=False)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.evaluation.efficiency_study import VisibilityModel, waypoint_counts
 from insulator_rs.sim.towers import load_tower
 

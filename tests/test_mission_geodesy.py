@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from insulator_rs.mission.geodesy import GeoPoint, enu_to_gps, gps_to_enu, line_frame
+from insulator_rs.geodesy import GeoPoint, enu_to_gps, gps_to_enu, line_frame
 
 ORIGIN = GeoPoint(50.08, 14.42, 300.0)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.flight.loop import FlightLoop
 
 REPO = Path(__file__).resolve().parents[1]
@@ -95,7 +95,7 @@ def test_interruption_keeps_what_was_found(tmp_path, monkeypatch):
 
 
 def test_bad_arguments_are_named(tmp_path, capsys):
-    """Refused by argparse (status 2, the flag named), no traceback (mission/bounds.py)."""
+    """Refused by argparse (status 2, the flag named), no traceback (bounds.py)."""
     for flag, value in (("--detect-period", "0"), ("--v-max", "-1")):
         with pytest.raises(SystemExit) as exit_info:
             main(["inspect", flag, value, "--out", str(tmp_path / "r")])

@@ -13,7 +13,7 @@ import time
 import pytest
 from test_mission_inspect import small_scene
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.flight.loop import FlightLoop
 from insulator_rs.sim.kinematics import KinematicVehicle
 

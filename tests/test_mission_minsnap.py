@@ -5,15 +5,15 @@ from math import factorial
 import numpy as np
 import pytest
 
-from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.minsnap import (
+from insulator_rs.geodesy import line_frame
+from insulator_rs.planning.minsnap import (
     optimize_segment_times,
     plan_min_snap,
     plan_min_snap_safe,
     snap_cost,
     solve_min_snap,
 )
-from insulator_rs.mission.safety import safety_volumes
+from insulator_rs.planning.safety import safety_volumes
 
 VM = np.array([3.0, 3.0, 1.5])
 AM = np.array([12.0, 12.0, 4.0])

@@ -15,10 +15,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from insulator_rs.exceptions import PlanningError
-from insulator_rs.mission.exploration import exploration_path
-from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.minsnap import braking_segment, plan_min_snap, plan_min_snap_safe
-from insulator_rs.mission.safety import safety_volumes
+from insulator_rs.planning.exploration import exploration_path
+from insulator_rs.geodesy import line_frame
+from insulator_rs.planning.minsnap import braking_segment, plan_min_snap, plan_min_snap_safe
+from insulator_rs.planning.safety import safety_volumes
 
 RTOL = 1e-6
 
@@ -110,7 +110,7 @@ def test_braking_segment_slows_along_its_line_at_a_max(fraction):
     """Reference: the closed form of the smoothstep slow-down, v(t) = v0 (1 - (1 - s) h(t/T)),
     compared on samples; the peak acceleration equals a_max on the binding axis (1e-9), the
     distance is v0 T (1 + s) / 2 and the end joins with acceleration and jerk zero."""
-    from insulator_rs.mission.minsnap import MinSnapTrajectory
+    from insulator_rs.planning.minsnap import MinSnapTrajectory
 
     p0, v0, am = np.array([1.0, 2.0, 3.0]), np.array([2.0, -1.0, 0.5]), np.array([3.0, 3.0, 1.0])
     c, T = braking_segment(p0, v0, fraction, am)

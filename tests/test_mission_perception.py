@@ -3,7 +3,7 @@
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.mission.perception import EVENTS_PER_LOCALIZATION, PerceptionPipeline
+from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION, PerceptionPipeline
 
 CAM = ir.CameraModel(300.0, 300.0, 159.5, 119.5, 320, 240)
 T_B_C = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
@@ -97,7 +97,7 @@ def _moving_events(per, center, axis, rng, *, speed, yaw_swing):
     then): each LiDAR scan spans the 0.1 s before its frame, every point taken from the pose
     of its own time; the pipeline gets the poses at 20 Hz, as the flight loop feeds them."""
     from insulator_rs.poses import pose_from_yaw
-    from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+    from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
     def T(t):  # flying north past the insulator
         return pose_from_yaw([0.0, speed * (t - 2.0), 10.0], yaw_swing * np.sin(2 * np.pi * t))
@@ -142,7 +142,7 @@ def test_a_scan_taken_while_moving_is_deskewed_with_the_pose_history():
 
 
 def test_a_frame_without_a_scan_or_a_pose_is_counted_not_localized():
-    from insulator_rs.sensors import CameraFrame, PoseStamped
+    from insulator_rs.ports.sensors import CameraFrame, PoseStamped
 
     per = PerceptionPipeline(CAM, T_B_C, T_B_L)
     frame = CameraFrame(1.0, np.zeros((CAM.height, CAM.width, 3), np.uint8), CAM, T_B_C)
@@ -171,7 +171,7 @@ def test_a_track_of_weak_boxes_is_not_handed_on_until_a_confident_box_joins_it()
     """ByteTrack's birth rule (BIRTH_SCORE): boxes below it gather evidence but a track made only
     of them yields no localization (counted as unconfirmed); the first confident box releases
     it, and its weaker boxes then keep it going. Reference: the same events with confident boxes."""
-    from insulator_rs.mission.perception import BIRTH_SCORE
+    from insulator_rs.perception.pipeline import BIRTH_SCORE
 
     weak = BIRTH_SCORE - 0.1
     per = PerceptionPipeline(CAM, T_B_C, T_B_L)
@@ -200,7 +200,7 @@ def test_paired_points_match_the_numpy_pose_track_reference():
     (geodesic rotation, linear translation, clamped outside the history), which the simulator
     casts its scans with. Tolerance 1e-9 m. Includes points newer than the newest pose (clamped)."""
     from insulator_rs.poses import pose_from_yaw
-    from insulator_rs.sensors import LidarScan, PoseStamped
+    from insulator_rs.ports.sensors import LidarScan, PoseStamped
 
     rng = np.random.default_rng(8)
     per = PerceptionPipeline(CAM, T_B_C, T_B_L)

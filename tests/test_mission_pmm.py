@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from insulator_rs.mission.pmm import (axis_earliest_time, axis_min_time, axis_profile_for_time,
+from insulator_rs.planning.pmm import (axis_earliest_time, axis_min_time, axis_profile_for_time,
                                       axis_time_feasible, plan_pmm, rest_to_rest_times)
 
 V, A = 3.0, 12.0

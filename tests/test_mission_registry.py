@@ -4,8 +4,8 @@ inspected) only after ``confirmations`` localizations within its gate."""
 import numpy as np
 import pytest
 
-from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.registry import InsulatorRegistry
+from insulator_rs.geodesy import line_frame
+from insulator_rs.tracking.registry import InsulatorRegistry
 
 LINE = line_frame(np.array([[0.0, -280.0, 0.0], [0.0, 300.0, 1.5]]))  # along +y, lateral +x
 REAL = np.array([5.0, -1.4, 16.9])

@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.safety import OrientedBox, safety_volumes
+from insulator_rs.geodesy import line_frame
+from insulator_rs.planning.safety import OrientedBox, safety_volumes
 
 BOX = OrientedBox(center=np.array([1.0, -2.0, 3.0]),
                   axes=np.array([[np.cos(0.4), np.sin(0.4), 0.0], [-np.sin(0.4), np.cos(0.4), 0.0],

@@ -8,12 +8,12 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from insulator_rs.mission.exploration import crossing_route, exploration_path
-from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.minsnap import plan_min_snap_safe
-from insulator_rs.mission.pmm import plan_pmm_safe
-from insulator_rs.mission.safety import safety_volumes
-from insulator_rs.mission.waypoints import inspection_waypoints
+from insulator_rs.planning.exploration import crossing_route, exploration_path
+from insulator_rs.geodesy import line_frame
+from insulator_rs.planning.minsnap import plan_min_snap_safe
+from insulator_rs.planning.pmm import plan_pmm_safe
+from insulator_rs.planning.safety import safety_volumes
+from insulator_rs.planning.waypoints import inspection_waypoints
 
 DT = 0.02
 

@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from insulator_rs.mission.exploration import exploration_path
-from insulator_rs.mission.geodesy import line_frame
-from insulator_rs.mission.pmm import rest_to_rest_times
-from insulator_rs.mission.registry import InsulatorRegistry
-from insulator_rs.mission.safety import safety_volumes
+from insulator_rs.planning.exploration import exploration_path
+from insulator_rs.geodesy import line_frame
+from insulator_rs.planning.pmm import rest_to_rest_times
+from insulator_rs.tracking.registry import InsulatorRegistry
+from insulator_rs.planning.safety import safety_volumes
 from insulator_rs.mission.state_machine import InspectionStateMachine, State
-from insulator_rs.mission.waypoints import inspection_waypoints
+from insulator_rs.planning.waypoints import inspection_waypoints
 
 LINE = line_frame(np.array([[0.0, -280.0, 0.0], [0.0, 300.0, 1.5]]))  # along +y, lateral +x
 VOL = safety_volumes(LINE, max_width=10.0, max_height=31.0, margin=2.0)

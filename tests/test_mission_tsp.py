@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from insulator_rs.mission.tsp import cpsat_tour, held_karp, solve_tour, tour_cost
+from insulator_rs.planning.tsp import cpsat_tour, held_karp, solve_tour, tour_cost
 
 
 def brute_force(costs):

@@ -7,13 +7,14 @@ import pytest
 
 from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.pmm import plan_pmm
-from insulator_rs.mission.registry import InsulatorRegistry
-from insulator_rs.mission.single_flight import fly_single_flight
+from insulator_rs.planning.pmm import plan_pmm
+from insulator_rs.tracking.registry import InsulatorRegistry
+from insulator_rs.evaluation.single_flight import fly_single_flight
 from insulator_rs.mission.state_machine import InspectionStateMachine
-from insulator_rs.mission.tsp import tour_cost
-from insulator_rs.mission.two_flight import cost_matrix, route, two_flight
-from insulator_rs.mission.waypoints import inspection_waypoints
+from insulator_rs.planning.tsp import tour_cost
+from insulator_rs.evaluation.two_flight import two_flight
+from insulator_rs.planning.routes import cost_matrix, route
+from insulator_rs.planning.waypoints import inspection_waypoints
 
 from test_mission_config import MISSIONS
 

@@ -1,4 +1,4 @@
-"""Inspection photo figures (mission/photo_quality) and GSD-aware framing (mission/waypoints)
+"""Inspection photo figures (perception/photo_quality) and GSD-aware framing (planning/waypoints)
 against hand-computed pinhole figures (tolerance 1e-9 relative unless stated)."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import insulator_rs as ir
-from insulator_rs.mission.photo_quality import gsd_distance, photo_quality
-from insulator_rs.mission.waypoints import FILL_FRACTION, framing_distance
+from insulator_rs.perception.photo_quality import gsd_distance, photo_quality
+from insulator_rs.planning.waypoints import FILL_FRACTION, framing_distance
 
 # 1000 px focal length, 1280 x 960, principal point at the centre.
 CAM = ir.CameraModel(1000.0, 1000.0, 639.5, 479.5, 1280, 960)

@@ -54,7 +54,7 @@ import pytest
 from px4_sitl import FAILSAFE_LINE, Px4Sitl, mission_at_home, sitl_folder
 from test_mission_inspect import small_scene
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 
 FOLDER = sitl_folder()
 pytestmark = [
@@ -313,7 +313,7 @@ def test_small_scene_live_sensor_inspection_against_px4_sitl(px4, tmp_path) -> N
         assert line.startswith("sensor head ready"), line + _stop(head)
         url = line.split("camera ", 1)[1].strip()
         t0 = time.monotonic()
-        flight = subprocess.run([sys.executable, "-m", "insulator_rs.cli", "inspect", "--scene", str(scene),
+        flight = subprocess.run([sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--scene", str(scene),
                                  "--mission", str(mission), "--out", str(out), "--connection", px4.connection,
                                  "--lidar", f"mid360://listen:{port}", "--camera", url,
                                  "--detector", "insulator-sim", "--detect-period", "0.5", "--quiet"],

@@ -20,7 +20,7 @@ from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
 from insulator_rs.recording.reader import FlightBag
 from insulator_rs.recording.writer import McapRecorder
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
 CAM = ir.CameraModel(300, 300, 159.5, 119.5, 320, 240, dist=[0.1, -0.02, 0.001, 0.0, 0.0])
 T_B_L = np.array([[1, 0, 0, 0.1], [0, 1, 0, 0], [0, 0, 1, 0.05], [0, 0, 0, 1.0]])

@@ -16,9 +16,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
-from insulator_rs.cli import main
+from insulator_rs.app.cli import main
 from insulator_rs.recording import types as T
-from insulator_rs.recording.commands import ReplayOptions, replay_one
+from insulator_rs.app.replay_command import ReplayOptions, replay_one
 from insulator_rs.recording.writer import McapRecorder
 from test_mission_inspect import small_scene
 

@@ -24,7 +24,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
 
-from insulator_rs.mission.geodesy import GeoPoint
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import FlightClock, ReportWriter, compass_heading_deg
 from insulator_rs.report.exif import photo_exif
 

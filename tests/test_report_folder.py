@@ -26,8 +26,8 @@ import pytest
 from PIL import Image
 
 import insulator_rs
-from insulator_rs.cli import main
-from insulator_rs.mission.geodesy import GeoPoint
+from insulator_rs.app.cli import main
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import ReportWriter, check_out_folder
 from insulator_rs.report import folder as folder_mod
 from test_mission_inspect import ARGS, small_scene  # the small scene of the inspect tests (tests/ is on sys.path)
@@ -143,7 +143,7 @@ CHILD = textwrap.dedent("""
     import sys, time
     from pathlib import Path
     import numpy as np
-    from insulator_rs.mission.geodesy import GeoPoint
+    from insulator_rs.geodesy import GeoPoint
     from insulator_rs.report import ReportWriter
     out, overwrite, ready = Path(sys.argv[1]), sys.argv[2] == "1", Path(sys.argv[3])
     w = ReportWriter(out, origin=GeoPoint(49.5, 15.0, 420.0), overwrite=overwrite)
@@ -220,7 +220,7 @@ def test_inspect_refuses_an_existing_report_before_flying(tmp_path, capsys):
 
 def _inspect_cmd(tmp_path: Path, out: Path, *extra: str) -> list[str]:
     scene, mission = small_scene(tmp_path)
-    return [sys.executable, "-m", "insulator_rs.cli", "inspect", "--scene", str(scene), "--mission", str(mission),
+    return [sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--scene", str(scene), "--mission", str(mission),
             "--out", str(out), *ARGS, *extra]
 
 

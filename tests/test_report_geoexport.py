@@ -19,7 +19,7 @@ import numpy as np
 import pymap3d
 import pytest
 
-from insulator_rs.mission.geodesy import GeoPoint
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.geoexport import PATH_SPACING
 

@@ -17,7 +17,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike
 
-from insulator_rs.sensors import PoseStamped
+from insulator_rs.ports.sensors import PoseStamped
 
 
 def check_pose(name: str, T: ArrayLike) -> np.ndarray:

@@ -1,7 +1,7 @@
 """One clock for every stamp: another clock's time -> vehicle time, offset and drift.
 
 A sensor or a companion computer keeps its own clock; the vehicle clock
-(:attr:`insulator_rs.vehicle.VehicleState.time`, PX4's boot time) is the one every
+(:attr:`insulator_rs.ports.vehicle.VehicleState.time`, PX4's boot time) is the one every
 stamp must be in. The map is affine, ``vehicle = offset + (1 + drift) * other``
 (crystal clocks drift by tens of ppm: 3.6 ms an hour at 1 ppm), fitted by least
 squares over a sliding window of pairs and made robust by rejecting outliers (residuals

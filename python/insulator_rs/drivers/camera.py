@@ -29,7 +29,7 @@ import numpy as np
 
 from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import InsulatorError, SensorError
-from insulator_rs.sensors import CameraFrame
+from insulator_rs.ports.sensors import CameraFrame
 
 #: Failed reads in a row after which a network stream is reopened.
 REOPEN_AFTER = 10

@@ -23,7 +23,7 @@ from insulator_rs._core import CameraModel
 from insulator_rs.drivers.camera import OpenCvCamera
 from insulator_rs.drivers.livox import HOST_PORT_POINT, LivoxMid360, TimeMap, parse_url
 from insulator_rs.exceptions import SensorError
-from insulator_rs.sensors import CameraFrame, LidarScan
+from insulator_rs.ports.sensors import CameraFrame, LidarScan
 
 #: Scans the Mid-360 driver keeps for ``lidar_scan`` (1 s at 10 Hz).
 LIDAR_KEEP_SCANS = 10

@@ -46,7 +46,7 @@ from insulator_rs._core import (
     livox_work_mode_request,
 )
 from insulator_rs.exceptions import InsulatorError, SensorError
-from insulator_rs.sensors import LidarScan
+from insulator_rs.ports.sensors import LidarScan
 from insulator_rs.timesync import OneWaySync
 
 PORT_DISCOVERY = 56000

@@ -9,7 +9,7 @@ Set-up (stated, so the numbers can be reproduced and judged):
 * N inspection waypoints are spread over the insulators in ground-truth order,
   round-robin (insulator i gets N // n + (i < N mod n) viewpoints; with N < n
   only the first N insulators are inspected). The viewpoints are those of
-  :func:`~insulator_rs.mission.waypoints.inspection_waypoints`, identical for
+  :func:`~insulator_rs.planning.waypoints.inspection_waypoints`, identical for
   both strategies.
 * Visibility model: every ``SENSE_PERIOD`` s the vehicle (camera level along
   the body x axis, yaw towards the tower while exploring, towards the
@@ -19,7 +19,7 @@ Set-up (stated, so the numbers can be reproduced and judged):
   (``ir.project_points``, the simulator's default camera) and are not occluded:
   a ray cast through the simulator's scene (tower lattice, conductors, other
   insulators) first hits that insulator. Whenever one is seen, the flight's own
-  :class:`~insulator_rs.mission.perception.PerceptionPipeline` gets the detection frame
+  :class:`~insulator_rs.perception.pipeline.PerceptionPipeline` gets the detection frame
   (the seen insulators' boxes: their projected outlines) and the simulated Mid-360 scans of
   that instant (the scan ending then and the next, cast along the vehicle's motion, as the
   flight pairs them) and localizes them, accumulating three detection events, with the
@@ -31,7 +31,7 @@ Set-up (stated, so the numbers can be reproduced and judged):
   Single flight: take-off, exploration with detours, landing at the take-off
   point. Two flights: the scan flight (the same exploration path, no stops)
   plus the exact optimal tour from the take-off point through the N waypoints
-  with over-the-top crossings (:mod:`insulator_rs.mission.two_flight`).
+  with over-the-top crossings (:mod:`insulator_rs.evaluation.two_flight`).
 """
 
 from __future__ import annotations
@@ -48,17 +48,17 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.mission.config import Mission, load_mission
-from insulator_rs.mission.perception import PerceptionPipeline
+from insulator_rs.perception.pipeline import PerceptionPipeline
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.pmm import rest_to_rest_times
-from insulator_rs.mission.registry import Insulator, InsulatorRegistry
-from insulator_rs.mission.single_flight import fly_single_flight
+from insulator_rs.planning.pmm import rest_to_rest_times
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
+from insulator_rs.evaluation.single_flight import fly_single_flight
 from insulator_rs.mission.state_machine import InspectionStateMachine
-from insulator_rs.mission.two_flight import two_flight
-from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.evaluation.two_flight import two_flight
+from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.rig import simulator_rig
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.report.folder import parse_out_folder
 from insulator_rs.sim.towers import Tower, load_tower

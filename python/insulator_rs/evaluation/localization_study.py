@@ -14,7 +14,7 @@ line), the study draws localization events. One event:
    frame carries its motion distortion, as a real one does);
 3. hands each image, its box, the LiDAR points of that instant (the scans ending at the
    image and one scan later, as the flight loop pairs them) and the (noisy) odometry poses
-   at 20 Hz to the flight's own :class:`~insulator_rs.mission.perception.PerceptionPipeline`,
+   at 20 Hz to the flight's own :class:`~insulator_rs.perception.pipeline.PerceptionPipeline`,
    one per method, until it attempts a localization (its third detection event holding
    LiDAR points): pairing, deskewing, culling, accumulation, ``ir.localize`` and the
    plausibility gates are the code that flies, with the mission file's insulator length;
@@ -49,10 +49,10 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.mission import bounds
+from insulator_rs import bounds
 from insulator_rs.mission.config import load_mission
-from insulator_rs.mission.perception import Localization, PerceptionPipeline
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.report.folder import parse_out_folder
 
 METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
@@ -270,7 +270,7 @@ def _purity(points_w: np.ndarray, truth) -> float:
 
 def _localize_event(rig: SensorRig, target, trajectory: Callable[[float], np.ndarray], times: Sequence[float],
                     detector, rng: np.random.Generator, cfg: StudyConfig, insulator_length: float,
-                    ) -> dict[str, tuple[Localization | None, str, int, float]] | None:
+                    ) -> dict[str, tuple[LocalizedInsulator | None, str, int, float]] | None:
     """One localization event through the flight's perception pipeline, one pipeline per
     method fed the same data: {method: (localization or None, outcome, accumulated points,
     purity)}. None when the images ran out before a localization was attempted."""

@@ -31,23 +31,23 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError, SensorError, VehicleError, VehicleFailsafe
-from insulator_rs.flight.detector import BoxDetector
-from insulator_rs.flight.segment import plan_segment
+from insulator_rs.ports.detector import BoxDetector
+from insulator_rs.planning.segments import plan_segment
 from insulator_rs.mission.config import Mission
-from insulator_rs.mission.exploration import MIN_PASS_HEIGHT
-from insulator_rs.mission.geodesy import GeoPoint
+from insulator_rs.planning.exploration import MIN_PASS_HEIGHT
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.perception import PerceptionPipeline
-from insulator_rs.mission.photo_quality import photo_quality
-from insulator_rs.mission.pmm import rest_to_rest_times
-from insulator_rs.mission.registry import Insulator, InsulatorRegistry
+from insulator_rs.perception.pipeline import PerceptionPipeline
+from insulator_rs.perception.photo_quality import photo_quality
+from insulator_rs.planning.pmm import rest_to_rest_times
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, State
-from insulator_rs.mission.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.rig import SensorRig
-from insulator_rs.sensors import LidarScan, PoseStamped, Sensors
-from insulator_rs.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
+from insulator_rs.ports.sensors import LidarScan, PoseStamped, Sensors
+from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
 
 CONTROL_PERIOD = 0.05  # s: 20 Hz setpoint stream, as PX4 offboard wants
 PHOTO_YAW_TOLERANCE = math.radians(3.0)

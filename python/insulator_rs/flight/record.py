@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from insulator_rs.flight.detector import detections_dropped, detector_name
+from insulator_rs.ports.detector import detections_dropped, detector_name
 
 if TYPE_CHECKING:
     from insulator_rs.flight.loop import FlightLoop

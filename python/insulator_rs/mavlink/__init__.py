@@ -2,7 +2,7 @@
 
 ``connect_vehicle("udpin:0.0.0.0:14540")`` (or a serial ``DEVICE:BAUD``)
 connects to a real PX4 or its SITL and returns a
-``insulator_rs.vehicle.Vehicle``. The simulated PX4 is one of the simulator's
+``insulator_rs.ports.vehicle.Vehicle``. The simulated PX4 is one of the simulator's
 adapters (``insulator_rs.sim.px4``): nothing here imports the simulator.
 Submodules load pymavlink lazily so importing this package stays cheap.
 """

@@ -53,7 +53,7 @@ from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.telemetry import REQUESTED_RATES_HZ, Telemetry, TelemetryStore
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.validation import as_finite, as_vector3, require_positive
-from insulator_rs.vehicle import FlightMode, VehicleState
+from insulator_rs.ports.vehicle import FlightMode, VehicleState
 
 __all__ = ["CommandRejected", "FailsafeSettings", "LinkStats", "MavlinkVehicle", "Telemetry", "VehicleFailsafe",
            "connect_vehicle", "open_connection"]

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from insulator_rs.mavlink.telemetry import TelemetryStore
 from insulator_rs.validation import require_positive
-from insulator_rs.vehicle import FlightMode
+from insulator_rs.ports.vehicle import FlightMode
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from insulator_rs.vehicle import wrap_angle as wrap_pi
+from insulator_rs.ports.vehicle import wrap_angle as wrap_pi
 
 # p_ned = ENU_TO_NED @ p_enu; det = +1 (the x/y swap and the z flip together
 # form a proper rotation), and it is symmetric, so it is its own inverse.

@@ -3,12 +3,12 @@
 PX4 packs its mode into the 32-bit ``custom_mode`` as ``main_mode << 16 |
 sub_mode << 24`` (px4_custom_mode.h); DO_SET_MODE carries base_mode (with
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED) in param1, the main mode in param2 and the
-sub mode in param3. Mode names are those of ``insulator_rs.vehicle.FlightMode``.
+sub mode in param3. Mode names are those of ``insulator_rs.ports.vehicle.FlightMode``.
 """
 
 from __future__ import annotations
 
-from insulator_rs.vehicle import FlightMode
+from insulator_rs.ports.vehicle import FlightMode
 
 # px4_custom_mode.h: PX4_CUSTOM_MAIN_MODE_*
 MAIN_MODE_MANUAL = 1

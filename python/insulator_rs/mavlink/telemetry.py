@@ -17,7 +17,7 @@ from insulator_rs.exceptions import VehicleError
 from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.frames import attitude_ned_frd_to_enu_flu, ned_to_enu, yaw_ned_to_enu
 from insulator_rs.mavlink.wire import mavlink2
-from insulator_rs.vehicle import VehicleState
+from insulator_rs.ports.vehicle import VehicleState
 
 M = mavlink2
 # Telemetry the client asks for (Hz).

@@ -3,7 +3,7 @@
 A mission file is TOML (``.toml``) or YAML (``.yaml``/``.yml``) with the tables
 below; every error names the file and the field, and is raised before anything
 flies (``insulator_rs.exceptions.ConfigError``, a ``ValueError``). Every number is
-checked against its physical or mission limit in :mod:`insulator_rs.mission.bounds` (the
+checked against its physical or mission limit in :mod:`insulator_rs.bounds` (the
 message gives the range and the reason)::
 
     [tower]                       # the inspected tower (WGS-84, degrees / m)
@@ -55,8 +55,8 @@ import numpy as np
 import yaml
 
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.mission import bounds
-from insulator_rs.mission.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
+from insulator_rs import bounds
+from insulator_rs.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
 from insulator_rs.rig import SensorRig, load_rig, resolve_rig
 from insulator_rs.textfile import read_config_text
 

@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from insulator_rs.mission.config import Mission
-from insulator_rs.mission.exploration import PathWaypoint, exploration_path
-from insulator_rs.mission.geodesy import LineFrame
-from insulator_rs.mission.safety import SafetyVolumes, safety_volumes
+from insulator_rs.planning.exploration import PathWaypoint, exploration_path
+from insulator_rs.geodesy import LineFrame
+from insulator_rs.planning.safety import SafetyVolumes, safety_volumes
 
 
 @dataclass(frozen=True)

@@ -30,9 +30,9 @@ from enum import Enum
 
 import numpy as np
 
-from insulator_rs.mission.exploration import PathWaypoint
-from insulator_rs.mission.registry import Insulator, InsulatorRegistry
-from insulator_rs.mission.waypoints import InspectionWaypoint
+from insulator_rs.planning.exploration import PathWaypoint
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
+from insulator_rs.planning.waypoints import InspectionWaypoint
 
 LOG = logging.getLogger("insulator_rs.mission")
 

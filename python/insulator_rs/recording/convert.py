@@ -29,7 +29,7 @@ import insulator_rs as ir
 from insulator_rs.exceptions import BagError
 from insulator_rs.mavlink.frames import ENU_TO_NED, FLU_TO_FRD, ned_to_enu
 from insulator_rs.recording import types as T
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
 _store = T.typestore()
 _types = _store.types

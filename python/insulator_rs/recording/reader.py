@@ -29,7 +29,7 @@ from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
 from insulator_rs.recording.writer import RECORDED_ODOMETRY
-from insulator_rs.sensors import CameraFrame, LidarScan
+from insulator_rs.ports.sensors import CameraFrame, LidarScan
 
 # s: a stamp this far off the pace of the recorder's clock (log time) is a jump.
 MAX_GAP = 2.0

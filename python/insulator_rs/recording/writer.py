@@ -2,9 +2,9 @@
 
 :class:`McapRecorder` writes the messages (schemas are the ROS 2 ``.msg`` definitions that
 rosbags generates, so Foxglove, ``ros2 bag play`` and rosbags open the file);
-:class:`RecordingSensors` wraps any :class:`~insulator_rs.sensors.Sensors` adapter and
+:class:`RecordingSensors` wraps any :class:`~insulator_rs.ports.sensors.Sensors` adapter and
 records what it hands out (detection frames, LiDAR scans); :class:`RecordingVehicle` wraps
-any :class:`~insulator_rs.vehicle.Vehicle` and records its pose stream (every ``state()``
+any :class:`~insulator_rs.ports.vehicle.Vehicle` and records its pose stream (every ``state()``
 and ``advance()``, deduplicated by time). Inspection photos are not recorded (full-size
 images the replay does not need). Extrinsics go on ``/tf_static`` once (the LiDAR's and the
 first detection frame's camera); a camera pose that changes later (a gimbal) goes on ``/tf``.
@@ -21,7 +21,7 @@ import numpy as np
 from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
 
 # Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
 RECORDED_ODOMETRY = "/odom"
@@ -140,7 +140,7 @@ class McapRecorder:
 
 
 class RecordingSensors:
-    """A :class:`~insulator_rs.sensors.Sensors` adapter that records what ``inner`` delivers."""
+    """A :class:`~insulator_rs.ports.sensors.Sensors` adapter that records what ``inner`` delivers."""
 
     def __init__(self, inner: Sensors, recorder: McapRecorder) -> None:
         self.inner = inner
@@ -176,7 +176,7 @@ class RecordingSensors:
 
 
 class RecordingVehicle:
-    """A :class:`~insulator_rs.vehicle.Vehicle` wrapper that records the pose stream it reports
+    """A :class:`~insulator_rs.ports.vehicle.Vehicle` wrapper that records the pose stream it reports
     (level body at the reported position and yaw: what the Vehicle port gives)."""
 
     def __init__(self, inner: Any, recorder: McapRecorder) -> None:

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 import piexif
 
-from insulator_rs.mission.geodesy import GeoPoint
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report.folder import write_atomic
 
 JPEG_QUALITY = 95  # keeps the insulator's surface detail (cracks, flashover marks) for the crew

@@ -2,7 +2,7 @@
 positions, the tower base and the flown path, in WGS-84.
 
 Positions are converted from W (ENU at the tower base, the mission's tower lat/lon/alt)
-with pymap3d through :mod:`insulator_rs.mission.geodesy`. GeoJSON positions are
+with pymap3d through :mod:`insulator_rs.geodesy`. GeoJSON positions are
 ``[longitude, latitude, altitude]`` (RFC 7946 section 3.1.1 order), 1e-9 deg (0.1 mm) and
 1e-4 m; no ``crs`` member (RFC 7946 fixes WGS-84). KML uses ``altitudeMode`` absolute.
 Altitudes are in the tower altitude's vertical datum (see :mod:`.exif`).
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.mission.geodesy import GeoPoint, enu_to_geodetic
+from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
 from insulator_rs.report.folder import write_atomic
 
 DEG_DECIMALS = 9  # 1e-9 deg: 0.1 mm on the ground

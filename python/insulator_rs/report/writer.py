@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.mission.geodesy import GeoPoint, enu_to_geodetic
-from insulator_rs.mission.safety import SafetyVolumes
+from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
+from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.report.exif import compass_heading_deg, photo_exif, write_jpeg
 from insulator_rs.report.folder import ReportFolder, write_atomic
 from insulator_rs.report.geoexport import PATH_SPACING, map_layers, write_geojson, write_kml

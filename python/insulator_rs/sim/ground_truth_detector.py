@@ -6,7 +6,7 @@ it looks up the true insulator boxes of the detection image that
 :class:`~insulator_rs.sim.detector_standin.DetectorStandin` (box jitter, misses, false
 positives). It only works on the simulator's own frames, by construction: no real flight can
 use it by mistake. The YOLO network is the other adapter
-(:class:`insulator_rs.flight.detector.NetworkDetector`).
+(:class:`insulator_rs.ports.detector.NetworkDetector`).
 """
 
 from __future__ import annotations

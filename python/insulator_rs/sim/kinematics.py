@@ -14,7 +14,7 @@ Two layers:
   disarming refused in the air, arming refused without a position estimate or
   with a critical battery), odometry with configurable Gaussian noise, a
   simulation clock, and fault injection (pilot mode change, GPS glitch or loss). It implements
-  ``insulator_rs.vehicle.Vehicle``. The simulated PX4 on MAVLink
+  ``insulator_rs.ports.vehicle.Vehicle``. The simulated PX4 on MAVLink
   (``insulator_rs.sim.px4``) wraps this same class, so the in-process
   path and the MAVLink path fly the same vehicle.
 
@@ -31,7 +31,7 @@ import numpy as np
 
 from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsafe
 from insulator_rs.validation import as_finite, as_vector3, require_non_negative, require_positive
-from insulator_rs.vehicle import FlightMode, VehicleState, wrap_angle
+from insulator_rs.ports.vehicle import FlightMode, VehicleState, wrap_angle
 
 # Integration step: the model is sub-stepped so that ``advance`` with a large
 # dt stays accurate (the position loop gain times this step is << 1).

@@ -31,7 +31,7 @@ from collections.abc import Callable
 import numpy as np
 
 from insulator_rs.drivers.livox import LivoxMid360, wait_for
-from insulator_rs.sensors import CameraFrame, LidarScan, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, Sensors
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.livox_emitter import DOTS_PER_PACKET, Faults, LivoxEmitter, SensorClock, send
 from insulator_rs.sim.mesh import Mesh

@@ -65,7 +65,7 @@ from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.exceptions import CommandRejected, VehicleFailsafe
 from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
-from insulator_rs.vehicle import FlightMode
+from insulator_rs.ports.vehicle import FlightMode
 
 M = mavlink2
 # Wall-clock period of the simulation loop (s): physics, inbound, telemetry.

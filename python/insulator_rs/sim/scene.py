@@ -10,7 +10,7 @@ new TOML file, not new code.
 
 Every error raised while loading names the file and the dotted field, e.g.
 ``tower_a.toml: field 'cross_arms[1].height': must be below body.height (28.0 m), got 31.0``.
-Every number is also checked against its physical limit in :mod:`insulator_rs.mission.bounds`
+Every number is also checked against its physical limit in :mod:`insulator_rs.bounds`
 (a lattice tower of 1e8 panels would hang the mesh builder).
 """
 
@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.mission import bounds
+from insulator_rs import bounds
 from insulator_rs.textfile import read_config_text
 
 InsulatorKind = Literal["strain", "suspension"]

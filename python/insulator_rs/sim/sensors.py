@@ -1,4 +1,4 @@
-"""The simulator's :class:`~insulator_rs.sensors.Sensors` adapter: camera and Mid-360 rendered
+"""The simulator's :class:`~insulator_rs.ports.sensors.Sensors` adapter: camera and Mid-360 rendered
 from the scene.
 
 The sensors ride on the airframe's TRUE pose, which only the simulator knows: the wiring
@@ -28,12 +28,12 @@ import numpy as np
 from insulator_rs.exceptions import SensorError
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.rig import SensorRig, scaled_camera
-from insulator_rs.sensors import CameraFrame, LidarScan
+from insulator_rs.ports.sensors import CameraFrame, LidarScan
 from insulator_rs.sim.camera_render import Camera, Lighting
 from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.mesh import Mesh
-from insulator_rs.vehicle import Vehicle
+from insulator_rs.ports.vehicle import Vehicle
 
 #: T_w_b (4x4) of the airframe at a vehicle time (s), at or shortly before now.
 PoseSource = Callable[[float], np.ndarray]

@@ -1,6 +1,6 @@
 """Many recorded flights re-processed in parallel on Ray, plus a fleet summary.
 
-Each flight is one Ray task running :func:`~insulator_rs.recording.commands.replay_one`, the
+Each flight is one Ray task running :func:`~insulator_rs.app.replay_command.replay_one`, the
 function a single ``replay`` runs, into ``OUT/<recording name>/``. ``address=None`` starts a
 local Ray with ``workers`` CPUs (and stops it after); an address joins a running cluster
 (every node needs insulator_rs installed; the recordings and ``OUT`` on storage all nodes
@@ -19,7 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from insulator_rs.recording.commands import ReplayOptions, replay_one
+from insulator_rs.app.replay_command import ReplayOptions, replay_one
 
 
 def _name(path: Path, used: set[str]) -> str:

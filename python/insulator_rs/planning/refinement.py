@@ -14,7 +14,7 @@ from typing import Protocol, TypeVar
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError
-from insulator_rs.mission.safety import SafetyVolumes
+from insulator_rs.planning.safety import SafetyVolumes
 
 
 class _Timed(Protocol):

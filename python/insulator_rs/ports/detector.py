@@ -1,6 +1,6 @@
 """The flight loop's detector port: a callable ``image -> boxes``.
 
-``image`` is a (H, W, 3) uint8 BGR frame (:class:`insulator_rs.sensors.CameraFrame`);
+``image`` is a (H, W, 3) uint8 BGR frame (:class:`insulator_rs.ports.sensors.CameraFrame`);
 the result is (M, 4) or (M, 5) float64 pixel boxes ``x1, y1, x2, y2[, score]`` in that
 image, ready for ``ir.points_in_boxes``. Adapters: :class:`NetworkDetector` (a YOLO ONNX
 network on onnxruntime) here, and the simulator's ground-truth stand-in

@@ -6,7 +6,7 @@ PX4 or the simulated PX4 (`insulator_rs.mavlink`). Everything here is in the
 world frame W (local ENU at the tower base, metres, radians, seconds); NED
 appears only inside the MAVLink package. The inspection photo is not the
 vehicle's business: the companion computer takes it through
-:meth:`insulator_rs.sensors.Sensors.photo`.
+:meth:`insulator_rs.ports.sensors.Sensors.photo`.
 """
 
 from __future__ import annotations

@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.minsnap import MinSnapTrajectory, plan_min_snap_safe
+from insulator_rs.planning.minsnap import MinSnapTrajectory, plan_min_snap_safe
 from insulator_rs.mission.state_machine import PlanItem
-from insulator_rs.mission.two_flight import route
+from insulator_rs.planning.routes import route
 
 SAFETY_CHECK_DT = 0.05  # s: sampling of planned trajectories for the safety check
 # m: a min-snap curve straying further than this from its straight path gets extra waypoints

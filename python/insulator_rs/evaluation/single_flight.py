@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from insulator_rs.mission.pmm import plan_pmm
+from insulator_rs.planning.pmm import plan_pmm
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem
 
 # (position (3,) W, yaw rad, time s) -> localizations [(center (3,), axis (3,))] that became available

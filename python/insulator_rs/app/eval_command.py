@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from insulator_rs.cli import import_optional
+from insulator_rs.app.cli import import_optional
 
 # (study name, module, one-line help)
 STUDIES: tuple[tuple[str, str, str], ...] = (

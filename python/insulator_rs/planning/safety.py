@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from insulator_rs.mission.geodesy import LineFrame
+from insulator_rs.geodesy import LineFrame
 
 # The boxes reach this far below the tower base (m): nothing may pass under the conductors.
 GROUND_DEPTH = 1000.0

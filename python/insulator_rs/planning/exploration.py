@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from insulator_rs.mission.geodesy import LineFrame
-from insulator_rs.mission.safety import SafetyVolumes
+from insulator_rs.geodesy import LineFrame
+from insulator_rs.planning.safety import SafetyVolumes
 
 # Lowest exploration pass above the base (m): keeps the vehicle clear of the ground.
 MIN_PASS_HEIGHT = 3.0

@@ -39,9 +39,9 @@ from typing import Any, Literal, cast
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.mission.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
+from insulator_rs.perception.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
 from insulator_rs.poses import PoseHistory
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
 Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 # The fifth method (ir.localize_bounded): the LiDAR line, its ends from the events' boxes.
@@ -93,9 +93,10 @@ class Track:
 
 
 @dataclass(frozen=True)
-class Localization:
+class LocalizedInsulator:
     """An insulator localized in W: ``center`` (3,) m, unit ``axis``, ``n_points`` used,
-    ``time`` (s, vehicle clock) of the frame that completed it."""
+    ``time`` (s, vehicle clock) of the frame that completed it. (The Rust core's
+    ``ir.Localization`` is the same estimate in B, before it is moved to W.)"""
 
     center: np.ndarray
     axis: np.ndarray
@@ -129,7 +130,8 @@ class PerceptionPipeline:
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
                  method: str = BOUNDED, insulator_length: float | None = None,
-                 pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None) -> None:
+                 pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None,
+                 deskew: bool = True) -> None:
         if method not in METHODS:
             raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac, dbscan+pca or {BOUNDED}, "
                              f"got {method!r}")
@@ -142,6 +144,9 @@ class PerceptionPipeline:
         self.insulator_length = insulator_length
         self.pairing_window = float(pairing_window)
         self.localize_params = dict(localize_params or {})  # ir.localize tuning overrides (eps, tau...)
+        # False: a frame's nearest scan is used as measured, at the frame's pose (the comparison
+        # a replay offers with --no-deskew: what motion compensation buys)
+        self.deskew = bool(deskew)
         self.tracks: list[Track] = []
         self.poses = PoseHistory()
         self.scans: deque[LidarScan] = deque(maxlen=SCAN_BUFFER)
@@ -168,7 +173,7 @@ class PerceptionPipeline:
         if len(scan):
             self.scans.append(scan)
 
-    def process(self, frame: CameraFrame, boxes: np.ndarray) -> list[Localization]:
+    def process(self, frame: CameraFrame, boxes: np.ndarray) -> list[LocalizedInsulator]:
         """One detection event: ``frame`` and its detection ``boxes`` (K, 4 or 5) px, paired with
         the buffered scans' points of the same instant, deskewed with the pose history."""
         self.counters.frames += 1
@@ -178,7 +183,7 @@ class PerceptionPipeline:
         if len(self.poses) == 0:
             self.counters.unpaired += 1
             return []
-        points_w = self._paired_points_w(frame.time)
+        points_w = self._paired_points_w(frame.time) if self.deskew else self._nearest_scan_w(frame.time)
         if len(points_w) == 0:
             self.counters.unpaired += 1
             return []
@@ -203,9 +208,22 @@ class PerceptionPipeline:
             parts.append(pts_l @ T_w_l[:3, :3].T + T_w_l[:3, 3])
         return np.vstack(parts) if parts else np.zeros((0, 3))
 
+    def _nearest_scan_w(self, time: float) -> np.ndarray:
+        """The buffered scan nearest ``time`` (within the pairing window), all its points moved to
+        W with the pose at ``time``: no motion compensation."""
+        best, gap = None, float("inf")
+        for scan in self.scans:
+            d = max(scan.time_start - time, time - scan.time_end, 0.0)
+            if d < gap:
+                best, gap = scan, d
+        if best is None or gap > self.pairing_window:
+            return np.zeros((0, 3))
+        T_w_l = self.poses.pose_at(time) @ np.asarray(best.T_b_l, dtype=np.float64)
+        return np.asarray(best.points_l, dtype=np.float64) @ T_w_l[:3, :3].T + T_w_l[:3, 3]
+
     # -- one frame and one scan at a known pose -----------------------------------------------
     def event(self, boxes: np.ndarray, points_l: np.ndarray, T_w_b: np.ndarray,
-              time: float = float("nan")) -> list[Localization]:
+              time: float = float("nan")) -> list[LocalizedInsulator]:
         """One detection event whose frame and LiDAR points were taken at one body pose ``T_w_b``
         (4x4): ``boxes`` (K, 4 or 5) px in the rig camera's image, ``points_l`` (N, 3) in L."""
         self.counters.frames += 1
@@ -219,7 +237,7 @@ class PerceptionPipeline:
 
     # -- the shared core ----------------------------------------------------------------------
     def _event_w(self, boxes: np.ndarray, points_w: np.ndarray, T_w_b: np.ndarray,
-                 camera: ir.CameraModel, T_b_c: np.ndarray, time: float) -> list[Localization]:
+                 camera: ir.CameraModel, T_b_c: np.ndarray, time: float) -> list[LocalizedInsulator]:
         T_w_c = T_w_b @ T_b_c
         T_c_w = np.linalg.inv(T_w_c)
         culled = ir.points_in_boxes(points_w, T_c_w, camera, boxes)
@@ -261,7 +279,7 @@ class PerceptionPipeline:
                 self.counters.unconfirmed += 1
                 continue
             self.counters.localizations += 1
-            out.append(Localization(center, axis / np.linalg.norm(axis), int(est.n_points), float(time)))
+            out.append(LocalizedInsulator(center, axis / np.linalg.norm(axis), int(est.n_points), float(time)))
         return out
 
     def _localize(self, acc_b: np.ndarray, track: Track, T_b_w: np.ndarray) -> ir.Localization | ir.BoundedLocalization:

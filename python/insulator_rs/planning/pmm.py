@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from insulator_rs.mission.refinement import refine_until_clear
-from insulator_rs.mission.safety import SafetyVolumes
+from insulator_rs.planning.refinement import refine_until_clear
+from insulator_rs.planning.safety import SafetyVolumes
 
 # Numerical slack (s, m/s) when accepting a phase of a closed-form profile.
 _EPS = 1e-9

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from insulator_rs.mission.geodesy import LineFrame
+from insulator_rs.geodesy import LineFrame
 
 
 @dataclass

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.sensors import CameraFrame, PoseStamped
+from insulator_rs.ports.sensors import CameraFrame, PoseStamped
 
 TIMELINE = "flight_time"
 INSULATOR_LENGTH = 2.0  # m drawn along each insulator's axis

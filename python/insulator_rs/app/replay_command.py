@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.exceptions import BagError, ConfigError, ModelError
-from insulator_rs.mission.perception import BOUNDED, METHODS
+from insulator_rs.perception.pipeline import BOUNDED, METHODS
 from insulator_rs.recording.types import Topics
 
 DEFAULT_DETECTOR = "insulator-sim"
@@ -56,7 +56,7 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
     report folder holding it), so a fleet goes on with the other flights."""
     from insulator_rs.recording.metadata import read_metadata
     from insulator_rs.recording.reader import FlightBag, bag_paths
-    from insulator_rs.recording.replay import ReplayRun, ReplaySettings
+    from insulator_rs.replay.run import ReplayRun, ReplaySettings
 
     path, out = Path(path), Path(out)
     try:
@@ -106,8 +106,8 @@ def _ground_truth(scene: str) -> list[Any]:
 
 
 def _detector(name: str) -> Any:
-    from insulator_rs.detection.commands import open_detector
-    from insulator_rs.flight.detector import NetworkDetector
+    from insulator_rs.app.detect_command import open_detector
+    from insulator_rs.ports.detector import NetworkDetector
 
     try:
         return NetworkDetector(open_detector(name, conf=DETECT_CONF))  # as the flight's --detector
@@ -190,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
         summary = replay_one(flights[0], args.out, options)
         _print_one(summary, args.out)
         return 0 if summary["status"] == "finished" else 1
-    from insulator_rs.recording.fleet import replay_fleet
+    from insulator_rs.replay.fleet import replay_fleet
 
     fleet_summary = replay_fleet(flights, args.out, options, workers=args.workers, address=args.address)
     for f in fleet_summary["flights"]:

@@ -1,12 +1,12 @@
 """Re-process one recorded flight offline: detection, fusion, localization, registry, report.
 
 The recording is read as a :class:`~insulator_rs.recording.reader.FlightBag` stream and fed
-to the flight's own :class:`~insulator_rs.mission.perception.PerceptionPipeline` as the
+to the flight's own :class:`~insulator_rs.perception.pipeline.PerceptionPipeline` as the
 flight loop feeds it: every pose (``add_pose``), every scan (``add_scan``), and each camera
 frame with the flight's detector's boxes (``process``: paired with the scans' points of
 +-``pairing_window``, deskewed with the pose history) once the stream has passed the frame's
 time by the pairing window, as the loop waits for the scan after a frame. Localizations feed
-the flight's :class:`~insulator_rs.mission.registry.InsulatorRegistry`. With deskew off, a
+the flight's :class:`~insulator_rs.tracking.registry.InsulatorRegistry`. With deskew off, a
 frame's nearest scan is used as measured at the frame's pose (``PerceptionPipeline.event``).
 
 The report folder has the flight's layout (``summary.json``, ``insulators.csv``,
@@ -27,15 +27,15 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.exceptions import BagError
-from insulator_rs.flight.detector import detector_name
+from insulator_rs.ports.detector import detector_name
 from insulator_rs.mission.config import Mission
-from insulator_rs.mission.geodesy import GeoPoint
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.perception import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
-from insulator_rs.mission.registry import InsulatorRegistry
+from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
+from insulator_rs.tracking.registry import InsulatorRegistry
 from insulator_rs.report.writer import ReportWriter
 from insulator_rs.recording.reader import FlightBag, Item
-from insulator_rs.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
 # s of poses kept behind the oldest pending scan.
 POSE_KEEP = 2.0
@@ -117,7 +117,7 @@ class ReplayRun:
                                    overwrite=overwrite)
         self.rerun: Any = None
         if rerun:  # inside the report folder being written (swapped in with it)
-            from insulator_rs.recording.rerun_log import RerunLog
+            from insulator_rs.replay.rerun_log import RerunLog
 
             self.rerun = RerunLog(self.report.layout.path / RERUN_FILE, name=bag.path.name)
         self.poses = _Poses()

@@ -33,9 +33,9 @@ from math import factorial
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError
-from insulator_rs.mission.pmm import rest_to_rest_times
-from insulator_rs.mission.refinement import refine_until_clear
-from insulator_rs.mission.safety import SafetyVolumes
+from insulator_rs.planning.pmm import rest_to_rest_times
+from insulator_rs.planning.refinement import refine_until_clear
+from insulator_rs.planning.safety import SafetyVolumes
 
 DEGREE = 7
 N_COEFF = DEGREE + 1

@@ -10,7 +10,7 @@ and hands them to :class:`insulator_rs.flight.loop.FlightLoop`, which knows none
   at the airframe's true pose; against an outside autopilot there is no simulator to ask,
   so that needs ``--sim-sensors`` (a SITL setup: the sensors render the scene at the pose
   the autopilot reports), or live sensors: ``--lidar mid360://HOST --camera SOURCE``
-  (:mod:`insulator_rs.drivers.cli_options`: a Livox Mid-360 and an OpenCV camera, stamped
+  (:mod:`insulator_rs.app.live_options`: a Livox Mid-360 and an OpenCV camera, stamped
   in the vehicle clock read from the autopilot's telemetry). A live
   flight is not scored against the scene (the scene is not what the sensors saw).
 * Detector: by default the shipped YOLO network that fits the camera (``insulator-sim`` on
@@ -32,16 +32,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from insulator_rs.drivers import cli_options
+from insulator_rs.app import live_options as cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
-from insulator_rs.flight.detector import STANDIN, BoxDetector, NetworkDetector, default_model
+from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
-from insulator_rs.mission import bounds
+from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.minsnap import TIME_ALLOCATIONS
-from insulator_rs.mission.perception import METHODS
+from insulator_rs.planning.minsnap import TIME_ALLOCATIONS
+from insulator_rs.perception.pipeline import METHODS
 from insulator_rs.mission.state_machine import POLICIES
 from insulator_rs.report import check_out_folder, parse_out_folder
 from insulator_rs.rig import simulator_rig
@@ -54,7 +54,7 @@ from insulator_rs.sim.sensors import (
     simulated_px4_true_pose,
 )
 from insulator_rs.sim.towers import load_tower
-from insulator_rs.vehicle import Vehicle
+from insulator_rs.ports.vehicle import Vehicle
 
 MISSIONS_DIR = Path(__file__).resolve().parent / "missions"
 DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
@@ -109,7 +109,7 @@ def load_network(model: str | None, *, live_camera: bool = False) -> NetworkDete
             raise ValueError("--detector standin: the stand-in reads the simulator's ground truth; "
                              "a live camera needs a network")
         return None
-    from insulator_rs.detection.commands import open_detector
+    from insulator_rs.app.detect_command import open_detector
 
     try:
         return NetworkDetector(open_detector(model, conf=DETECT_CONF))
@@ -225,7 +225,7 @@ def _final_line(summary: dict[str, Any], score: dict[str, Any] | None, out: Path
 
 
 def run(args: argparse.Namespace) -> int:
-    # The numeric options were checked by argparse against insulator_rs.mission.bounds.
+    # The numeric options were checked by argparse against insulator_rs.bounds.
     try:
         mavlink = _vehicle_kind(args) == "mavlink"
         tower = load_tower(args.scene)

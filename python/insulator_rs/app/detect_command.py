@@ -22,7 +22,7 @@ from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TES
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.exceptions import ImageError
-from insulator_rs.mission import bounds
+from insulator_rs import bounds
 
 
 def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
@@ -126,7 +126,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
         p.add_argument("--threads", type=bounds.option("--threads"), default=None,
-                       help="onnxruntime CPU threads (bounded: mission/bounds.py)")
+                       help="onnxruntime CPU threads (bounded: bounds.py)")
         p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
 
     run = sub.add_parser("run", help="detect insulators in images")

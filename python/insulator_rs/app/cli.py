@@ -16,12 +16,12 @@ from types import ModuleType
 
 # (subcommand, module that registers it)
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
-    ("inspect", "insulator_rs.inspect_command"),
-    ("eval", "insulator_rs.evaluation.commands"),
-    ("detect", "insulator_rs.detection.commands"),
-    ("train", "insulator_rs.detection.train_command"),
-    ("dataset", "insulator_rs.sim.dataset_command"),
-    ("replay", "insulator_rs.recording.commands"),
+    ("inspect", "insulator_rs.app.inspect_command"),
+    ("eval", "insulator_rs.app.eval_command"),
+    ("detect", "insulator_rs.app.detect_command"),
+    ("train", "insulator_rs.app.train_command"),
+    ("dataset", "insulator_rs.app.dataset_command"),
+    ("replay", "insulator_rs.app.replay_command"),
 )
 
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.mission.geodesy import LineFrame
-from insulator_rs.mission.photo_quality import DEFAULT_DIAMETER, MAX_GSD_MM
-from insulator_rs.mission.safety import SafetyVolumes
+from insulator_rs.geodesy import LineFrame
+from insulator_rs.perception.photo_quality import DEFAULT_DIAMETER, MAX_GSD_MM
+from insulator_rs.planning.safety import SafetyVolumes
 
 # Fraction of the field of view the insulator may fill (the rest is margin for the localization error).
 FILL_FRACTION = 0.7

@@ -10,7 +10,7 @@ code, the report) never know which one they read:
 * live drivers: a Livox Mid-360 over UDP and a camera through OpenCV.
 
 Every stamp is in ONE clock, the vehicle's (seconds, the clock of
-:attr:`insulator_rs.vehicle.VehicleState.time`): a source whose sensor has a clock of
+:attr:`insulator_rs.ports.vehicle.VehicleState.time`): a source whose sensor has a clock of
 its own converts at its edge (see the time-sync module) before anything leaves it.
 Frames follow DESIGN.md: points in the LiDAR frame L, images in the camera optical
 frame C, extrinsics ``T_b_l``/``T_b_c`` (4x4 float64, ``p_b = T_b_x @ p_x``).

@@ -1,0 +1,1 @@
+"""Perception: pairing, the fusion pipeline, the shape check, photo quality."""

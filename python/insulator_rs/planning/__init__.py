@@ -1,0 +1,1 @@
+"""Planning: exploration path, waypoints, safety volumes, min-snap, PMM, TSP, segments."""

@@ -1,0 +1,1 @@
+"""The ports the flight flies through: vehicle, sensors, detector, recorder."""

@@ -1,0 +1,1 @@
+"""Tracking: the registry of insulators found."""
