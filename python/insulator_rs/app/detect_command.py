@@ -17,20 +17,13 @@ from pathlib import Path
 import cv2
 
 from insulator_rs.detection.detector import Detections, Detector
+from insulator_rs.detection.detector import open_detector
 from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_split
 from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.exceptions import ImageError
 from insulator_rs import bounds
-
-
-def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
-                  imgsz: int | None = None) -> Detector:
-    """A detector from a shipped model name or an ONNX path (``imgsz``: input size, default the model's)."""
-    if model.endswith(".onnx") or Path(model).exists():
-        return Detector(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
-    return Detector.from_name(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
 
 
 def draw(image: cv2.typing.MatLike, det: Detections) -> cv2.typing.MatLike:

@@ -125,7 +125,7 @@ def field_comparison(onnx_path: Path, field_photos: Path, before: str | None, *,
     at its own input size and at the new model's, so the gain from the input
     size and the gain from training are told apart.
     """
-    from insulator_rs.app.detect_command import open_detector
+    from insulator_rs.detection.detector import open_detector
     from insulator_rs.detection.evaluate import EVAL_CONF, evaluate_field_test
 
     new = open_detector(str(onnx_path), conf=EVAL_CONF, threads=threads)

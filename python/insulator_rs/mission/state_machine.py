@@ -30,13 +30,21 @@ from enum import Enum
 
 import numpy as np
 
-from insulator_rs.planning.exploration import PathWaypoint
+from insulator_rs.planning.exploration import PathWaypoint, PlanKind
 from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 from insulator_rs.planning.waypoints import InspectionWaypoint
 
 LOG = logging.getLogger("insulator_rs.mission")
 
-POLICIES = ("immediate", "insertion")
+class Policy(str, Enum):
+    """How new inspection waypoints enter the plan: ``immediate`` (fly to them now, then
+    return) or ``insertion`` (cheapest insertion into the rest of the plan)."""
+
+    IMMEDIATE = "immediate"
+    INSERTION = "insertion"
+
+
+POLICIES = tuple(p.value for p in Policy)
 
 
 class State(str, Enum):
@@ -52,14 +60,17 @@ class State(str, Enum):
 
 @dataclass(frozen=True)
 class PlanItem:
-    """One target of the plan in W. ``kind``: "scan", "inspect", "return", "cross", "land".
+    """One target of the plan in W. ``kind``: scan, inspect, return, cross, land (PlanKind).
     ``side``: +1/-1, or 0 above the tower. ``waypoint``: the inspection waypoint for "inspect"."""
 
-    kind: str
+    kind: PlanKind
     position: np.ndarray
     yaw: float
     side: int
     waypoint: InspectionWaypoint | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", PlanKind(self.kind))  # a bad kind is refused here
 
 
 @dataclass(frozen=True)
@@ -83,7 +94,7 @@ class InspectionStateMachine:
     path: list[PathWaypoint]
     registry: InsulatorRegistry
     make_waypoints: Callable[[Insulator], list[InspectionWaypoint]]
-    policy: str = "immediate"
+    policy: Policy = Policy.IMMEDIATE
     cost: Callable[[np.ndarray, np.ndarray], float] | None = None
     state: State = State.IDLE
     plan: list[PlanItem] = field(default_factory=list)
@@ -92,13 +103,17 @@ class InspectionStateMachine:
     visited: list[PlanItem] = field(default_factory=list)
     skipped: list[tuple[PlanItem, str]] = field(default_factory=list)
     side: int = 0
+    # bumped by every change of the plan other than reaching its head: a leg being flown is
+    # re-planned when it moves (the loop compares it before and after each tick)
+    plan_version: int = 0
     _held_from: State | None = None
     _remaining: dict[int, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.policy not in POLICIES:
             raise ValueError(f"policy: expected one of {POLICIES}, got {self.policy!r}")
-        if self.policy == "insertion" and self.cost is None:
+        self.policy = Policy(self.policy)
+        if self.policy == Policy.INSERTION and self.cost is None:
             raise ValueError("cost: the insertion policy needs a cost function")
         if len(self.path) < 2 or self.path[0].kind != "takeoff":
             raise ValueError("path: expected an exploration path starting with its take-off point")
@@ -141,6 +156,7 @@ class InspectionStateMachine:
         if self.state != State.IDLE:
             raise RuntimeError(f"start: the mission already started (state {self.state.value})")
         self.plan = [PlanItem(w.kind, w.position, w.yaw, w.side) for w in self.path[1:]]
+        self.plan_version += 1
         self._derive(time, "take-off complete")
 
     def reached(self, time: float) -> PlanItem:
@@ -174,6 +190,7 @@ class InspectionStateMachine:
         if item.kind != "inspect" or not any(it is item for it in self.plan):
             raise RuntimeError(f"skip: only a planned inspection waypoint can be skipped, got {item.kind}")
         self.plan = [it for it in self.plan if it is not item]
+        self.plan_version += 1
         self.skipped.append((item, reason))
         self._derive(time, f"inspection waypoint skipped: {reason}")
 
@@ -224,13 +241,30 @@ class InspectionStateMachine:
         """Unrecoverable fault: stop the mission (the vehicle's own failsafe takes over)."""
         self._set(State.ABORT, time, f"abort: {reason}")
         self.plan = []
+        self.plan_version += 1
+
+    def approach_landing(self, height: float) -> PlanItem | None:
+        """The plan's head is the landing: where inspection waypoints found on the far side are
+        owed on the landing side (they are released on arrival there), a scan item ``height`` m
+        above the landing point is put first, so the vehicle arrives there in the air, not on the
+        ground. Returns that item, or None when the landing can go ahead."""
+        head = self.target()
+        if head is None or head.kind != PlanKind.LAND:
+            raise RuntimeError("approach_landing: the plan's head is not the landing")
+        if head.side == self.side or not self.deferred.get(head.side):
+            return None
+        above = PlanItem(PlanKind.SCAN, head.position + np.array([0.0, 0.0, height]), head.yaw, head.side)
+        self.plan.insert(0, above)
+        self.plan_version += 1
+        return above
 
     # -- buffering ---------------------------------------------------------------------
     def _items(self, wps: list[InspectionWaypoint]) -> list[PlanItem]:
         return [PlanItem("inspect", w.position, w.yaw, w.side, w) for w in wps]
 
     def _buffer(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
-        if self.policy == "immediate":
+        self.plan_version += 1
+        if self.policy == Policy.IMMEDIATE:
             self._buffer_immediate(wps, position)
         else:
             self._buffer_insertion(wps, position)
