@@ -33,6 +33,7 @@ import numpy as np
 
 from insulator_rs.exceptions import PlanningError, SensorError, VehicleError, VehicleFailsafe
 from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
+from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photos import InspectionPhotos
 from insulator_rs.flight.record import flight_summary
 from insulator_rs.mission.config import Mission
@@ -104,7 +105,11 @@ class FlightLoop:
         self.detector = detector
         self.rig = rig
         self.settings = settings
-        self.observer = observer  # who watches the flight besides the console (the GCS), or None
+        # who watches the flight: the console unless quiet, and what the caller adds (the GCS)
+        watchers: list[FlightObserver] = [] if settings.quiet else [ConsoleObserver()]
+        if observer is not None:
+            watchers.append(observer)
+        self.observer = ObserverGroup(watchers)
         self.geom = MissionGeometry.from_mission(mission)
         lim = mission.vehicle
         self.v_max, self.a_max = lim.v_max(), lim.a_max()
@@ -153,10 +158,7 @@ class FlightLoop:
         return float(rest_to_rest_times(a, b, self.v_max, self.a_max))
 
     def say(self, text: str) -> None:
-        if not self.settings.quiet:
-            print(text, flush=True)
-        if self.observer is not None:
-            self.observer.message(self.now(), text)
+        self.observer.message(self.now(), text)
 
     def now(self) -> float:
         return self.vehicle.state().time - self.t_start
@@ -164,10 +166,7 @@ class FlightLoop:
     def _print_transitions(self) -> None:
         for tr in self.sm.transitions[self._printed_transitions:]:
             t = tr.time - self.t_start if tr.time >= self.t_start else tr.time
-            if not self.settings.quiet:
-                print(f"[{t:7.1f} s] {tr.source.value} -> {tr.target.value}: {tr.reason}", flush=True)
-            if self.observer is not None:
-                self.observer.phase(PhaseChange(t, tr.source.value, tr.target.value, tr.reason))
+            self.observer.phase(PhaseChange(t, tr.source.value, tr.target.value, tr.reason))
         self._printed_transitions = len(self.sm.transitions)
 
     def _sensor_error(self, exc: SensorError) -> None:
@@ -197,7 +196,7 @@ class FlightLoop:
         ins, _ = self.registry.nearest(fix.center)
         self.say(f"[{self.now():7.1f} s] insulator {ins.id if ins else '?'} localized at "
                  f"{np.round(fix.center, 2).tolist()} ({fix.n_points} points) -> {outcome}")
-        if self.observer is not None and ins is not None:
+        if ins is not None:
             lat, lon, alt = enu_to_geodetic(ins.center, self.origin)[0]
             self.observer.insulator_found(InsulatorFound(self.now(), ins.id, ins.center.copy(),
                                                          (float(lat), float(lon), float(alt)), outcome))
@@ -239,8 +238,7 @@ class FlightLoop:
     def abort(self, reason: str, time: float | None = None) -> None:
         self.abort_reason = reason
         self.sm.abort(reason, self.vehicle.state().time if time is None else time)
-        if self.observer is not None:
-            self.observer.aborted(self.now(), reason)
+        self.observer.aborted(self.now(), reason)
 
     def on_failsafe(self, exc: VehicleFailsafe) -> None:
         """The vehicle's failsafe fired: the autopilot now flies it (hold, land, return, or the
@@ -339,11 +337,10 @@ class FlightLoop:
         q = record["quality"]
         self.say(f"[{self.now():7.1f} s] photo {record['file']}: GSD {q['gsd_mm_px']:.1f} mm/px, "
                  f"blur {q['motion_blur_px']:.2f} px")
-        if self.observer is not None:
-            w = record["wgs84"]
-            self.observer.photo_taken(PhotoTaken(record["time_s"], time_utc.timestamp(), wp.insulator_id,
-                                                 len(self.photos), record["file"], st.position.copy(),
-                                                 (w["lat"], w["lon"], w["alt"]), st.yaw, wp.gimbal_pitch))
+        w = record["wgs84"]  # where the GCS draws the photo's marker
+        self.observer.photo_taken(PhotoTaken(record["time_s"], time_utc.timestamp(), wp.insulator_id,
+                                             len(self.photos), record["file"], st.position.copy(),
+                                             (w["lat"], w["lon"], w["alt"]), st.yaw, wp.gimbal_pitch))
         self.write_summary()
 
     def takeoff(self) -> None:
