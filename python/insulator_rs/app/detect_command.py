@@ -18,6 +18,7 @@ import cv2
 
 from insulator_rs.detection.detector import Detections, Detector
 from insulator_rs.detection.detector import open_detector
+from insulator_rs.models import REAL_CROP_MODEL
 from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_split
 from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
 from insulator_rs.detection.image_file import read_image
@@ -115,7 +116,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     sub = parser.add_subparsers(dest="detect_command", required=True)
 
     def common(p: argparse.ArgumentParser, conf: float) -> None:
-        p.add_argument("--model", default="insulator-real", help="shipped model name or ONNX path")
+        p.add_argument("--model", default=REAL_CROP_MODEL, help="shipped model name or ONNX path")
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
         p.add_argument("--threads", type=bounds.option("--threads"), default=None,

@@ -280,7 +280,7 @@ class FlightLoop:
         last = items[-1]
         if last.kind == PlanKind.INSPECT and last.waypoint is not None:
             self.take_photo(last.waypoint)
-        if self.sm.plan and self.sm.plan[0] is last:
+        if self.sm.target() is last:
             self.sm.reached(self.vehicle.state().time)
         return True
 
@@ -454,13 +454,7 @@ class FlightLoop:
                     self.land()
                     self.sm.reached(self.vehicle.state().time)
                 continue
-            items: list[PlanItem] = []
-            for it in self.sm.plan:
-                if it.kind == PlanKind.LAND:
-                    break
-                items.append(it)
-                if it.kind == PlanKind.INSPECT:
-                    break
+            items = self.sm.next_leg()
             try:
                 self.fly_segment(items)
             except PlanningError as exc:

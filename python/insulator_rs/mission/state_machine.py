@@ -243,6 +243,18 @@ class InspectionStateMachine:
         self.plan = []
         self.plan_version += 1
 
+    def next_leg(self) -> list[PlanItem]:
+        """The plan's items flown as one trajectory: from the head up to and including the first
+        inspection waypoint (a photo ends a leg), stopping before the landing."""
+        items: list[PlanItem] = []
+        for it in self.plan:
+            if it.kind == PlanKind.LAND:
+                break
+            items.append(it)
+            if it.kind == PlanKind.INSPECT:
+                break
+        return items
+
     def approach_landing(self, height: float) -> PlanItem | None:
         """The plan's head is the landing: where inspection waypoints found on the far side are
         owed on the landing side (they are released on arrival there), a scan item ``height`` m

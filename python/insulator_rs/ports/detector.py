@@ -15,10 +15,9 @@ import numpy as np
 
 from insulator_rs.detection.detector import Detector, open_detector
 from insulator_rs.detection.sanitize import DroppedDetections
+from insulator_rs.models import REAL_PHOTO_MODEL, SIMULATOR_MODEL
 
 STANDIN = "standin"  # --detector standin: the simulator's ground-truth stand-in, by name only
-SIMULATOR_MODEL = "insulator-sim"  # trained on rendered images: the simulator's camera
-REAL_PHOTO_MODEL = "insulator-field"  # trained on field photos at the camera's geometry: real cameras
 DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
 
 

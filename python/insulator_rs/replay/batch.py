@@ -10,13 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.exceptions import BagError, ConfigError, ModelError
+from insulator_rs.models import SIMULATOR_MODEL
 from insulator_rs.perception.pipeline import BOUNDED
 from insulator_rs.ports.detector import DETECT_CONF, BoxDetector, open_network_detector
 from insulator_rs.recording.types import Topics
 from insulator_rs.report.jsonfile import write_json
 from insulator_rs.report.summary import failed_summary
 
-DEFAULT_DETECTOR = "insulator-sim"
+DEFAULT_DETECTOR = SIMULATOR_MODEL  # the network the simulated flights fly with
 
 
 @dataclass(frozen=True)
