@@ -32,6 +32,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from insulator_rs.app import live_options as cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
@@ -275,6 +277,7 @@ def run(args: argparse.Namespace) -> int:
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
                               quiet=args.quiet)
+    link_stats = getattr(vehicle, "link_stats", None) if mavlink else None  # the MAVLink adapter's counters
     recorder = None
     if args.record is not None:  # recording wraps the ports: the flight does not know it is recorded
         from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
@@ -306,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
             summary = loop.finish_report()
         else:
             score = score_flight(loop.summary().as_dict(), tower)
-            summary = loop.finish_report(reference=[t.center for t in tower.insulators])
+            summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
             write_score(args.out, score)
     finally:
         vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
@@ -316,6 +319,6 @@ def run(args: argparse.Namespace) -> int:
     if summary["status"].startswith("aborted"):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
-    if mavlink:  # what the link refused (strangers, garbage, bad signatures), counted by reason
-        print(f"MAVLink link: {vehicle.link_stats.describe()}", file=sys.stdout)
+    if link_stats is not None:  # what the link refused (strangers, garbage, bad signatures), by reason
+        print(f"MAVLink link: {link_stats.describe()}", file=sys.stdout)
     return code

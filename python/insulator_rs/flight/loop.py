@@ -35,7 +35,7 @@ from insulator_rs.exceptions import PlanningError, SensorError, VehicleError, Ve
 from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photos import InspectionPhotos
-from insulator_rs.flight.record import flight_summary
+from insulator_rs.flight.record import camera_record, insulator_records, perception_record
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
@@ -45,13 +45,13 @@ from insulator_rs.planning.exploration import MIN_PASS_HEIGHT, PlanKind
 from insulator_rs.planning.pmm import rest_to_rest_times
 from insulator_rs.planning.segments import plan_segment
 from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
-from insulator_rs.ports.detector import BoxDetector
+from insulator_rs.ports.detector import BoxDetector, detections_dropped, detector_name
 from insulator_rs.ports.observer import FlightObserver, InsulatorFound, PhaseChange, PhotoTaken
 from insulator_rs.ports.sensors import PoseStamped, Sensors
 from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.report import FlightClock, ReportWriter
-from insulator_rs.report.summary import RunSummary
+from insulator_rs.report.summary import FlightDetails, RunSummary
 from insulator_rs.rig import SensorRig
 from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 
@@ -464,7 +464,34 @@ class FlightLoop:
 
     # -- report --------------------------------------------------------------------------
     def summary(self) -> RunSummary:
-        return flight_summary(self)
+        """What the flight knows now (summary.json), nothing of ground truth."""
+        st = self.vehicle.state()
+        photos: dict[int, list[str]] = {}
+        for p in self.photos.records:
+            photos.setdefault(p["insulator_id"], []).append(p["file"])
+        traj = np.array([p[1:] for p in self.report.trajectory]) if self.report.trajectory else np.zeros((0, 3))
+        s = self.settings
+        details = FlightDetails(
+            mission=str(self.mission.source), rig=str(self.rig.source), policy=s.policy.value,
+            time_allocation=s.time_allocation, state=self.sm.state.value, vehicle=type(self.vehicle).__name__,
+            sensors=type(self.sensors).__name__,
+            failsafe=None if self.failsafe is None else {"reason": self.failsafe.reason,
+                                                         "action": self.failsafe.action},
+            distance_m=float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
+            detections_dropped_by_sanitiser=detections_dropped(self.detector),
+            inspections_skipped=[{"insulator_id": it.waypoint.insulator_id if it.waypoint is not None else None,
+                                  "position": np.asarray(it.position).tolist(), "reason": reason}
+                                 for it, reason in self.sm.skipped],
+            photo_camera=camera_record(self.photos.camera),
+            inspection_waypoints=[{"insulator_id": w.insulator_id, "position": w.position, "yaw": w.yaw,
+                                   "gimbal_pitch": w.gimbal_pitch} for w in self.waypoints],
+            transitions=[{"time_s": tr.time - self.t_start, "from": tr.source.value, "to": tr.target.value,
+                          "reason": tr.reason} for tr in self.sm.transitions])
+        return RunSummary(run="flight", status=self.status, detector=detector_name(self.detector),
+                          method=s.method, flight_time_s=st.time - self.t_start,
+                          perception=perception_record(self.runner, self.sensor_errors),
+                          insulators=insulator_records(self.registry, photos), photos=self.photos.records,
+                          sensors_health=self.sensors.health(), flight=details)
 
     def write_summary(self) -> None:
         self.report.write_summary(self.summary())

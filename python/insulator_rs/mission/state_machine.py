@@ -131,12 +131,12 @@ class InspectionStateMachine:
     def _derive(self, time: float, reason: str) -> None:
         if self.state in (State.HOLD, State.ABORT):
             return
-        if not any(it.kind in ("scan", "inspect", "return") for it in self.plan):
+        if not any(it.kind in (PlanKind.SCAN, PlanKind.INSPECT, PlanKind.RETURN) for it in self.plan):
             self._set(State.FINISH, time, reason)
             return
         head = self.plan[0].kind
-        new = {"scan": State.EXPLORE, "inspect": State.INSPECT, "return": State.RETURN,
-               "cross": State.CROSS, "land": State.FINISH}[head]
+        new = {PlanKind.SCAN: State.EXPLORE, PlanKind.INSPECT: State.INSPECT, PlanKind.RETURN: State.RETURN,
+               PlanKind.CROSS: State.CROSS, PlanKind.LAND: State.FINISH}[head]
         self._set(new, time, reason)
 
     @property
@@ -166,7 +166,7 @@ class InspectionStateMachine:
         item = self.plan.pop(0)
         self.visited.append(item)
         reason = f"reached {item.kind} waypoint"
-        if item.kind == "inspect" and item.waypoint is not None:
+        if item.kind == PlanKind.INSPECT and item.waypoint is not None:
             iid = item.waypoint.insulator_id
             self._remaining[iid] = self._remaining.get(iid, 1) - 1
             if self._remaining[iid] == 0:
@@ -187,7 +187,7 @@ class InspectionStateMachine:
         """An inspection waypoint of the plan that cannot be flown to (no safe trajectory) is
         dropped: its insulator stays uninspected (``skipped`` keeps the item and the reason)
         and the mission goes on. Only inspection waypoints may be skipped."""
-        if item.kind != "inspect" or not any(it is item for it in self.plan):
+        if item.kind != PlanKind.INSPECT or not any(it is item for it in self.plan):
             raise RuntimeError(f"skip: only a planned inspection waypoint can be skipped, got {item.kind}")
         self.plan = [it for it in self.plan if it is not item]
         self.plan_version += 1
@@ -272,7 +272,7 @@ class InspectionStateMachine:
 
     # -- buffering ---------------------------------------------------------------------
     def _items(self, wps: list[InspectionWaypoint]) -> list[PlanItem]:
-        return [PlanItem("inspect", w.position, w.yaw, w.side, w) for w in wps]
+        return [PlanItem(PlanKind.INSPECT, w.position, w.yaw, w.side, w) for w in wps]
 
     def _buffer(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
         self.plan_version += 1
@@ -283,12 +283,12 @@ class InspectionStateMachine:
 
     def _buffer_immediate(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
         items = self._items(wps)
-        in_detour = self.plan and self.plan[0].kind in ("inspect", "return")
+        in_detour = self.plan and self.plan[0].kind in (PlanKind.INSPECT, PlanKind.RETURN)
         if in_detour:
-            k = next((i for i, it in enumerate(self.plan) if it.kind == "return"), len(self.plan))
+            k = next((i for i, it in enumerate(self.plan) if it.kind == PlanKind.RETURN), len(self.plan))
             self.plan[k:k] = items
         else:
-            back = PlanItem("return", position.copy(), self.plan[0].yaw if self.plan else 0.0,
+            back = PlanItem(PlanKind.RETURN, position.copy(), self.plan[0].yaw if self.plan else 0.0,
                             self.side)
             self.plan[0:0] = items + [back]
 
