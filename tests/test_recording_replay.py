@@ -65,7 +65,6 @@ def test_recorded_flight_replays_to_the_same_insulators(flight, capsys):
     assert "insulators_matched" not in replayed and "mean_error_m" not in replayed
     score = json.loads((out / "score.json").read_text())
     assert score["insulators_matched"] == 2 and score["mean_error_m"] < 0.15
-    assert replayed["pairing_short"] == flown["pairing_short"] == 0  # every frame's scans are in the recording
     assert (out / "trajectory.png").stat().st_size > 10_000
     assert "finished" in capsys.readouterr().out
 

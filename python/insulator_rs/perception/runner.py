@@ -5,8 +5,8 @@ times (the vehicle clock of each pose, frame and point):
 
 * every pose the vehicle reports goes to the pipeline's pose history (:meth:`add_pose`);
 * every ``detect_period`` s (:meth:`step`) the newest camera frame is taken from the
-  :class:`~insulator_rs.ports.sensors.Sensors` port and run through the detector; the frame,
-  with the newest LiDAR scan, waits for the points of its instant
+  :class:`~insulator_rs.ports.sensors.Sensors` port and run through the detector; a frame with
+  boxes, with the newest LiDAR scan, waits for the points of its instant
   (:mod:`~insulator_rs.perception.pairing`: the one pairing rule), then goes to the pipeline;
 * what the pipeline localizes is returned to the caller, who decides what it means (the flight
   tells its state machine, a replay its registry).
@@ -133,14 +133,13 @@ class PerceptionRunner:
             self.last_boxes = boxes
             if self.viewer is not None:
                 self.viewer.frame(frame, boxes[:, :4])
+            if len(boxes) == 0:
+                return  # nothing to localize: no points are asked for
             scan = self.sensors.lidar_scan(now)
         except SensorError as exc:
             self._sensor_error(exc)
             return
         self._take_scan(scan)
-        # A frame without boxes waits for its window's scans too: they are asked for all the
-        # same, so what the sensors deliver (and a recording keeps) does not depend on what the
-        # detector saw; a replay with another detector finds every frame's points.
         self.pairing.add(frame, boxes)
 
     def _pair_due(self, now: float) -> list[LocalizedInsulator]:
