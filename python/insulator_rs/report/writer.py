@@ -37,6 +37,7 @@ from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.report.exif import compass_heading_deg, photo_exif, write_jpeg
 from insulator_rs.report.folder import ReportFolder, write_atomic
 from insulator_rs.report.geoexport import PATH_SPACING, map_layers, write_geojson, write_kml
+from insulator_rs.report.html import write_report_html
 
 GEOJSON_NAME = "inspection.geojson"
 KML_NAME = "inspection.kml"
@@ -238,4 +239,5 @@ class ReportWriter:
         """Close the files and put the report in place (with ``overwrite``: replace the old one now)."""
         self._traj.close()
         self._write_map(self._last_summary)  # the whole flown path
+        write_report_html(self.layout.path)  # report.html from the folder's own files
         self.layout.commit()
