@@ -35,7 +35,8 @@ from insulator_rs.ports.detector import BoxDetector
 from insulator_rs.planning.segments import plan_segment
 from insulator_rs.mission.config import Mission
 from insulator_rs.planning.exploration import MIN_PASS_HEIGHT
-from insulator_rs.geodesy import GeoPoint
+from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
+from insulator_rs.ports.observer import InsulatorFound, PhaseChange, PhotoTaken
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.perception.pipeline import PerceptionPipeline
 from insulator_rs.perception.photo_quality import photo_quality
@@ -96,7 +97,9 @@ class FlightLoop:
 
     def __init__(self, mission: Mission, vehicle: Vehicle, sensors: Sensors, detector: BoxDetector,
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
-                 overwrite: bool = False, recorder: Any = None, photo_camera: Any = None) -> None:
+                 overwrite: bool = False, recorder: Any = None, photo_camera: Any = None,
+                 observer: Any = None) -> None:
+        self.observer = observer  # a ports.observer.FlightObserver (the GCS's view) or None
         self.mission = mission
         self.vehicle = vehicle
         self.sensors = sensors
@@ -166,7 +169,19 @@ class FlightLoop:
         for tr in self.sm.transitions[self._printed_transitions:]:
             self.say(f"[{tr.time - self.t_start if tr.time >= self.t_start else tr.time:7.1f} s] "
                      f"{tr.source.value} -> {tr.target.value}: {tr.reason}")
+            t_tr = tr.time - self.t_start if tr.time >= self.t_start else tr.time
+            self._notify("phase", PhaseChange(t_tr, tr.source.value, tr.target.value, tr.reason))
+            if tr.target == State.ABORT:
+                self._notify("aborted", t_tr, tr.reason)
         self._printed_transitions = len(self.sm.transitions)
+
+    def _notify(self, event: str, *args: Any) -> None:
+        """Tell the observer (if any); a watcher's failure never stops the flight."""
+        if self.observer is not None:
+            try:
+                getattr(self.observer, event)(*args)
+            except Exception as exc:  # noqa: BLE001
+                self.say(f"observer {event}: {exc}")
 
     def _sensor_error(self, exc: SensorError) -> None:
         self.sensor_errors += 1
@@ -249,6 +264,10 @@ class FlightLoop:
                 ins, _ = self.registry.nearest(loc.center)
                 self.say(f"[{self.now():7.1f} s] insulator {ins.id if ins else '?'} localized at "
                          f"{np.round(loc.center, 2).tolist()} ({loc.n_points} points) -> {outcome}")
+                if ins is not None:
+                    geo = enu_to_geodetic(ins.center, self.report.origin)[0]
+                    self._notify("insulator_found", InsulatorFound(self.now(), ins.id, ins.center,
+                                                                   tuple(float(g) for g in geo), outcome))
                 self.write_summary()
 
     # -- flying --------------------------------------------------------------------------
@@ -400,6 +419,10 @@ class FlightLoop:
                             "time_s": frame.time - self.t_start, "position": st.position, "yaw": st.yaw,
                             "gimbal_pitch": wp.gimbal_pitch, "T_b_c": frame.T_b_c,
                             "quality": quality.as_dict(), "planned_gsd_mm": wp.planned_gsd_mm})
+        self._notify("photo_taken", PhotoTaken(
+            frame.time - self.t_start, self.clock.at(frame.time).timestamp(), wp.insulator_id, len(self.photos),
+            record["file"], np.asarray(st.position, dtype=np.float64),
+            (record["wgs84"]["lat"], record["wgs84"]["lon"], record["wgs84"]["alt"]), st.yaw, wp.gimbal_pitch))
         self.say(f"[{self.now():7.1f} s] photo {name}: GSD {quality.gsd_mm_px:.1f} mm/px, "
                  f"blur {quality.motion_blur_px:.2f} px")
         self.write_summary()

@@ -224,7 +224,9 @@ class MavlinkGcsObserver:
 
     def _image_captured(self, event: PhotoTaken) -> None:
         lat, lon, alt = event.wgs84
-        url = (self.file_url_prefix + event.file).encode("utf-8")[:FILE_URL_LEN]
+        url = (self.file_url_prefix + event.file).encode("utf-8")
+        if len(url) > FILE_URL_LEN:  # a cut URL names nothing: the path in the report folder then
+            url = event.file.encode("utf-8")[:FILE_URL_LEN]
         rel_alt = float(event.position[2]) if len(event.position) > 2 else 0.0
         self._emit(self._camera, "camera_image_captured", self._boot_ms(), int(event.time_utc * 1e6), 0,
                    int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),

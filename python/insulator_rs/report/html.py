@@ -375,7 +375,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     fit_photos = sum(1 for p in photos if (p.get("quality") or {}).get("fit_for_inspection"))
     no_fit = [i for i in insulators if i["_verdict"] != "fit"]
     e = html.escape
-    title = f"Insulator inspection — {s.get('scene') or s.get('mission') or folder.name}"
+    title = f"Insulator inspection — {s.get('scene') or Path(str(s.get('mission') or folder.name)).stem}"
     parts = [f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{e(title)}</title>'
              f'<meta name="viewport" content="width=device-width,initial-scale=1"><style>{_CSS}</style></head><body>',
              f'<header><h1>{e(title)}</h1><div class="sub">report folder {e(folder.name)} · started '
