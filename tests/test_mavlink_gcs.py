@@ -121,6 +121,7 @@ def test_a_failing_link_never_raises():
 
     obs = MavlinkGcsObserver(broken, system_id=1)
     _fly_events(obs)
+    obs.close()
     assert obs.send_errors > 5
 
 
@@ -151,6 +152,33 @@ def test_through_the_simulated_px4s_gcs_link():
         assert sim.gcs.forwarded_to_onboard >= 2  # the GCS's heartbeat(s) and the camera request
     finally:
         vehicle.close()
+
+
+def test_the_simulated_px4_drops_a_burst_of_large_frames_as_px4_does():
+    """PX4 SITL forwarded 2 of 10 CAMERA_IMAGE_CAPTURED sent back to back (tests/test_px4_sitl_gcs.py);
+    the simulated PX4 models its forwarding buffer the same way."""
+    vehicle = connect_simulated_px4(sim_options={"gcs_port": 0})
+    try:
+        sim = vehicle.simulator
+        with GcsListener(sim.gcs.address, ask_camera=False) as gcs:
+            assert gcs.wait_for(lambda: gcs.of("HEARTBEAT", 1), 5.0)
+            mav = M.MAVLink(None, srcSystem=sim.system_id, srcComponent=CAMERA_COMPONENT)
+            frames = [M.MAVLink_camera_image_captured_message(1, 0, 0, 1, 2, 3, 4, [1, 0, 0, 0], k, 1,
+                                                              (f"burst {k} " + "x" * 150).encode()).pack(mav)
+                      for k in range(10)]
+            for f in frames:
+                vehicle.link.send_raw(f)
+            time.sleep(1.0)
+            burst = len(gcs.of("CAMERA_IMAGE_CAPTURED"))
+            for f in frames:  # 10 ms apart, as the observer sends
+                vehicle.link.send_raw(f)
+                time.sleep(0.01)
+            time.sleep(1.0)
+            paced = len(gcs.of("CAMERA_IMAGE_CAPTURED")) - burst
+    finally:
+        vehicle.close()
+    assert 1 <= burst <= 3 and paced == 10, (burst, paced)
+    assert sim.gcs.forward_dropped == 10 - burst
 
 
 @pytest.mark.slow

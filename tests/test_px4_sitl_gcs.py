@@ -8,7 +8,10 @@ and the offboard/API link on 14580+N (to the companion on 14540+N), both with fo
   HEARTBEATs of its camera (100) and onboard computer (191), STATUSTEXT of either with its
   severity, CAMERA_INFORMATION, CAMERA_IMAGE_CAPTURED, a COMMAND_LONG addressed to the GCS;
 * GCS -> companion: its HEARTBEAT and its COMMAND_LONGs addressed to components 100 and 191;
-  one addressed to the autopilot (component 1) PX4 answers itself and does not forward.
+  one addressed to the autopilot (component 1) PX4 answers itself and does not forward;
+* bursts: 10 CAMERA_IMAGE_CAPTURED (~230 bytes each) sent back to back: 2 reached the GCS (twice);
+  2 ms apart: 7; 5, 10 and 20 ms apart: all 10. 10 short STATUSTEXTs back to back: all 10.
+  So the observer paces its frames (10 ms) and the simulated PX4 models the buffer.
 
 Then the real thing: our MAVLink client connected to PX4 as in a flight, the GCS observer on
 the client's own link, and a GCS on PX4's GCS port that receives every STATUSTEXT and
@@ -128,6 +131,37 @@ def test_what_px4_forwards_between_companion_and_gcs():
     assert any(m.get_type() == "COMMAND_ACK" and m.command == M.MAV_CMD_REQUEST_MESSAGE for m in gcs.got)
 
 
+def test_px4_forwards_a_burst_of_large_frames_only_in_part():
+    with Px4Sitl(FOLDER, first_instance=3) as px4:
+        i, sysid = px4.instance, px4.instance + 1
+        comp = _RawPeer(("127.0.0.1", OFFBOARD_REMOTE + i), ("127.0.0.1", OFFBOARD_LOCAL + i), sysid)
+        gcs = _RawPeer(("127.0.0.1", 0), ("127.0.0.1", GCS_PORT + i), 255)
+        for _ in range(3):
+            gcs.mav(190).heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+            comp.mav(191).heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0,
+                                         M.MAV_STATE_ACTIVE)
+            time.sleep(1.0)
+            comp.poll()
+            gcs.poll()
+        got = {}
+        for gap in (0.0, 0.01):
+            tag = f"gap{gap:g}"
+            for k in range(10):
+                comp.mav(100).camera_image_captured_send(1, 0, 0, 1, 2, 3, 4, [1, 0, 0, 0], k, 1,
+                                                         (f"{tag} " + "x" * 150).encode())
+                if gap:
+                    time.sleep(gap)
+            t = time.monotonic()
+            while time.monotonic() - t < 1.0:
+                comp.poll()
+                gcs.poll()
+                time.sleep(0.005)
+            got[gap] = sum(1 for m in gcs.got if m.get_type() == "CAMERA_IMAGE_CAPTURED"
+                           and m.file_url.startswith(tag + " "))
+    print("of 10 large frames, PX4 forwarded:", got)
+    assert got[0.0] < 10 and got[0.01] == 10
+
+
 def test_gcs_on_px4_sitl_gets_statustext_and_every_photo_marker():
     with Px4Sitl(FOLDER, first_instance=3) as px4:
         vehicle = MavlinkVehicle(px4.connection, heartbeat_timeout=30.0)
@@ -147,7 +181,8 @@ def test_gcs_on_px4_sitl_gets_statustext_and_every_photo_marker():
                                  M.MAVLINK_MSG_ID_CAMERA_INFORMATION)
                 assert gcs.wait_for(lambda: len(gcs.of("CAMERA_IMAGE_CAPTURED")) == 5
                                     and len(gcs.of("CAMERA_INFORMATION")) >= 2
-                                    and gcs.of("COMMAND_ACK", CAMERA_COMPONENT), 10.0), gcs.count()
+                                    and gcs.of("COMMAND_ACK", CAMERA_COMPONENT), 10.0), \
+                    str(sorted((k, n) for k, n in gcs.count().items() if k[1] != 1)) + str(obs.sent)
                 time.sleep(1.5)
                 obs.close()
         finally:
