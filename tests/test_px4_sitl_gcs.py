@@ -197,3 +197,44 @@ def test_gcs_on_px4_sitl_gets_statustext_and_every_photo_marker():
     assert (M.MAV_SEVERITY_CRITICAL, "Inspection aborted: test over") in mine
     assert sum(t.startswith("Photo ") for _, t in mine) == 5
     assert len(gcs.of("HEARTBEAT", CAMERA_COMPONENT)) >= 2  # 1 Hz, forwarded
+
+
+def test_small_scene_flight_against_px4_sitl_shows_every_photo_on_its_gcs(tmp_path):
+    """The small-scene inspection flown through PX4 (``inspect --connection ... --sim-sensors``)
+    with a ground station on PX4's own GCS port: it gets a STATUSTEXT and a CAMERA_IMAGE_CAPTURED
+    for every photo of the report, the mission's phase changes, and the camera's information."""
+    import json
+
+    from test_mission_inspect import small_scene
+    from test_px4_sitl import ARGS, SPEED
+
+    from insulator_rs.app.cli import main
+    from px4_sitl import mission_at_home
+
+    scene, mission = small_scene(tmp_path)
+    mission.write_text(mission.read_text() + "confirmations = 1\n")
+    mission = mission_at_home(mission, tmp_path / "at_home.toml")
+    out = tmp_path / "report"
+    with Px4Sitl(FOLDER, speed=SPEED, workdir=tmp_path / "px4", first_instance=3) as px4:
+        with GcsListener(("127.0.0.1", GCS_PORT + px4.instance)) as gcs:
+            assert gcs.wait_for(lambda: gcs.of("HEARTBEAT", 1), 10.0)
+            rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
+                       "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"])
+            time.sleep(1.0)
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 0 and s["status"] == "finished", s["status"]
+    photos = s["photos"]
+    assert len(photos) >= 4
+    caps = gcs.of("CAMERA_IMAGE_CAPTURED", CAMERA_COMPONENT)
+    print(f"{len(photos)} photos; the GCS got {len(caps)} CAMERA_IMAGE_CAPTURED, "
+          f"{len(gcs.statustexts())} STATUSTEXT; {gcs.count()[(px4.instance + 1, CAMERA_COMPONENT, 'HEARTBEAT')]} "
+          f"camera heartbeats")
+    assert [c.image_index for c in caps] == list(range(len(photos)))
+    for c, p in zip(caps, photos):
+        assert c.file_url.endswith(p["file"])
+        assert abs(c.lat - p["wgs84"]["lat"] * 1e7) <= 1 and abs(c.lon - p["wgs84"]["lon"] * 1e7) <= 1
+    texts = [t for comp, _, t in gcs.statustexts() if comp == COMPANION_COMPONENT]
+    assert sum(t.startswith("Photo ") for t in texts) == len(photos)
+    for tr in s["transitions"]:
+        assert any(t.startswith(f"Inspection: {tr['from']} -> {tr['to']}") for t in texts), tr
+    assert gcs.cameras_asked and gcs.of("CAMERA_INFORMATION", CAMERA_COMPONENT)
