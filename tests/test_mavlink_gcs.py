@@ -96,7 +96,7 @@ def test_a_gcs_receives_every_message_straight_from_the_observer():
     assert by_text["Insulator 1 found (new): 47.397760 8.545610 497.1 m"] == M.MAV_SEVERITY_NOTICE
     assert by_text["Inspection aborted: heartbeat lost"] == M.MAV_SEVERITY_CRITICAL
     assert by_text["a long message that does not fit one STATUSTEXT: it goes out in two chunks of fifty"] \
-        == M.MAV_SEVERITY_INFO
+        == M.MAV_SEVERITY_DEBUG
     for k in range(3):
         assert f"Photo {k + 1}: insulator {1 + k // 2}, {_photo(k).file}" in by_text
     caps = gcs.of("CAMERA_IMAGE_CAPTURED", CAMERA_COMPONENT)

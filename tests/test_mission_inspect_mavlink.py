@@ -14,6 +14,7 @@ import pytest
 from test_mission_inspect import small_scene
 
 from insulator_rs.app.cli import main
+from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.flight.loop import FlightLoop
 from insulator_rs.sim.kinematics import KinematicVehicle
 
@@ -237,7 +238,16 @@ def test_far_side_finds_owed_on_the_landing_side_are_inspected_before_landing(tm
         for _ in range(self.registry.confirmations):  # the registry confirms on the last one
             outcomes.append(self.sm.localized(gt.center, gt.axis, st.position, st.time))
 
-    monkeypatch.setattr(FlightLoop, "detection_event", scripted_event)
+    flown_tick = FlightLoop.tick
+
+    def scripted_tick(self, *args):
+        st = flown_tick(self, *args)
+        if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
+            scripted_event(self, st)
+        return st
+
+    monkeypatch.setattr(FlightLoop, "tick", scripted_tick)
+    monkeypatch.setattr(PerceptionRunner, "step", lambda self, now: [])  # only the script localizes
     rc, out, s = _inspect(tmp_path)
     assert outcomes[-1] == "deferred" and set(outcomes[:-1]) <= {"candidate"}
     assert rc == 0 and s["status"] == "finished" and s["state"] == "finish"

@@ -17,20 +17,14 @@ from pathlib import Path
 import cv2
 
 from insulator_rs.detection.detector import Detections, Detector
+from insulator_rs.detection.detector import open_detector
+from insulator_rs.models import REAL_CROP_MODEL
 from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_split
 from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.exceptions import ImageError
 from insulator_rs import bounds
-
-
-def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
-                  imgsz: int | None = None) -> Detector:
-    """A detector from a shipped model name or an ONNX path (``imgsz``: input size, default the model's)."""
-    if model.endswith(".onnx") or Path(model).exists():
-        return Detector(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
-    return Detector.from_name(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
 
 
 def draw(image: cv2.typing.MatLike, det: Detections) -> cv2.typing.MatLike:
@@ -122,7 +116,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     sub = parser.add_subparsers(dest="detect_command", required=True)
 
     def common(p: argparse.ArgumentParser, conf: float) -> None:
-        p.add_argument("--model", default="insulator-real", help="shipped model name or ONNX path")
+        p.add_argument("--model", default=REAL_CROP_MODEL, help="shipped model name or ONNX path")
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
         p.add_argument("--threads", type=bounds.option("--threads"), default=None,

@@ -32,10 +32,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from insulator_rs.app import live_options as cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
-from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model
+from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
@@ -57,7 +59,6 @@ from insulator_rs.sim.towers import load_tower
 from insulator_rs.ports.vehicle import Vehicle
 
 MISSIONS_DIR = Path(__file__).resolve().parent / "missions"
-DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
 MAX_MAVLINK_TIME_SCALE = 4.0  # the client's timeouts and the 20 Hz stream hold up to this speed-up
 # The vehicle's own limits get this much headroom over the planning limits so the
 # position loop can track the trajectory.
@@ -110,10 +111,8 @@ def load_network(model: str | None, *, live_camera: bool = False) -> NetworkDete
             raise ValueError("--detector standin: the stand-in reads the simulator's ground truth; "
                              "a live camera needs a network")
         return None
-    from insulator_rs.app.detect_command import open_detector
-
     try:
-        return NetworkDetector(open_detector(model, conf=DETECT_CONF))
+        return open_network_detector(model)
     except ValueError as exc:  # ModelError included: missing, truncated or not a YOLO export
         raise ValueError(f"--detector: {exc}") from exc
 
@@ -156,6 +155,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--record", type=Path, default=None,
                    help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
                         "messages in this MCAP file (replay it with `insulator-rs replay`)")
+    p.add_argument("--record-images", choices=("jpeg", "raw"), default="jpeg",
+                   help="how --record stores the detection frames: jpeg (CompressedImage, small) or raw "
+                        "(Image, lossless: a replay detects on exactly the flight's pixels)")
     p.add_argument("--vehicle", choices=("sim", "mavlink"), default=None,
                    help="sim: the in-process kinematic vehicle (default); mavlink: the MAVLink offboard "
                         "client, to the simulated PX4 it starts on loopback unless --connection is given")
@@ -290,20 +292,22 @@ def run(args: argparse.Namespace) -> int:
 
         observer = MavlinkGcsObserver.on_vehicle(vehicle, camera=CameraDescription.from_camera_model(photo_camera),
                                                  file_url_prefix=f"{Path(args.out).resolve().as_uri()}/")
+    link_stats = getattr(vehicle, "link_stats", None) if mavlink else None  # the MAVLink adapter's counters
     recorder = None
-    if args.record is not None:
+    if args.record is not None:  # recording wraps the ports: the flight does not know it is recorded
         from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
-        from insulator_rs.recording.writer import McapRecorder
+        from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
 
-        recorder = McapRecorder(args.record)
+        recorder = McapRecorder(args.record, image_format=args.record_images)
         recorder.metadata(RECORD_NAME, FlightMetadata(
             mission_text=Path(mission_path).read_text(encoding="utf-8"), mission_suffix=Path(mission_path).suffix,
             mission_source=str(mission_path),
             scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
+        vehicle = RecordingVehicle(vehicle, recorder)
+        sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
     try:
         loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
-                          overwrite=args.overwrite, recorder=recorder, photo_camera=photo_camera,
-                          observer=observer)
+                          overwrite=args.overwrite, photo_camera=photo_camera, observer=observer)
         code = 0
         try:
             loop.fly()
@@ -319,8 +323,8 @@ def run(args: argparse.Namespace) -> int:
             score = None
             summary = loop.finish_report()
         else:
-            score = score_flight(loop.summary(), tower)
-            summary = loop.finish_report(reference=[t.center for t in tower.insulators])
+            score = score_flight(loop.summary().as_dict(), tower)
+            summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
             write_score(args.out, score)
     finally:
         if observer is not None:
@@ -332,6 +336,6 @@ def run(args: argparse.Namespace) -> int:
     if summary["status"].startswith("aborted"):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
-    if mavlink:  # what the link refused (strangers, garbage, bad signatures), counted by reason
-        print(f"MAVLink link: {vehicle.link_stats.describe()}", file=sys.stdout)
+    if link_stats is not None:  # what the link refused (strangers, garbage, bad signatures), by reason
+        print(f"MAVLink link: {link_stats.describe()}", file=sys.stdout)
     return code

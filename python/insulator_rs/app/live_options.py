@@ -18,6 +18,7 @@ import argparse
 from typing import Any
 
 from insulator_rs.drivers.live_sensors import LiveSensors, open_live_sensors
+from insulator_rs.ports.detector import STANDIN
 from insulator_rs.drivers.livox import parse_url
 from insulator_rs.exceptions import SensorError
 from insulator_rs.timesync import TelemetryClock
@@ -46,7 +47,7 @@ def check_arguments(args: argparse.Namespace) -> bool:
         raise ValueError("--lidar/--camera: live sensors fly a real autopilot: add --connection")
     if getattr(args, "sim_sensors", False):
         raise ValueError("--lidar/--camera: not with --sim-sensors (the sensors are either live or simulated)")
-    if getattr(args, "detector", None) == "standin":
+    if getattr(args, "detector", None) == STANDIN:
         raise ValueError("--detector standin: a live camera needs a detection network (default: the real-photo one)")
     try:
         parse_url(lidar)

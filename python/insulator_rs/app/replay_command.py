@@ -6,7 +6,8 @@ several FLIGHTs) re-processes each into ``--out/<name>/`` and writes ``fleet_sum
 ``--workers N`` runs them in parallel on Ray (a local Ray by default, ``--address`` joins a
 running cluster: ``ray start --head`` on one machine, ``ray start --address=HEAD:6379`` on the
 others, insulator_rs installed on all). One flight and a fleet run the same function,
-:func:`replay_one`.
+:func:`~insulator_rs.replay.batch.replay_one`; the scene named by the recording (or --scene) scores each
+report afterwards (``score.json``).
 
 The mission (tower, line, inspection parameters) comes from the recording when insulator_rs
 recorded it, else from ``--mission``; ground truth (errors in the report) from the scene the
@@ -18,119 +19,16 @@ camera driver's and PX4's (``/livox/lidar``, ``/camera/image_raw/compressed``,
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from insulator_rs.exceptions import BagError, ConfigError, ModelError
+from insulator_rs.exceptions import BagError, ConfigError
 from insulator_rs.perception.pipeline import BOUNDED, METHODS
 from insulator_rs.recording.types import Topics
-
-DEFAULT_DETECTOR = "insulator-sim"
-DETECT_CONF = 0.25  # as the flight's detection events
-
-
-@dataclass(frozen=True)
-class ReplayOptions:
-    """Everything a replay of one flight needs besides its path (picklable, for Ray)."""
-
-    topics: Topics = field(default_factory=Topics)
-    detector: str = DEFAULT_DETECTOR
-    method: str = BOUNDED  # the flight's default (inspect --method)
-    deskew: bool = True
-    detect_period: float = 0.0
-    mission: str | None = None
-    scene: str | None = None
-    max_gap: float = 2.0
-    rerun: bool = False
-    progress: bool = False
-    overwrite: bool = False
-
-
-def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dict[str, Any]:
-    """Replay one recorded flight into the report folder ``out``; its summary. A recording
-    that cannot be opened or a bad option gives a summary with status ``failed: ...`` (and a
-    report folder holding it), so a fleet goes on with the other flights."""
-    from insulator_rs.recording.metadata import read_metadata
-    from insulator_rs.recording.reader import FlightBag, bag_paths
-    from insulator_rs.replay.run import ReplayRun, ReplaySettings
-
-    path, out = Path(path), Path(out)
-    try:
-        bag_paths(path)  # a missing or foreign file is named before anything else
-        meta = read_metadata(path)
-        if options.mission is not None:
-            from insulator_rs.mission.config import load_mission
-
-            mission = load_mission(options.mission)
-        else:
-            recorded = meta.mission(path)
-            if recorded is None:
-                raise ConfigError(f"--mission: {path} does not carry its mission (not recorded by insulator_rs); "
-                                  f"give the mission file")
-            mission = recorded
-        scene = options.scene or meta.scene or None
-        truth = _ground_truth(scene) if scene else None
-        detector = _detector(options.detector)
-        settings = ReplaySettings(method=options.method, deskew=options.deskew, detect_period=options.detect_period,
-                                  progress=options.progress)
-        with FlightBag(path, options.topics, max_gap=options.max_gap) as bag:
-            summary = ReplayRun(bag, out, mission=mission, detector=detector, settings=settings,
-                                ground_truth=truth, rerun=options.rerun, overwrite=options.overwrite).run()
-        summary["scene"] = scene
-        summary["tower"] = f"{mission.tower.lat:.6f},{mission.tower.lon:.6f}"  # the tower's GPS names it
-        return summary
-    except (BagError, ConfigError, ModelError, ValueError) as exc:
-        return _failed(path, out, str(exc))
-
-
-def _failed(path: Path, out: Path, error: str) -> dict[str, Any]:
-    """The summary of a replay that could not start; written to ``out`` when that is free
-    (never over another run's report)."""
-    summary = {"status": f"failed: {error}", "error": error, "recording": str(path), "insulators_found": 0,
-               "insulators": []}
-    if not out.exists() or (out.is_dir() and not any(out.iterdir())):
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return summary
-
-
-def _ground_truth(scene: str) -> list[Any]:
-    """The scene's true insulators (a simulated flight's; used only to score the replay)."""
-    from insulator_rs.sim.towers import load_tower
-
-    return list(load_tower(scene).insulators)
-
-
-def _detector(name: str) -> Any:
-    from insulator_rs.app.detect_command import open_detector
-    from insulator_rs.ports.detector import NetworkDetector
-
-    try:
-        return NetworkDetector(open_detector(name, conf=DETECT_CONF))  # as the flight's --detector
-    except ValueError as exc:
-        raise ModelError(f"--detector: {exc}") from exc
-
-
-def find_flights(paths: list[Path]) -> list[Path]:
-    """The recordings among ``paths``: each a recording, or a folder of recordings (MCAP files,
-    rosbag2 folders, ROS 1 bags) that is not itself a rosbag2 folder."""
-    flights: list[Path] = []
-    for p in paths:
-        if p.is_dir() and not (p / "metadata.yaml").is_file():
-            found = sorted(x for x in p.iterdir()
-                           if (x.is_file() and x.suffix in (".mcap", ".bag"))
-                           or (x.is_dir() and (x / "metadata.yaml").is_file()))
-            if not found:
-                raise BagError(f"{p}: no recordings in this folder (.mcap, .bag or rosbag2 folders)")
-            flights.extend(found)
-        else:
-            flights.append(p)
-    return flights
-
+from insulator_rs.replay.batch import DEFAULT_DETECTOR, ReplayOptions, find_flights, replay_one
+from insulator_rs.report.jsonfile import write_json
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("replay", help="re-process recorded flights (MCAP, rosbag2, ROS 1 bag) offline",
@@ -188,22 +86,47 @@ def run(args: argparse.Namespace) -> int:
     fleet = len(flights) > 1 or any(p.is_dir() and not (p / "metadata.yaml").is_file() for p in args.flights)
     if not fleet:
         summary = replay_one(flights[0], args.out, options)
-        _print_one(summary, args.out)
+        score = _score(summary, args.out)
+        _print_one(summary, score, args.out)
         return 0 if summary["status"] == "finished" else 1
     from insulator_rs.replay.fleet import replay_fleet
 
     fleet_summary = replay_fleet(flights, args.out, options, workers=args.workers, address=args.address)
     for f in fleet_summary["flights"]:
+        score = _score(f, Path(f["out"])) if f.get("out") else None
+        if score is not None:
+            f.update({k: score[k] for k in ("insulators_matched", "insulators_in_scene", "mean_error_m")})
         print(f"{f['recording']}: {f['status'][:200]}: {f['insulators_found']} insulators")
+    write_json(Path(args.out) / "fleet_summary.json", fleet_summary)
     print(f"fleet: {fleet_summary['flights_ok']}/{len(flights)} flights replayed, report in {args.out}")
     return 0 if fleet_summary["flights_ok"] == len(flights) else 1
 
 
-def _print_one(summary: dict[str, Any], out: Path) -> None:
-    err = summary.get("mean_error_m")
-    speed = summary.get("speed_vs_real_time")
-    print(f"{summary['status']}: {summary.get('frames', 0)} frames, {summary.get('detection_events', 0)} detection "
-          f"events, {summary['insulators_found']} insulators"
-          + (f" (mean error {err:.3f} m)" if err is not None else "")
-          + (f", {speed:.1f}x real time" if speed else "") + f"; report in {out}")
+def _score(summary: dict[str, Any], out: Path) -> dict[str, Any] | None:
+    """After the replay: the report against the scene it names (a simulated flight's), written to
+    ``score.json`` beside it; None without a scene or a report."""
+    scene = summary.get("scene")
+    if not scene or not (Path(out) / "summary.json").is_file() or summary.get("run") != "replay":
+        return None
+    from insulator_rs.evaluation.scoring import score_flight, write_score
+    from insulator_rs.sim.towers import load_tower
 
+    try:
+        tower = load_tower(scene)
+    except (ConfigError, ValueError, OSError) as exc:
+        print(f"insulator-rs replay: note: scene {scene!r} cannot be loaded to score the replay: {exc}",
+              file=sys.stderr)
+        return None
+    score = score_flight(summary, tower, photos=False)
+    write_score(Path(out), score)
+    return score
+
+
+def _print_one(summary: dict[str, Any], score: dict[str, Any] | None, out: Path) -> None:
+    err = None if score is None else score.get("mean_error_m")
+    speed = summary.get("speed_vs_real_time")
+    print(f"{summary['status']}: {summary.get('frames', 0)} frames, {summary.get('frames_detected', 0)} "
+          f"detected, {summary['insulators_found']} insulators"
+          + (f" ({score['insulators_matched']} of {score['insulators_in_scene']} matched, mean error "
+             f"{err:.3f} m, scored after the replay)" if score is not None and err is not None else "")
+          + (f", {speed:.1f}x real time" if speed else "") + f"; report in {out}")

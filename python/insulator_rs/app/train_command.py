@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.detection.voc import DEFAULT_FRACTIONS, IMAGE_SUFFIXES, convert_voc_dataset
+from insulator_rs.models import REAL_CROP_MODEL
 from insulator_rs.report.folder import parse_out_folder
 
 
@@ -125,7 +126,7 @@ def field_comparison(onnx_path: Path, field_photos: Path, before: str | None, *,
     at its own input size and at the new model's, so the gain from the input
     size and the gain from training are told apart.
     """
-    from insulator_rs.app.detect_command import open_detector
+    from insulator_rs.detection.detector import open_detector
     from insulator_rs.detection.evaluate import EVAL_CONF, evaluate_field_test
 
     new = open_detector(str(onnx_path), conf=EVAL_CONF, threads=threads)
@@ -242,7 +243,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p = subparsers.add_parser("train", help="train YOLO11n offline and export ONNX (needs the train extra)")
     p.add_argument("--data", type=Path, required=True, help="VOC folder (with train/valid/test or flat) or data.yaml")
     p.add_argument("--out", type=parse_out_folder, required=True, help="output folder (runs, ONNX, model card)")
-    p.add_argument("--name", default="insulator-real", help="model name (file stem)")
+    p.add_argument("--name", default=REAL_CROP_MODEL, help="model name (file stem)")
     p.add_argument("--model-cfg", default="yolo11n.yaml", help="Ultralytics architecture file")
     p.add_argument("--epochs", type=int, default=100)
     p.add_argument("--hours", type=float, default=None, help="wall-clock budget; overrides --epochs")

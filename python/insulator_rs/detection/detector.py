@@ -275,3 +275,11 @@ def _as_hw(imgsz: int | Sequence[int]) -> tuple[int, int]:
     if min(hw) < 32 or hw[0] % 32 or hw[1] % 32:
         raise ValueError(f"imgsz must be positive multiples of 32 (YOLO stride), got {imgsz}")
     return hw
+
+
+def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
+                  imgsz: int | None = None) -> Detector:
+    """A detector from a shipped model name or an ONNX path (``imgsz``: input size, default the model's)."""
+    if model.endswith(".onnx") or Path(model).exists():
+        return Detector(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
+    return Detector.from_name(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)

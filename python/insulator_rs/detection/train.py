@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from insulator_rs.models import REAL_CROP_MODEL
+
 OFFLINE_ENV = {
     "YOLO_OFFLINE": "1",
     "YOLO_AUTOINSTALL": "False",
@@ -78,7 +80,7 @@ class TrainConfig:
 
     data_yaml: Path
     out_dir: Path
-    name: str = "insulator-real"
+    name: str = REAL_CROP_MODEL
     model_cfg: str = "yolo11n.yaml"
     epochs: int = 100
     hours: float | None = None  # wall-clock budget: Ultralytics re-derives epochs from the first epoch's time

@@ -2,12 +2,13 @@
 
 The paper's online algorithm: take off, fly the exploration path (minimum-snap trajectories,
 safety-checked), and every ``detect_period`` s take a detection frame from the sensors, run
-the detector, and hand the frame, its boxes and the LiDAR points of that instant (the scans
-up to it and those after it, until the sensors have delivered the points of the whole pairing
-window, see :meth:`FlightLoop._pair_pending`) to the perception pipeline (paired and deskewed
-with the pose history the loop feeds every control tick); new insulators get inspection waypoints, which the state machine visits (a photo at
-each, from the companion computer's camera through ``Sensors.photo``, gimbal aimed), then the
-flight goes on, crosses over the top, finishes and lands.
+the detector, and hand the frame, its boxes and the LiDAR points of that instant to the
+perception pipeline (:class:`~insulator_rs.perception.runner.PerceptionRunner`: the one pairing
+rule, shared with the replay of a recorded flight; paired and deskewed with the pose history
+the loop feeds every control tick); new insulators get inspection waypoints, which the state
+machine visits (a photo at each, from the companion computer's camera through
+``Sensors.photo``, gimbal aimed), then the flight goes on, crosses over the top, finishes and
+lands. The loop does not know whether it is recorded: recording wraps the ports.
 
 A vehicle failsafe (link lost, the pilot took over, battery, position lost) aborts the
 mission: the report says why and keeps everything found so far, and once the failsafe fired
@@ -31,24 +32,28 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError, SensorError, VehicleError, VehicleFailsafe
-from insulator_rs.ports.detector import BoxDetector
-from insulator_rs.planning.segments import plan_segment
-from insulator_rs.mission.config import Mission
-from insulator_rs.planning.exploration import MIN_PASS_HEIGHT
 from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
-from insulator_rs.ports.observer import InsulatorFound, PhaseChange, PhotoTaken
+from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
+from insulator_rs.flight.photos import InspectionPhotos
+from insulator_rs.flight.record import camera_record, insulator_records, perception_record
+from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.perception.pipeline import PerceptionPipeline
-from insulator_rs.perception.photo_quality import photo_quality
+from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
+from insulator_rs.perception.pipeline import BOUNDED, LocalizedInsulator, PerceptionPipeline
+from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.planning.exploration import MIN_PASS_HEIGHT, PlanKind
 from insulator_rs.planning.pmm import rest_to_rest_times
-from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
-from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, State
+from insulator_rs.planning.segments import plan_segment
 from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
+from insulator_rs.ports.detector import BoxDetector, detections_dropped, detector_name
+from insulator_rs.ports.observer import FlightObserver, InsulatorFound, PhaseChange, PhotoTaken
+from insulator_rs.ports.sensors import PoseStamped, Sensors
+from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.report import FlightClock, ReportWriter
+from insulator_rs.report.summary import FlightDetails, RunSummary
 from insulator_rs.rig import SensorRig
-from insulator_rs.ports.sensors import LidarScan, PoseStamped, Sensors
-from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 
 CONTROL_PERIOD = 0.05  # s: 20 Hz setpoint stream, as PX4 offboard wants
 PHOTO_YAW_TOLERANCE = math.radians(3.0)
@@ -60,14 +65,6 @@ SUMMARY_PERIOD = 5.0  # s of flight between summary rewrites
 LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
 TAKEOFF_TIMEOUT = 60.0  # s of vehicle time for the climb to the first pass height
 LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
-# s past the pairing window a frame may wait for the scan that covers the window's end: a live
-# 10 Hz LiDAR delivers a scan once its 100 ms window is closed (plus the driver's reorder grace
-# and the link's latency); a frame still short after that goes to perception with what is there
-PAIRING_WAIT = 0.3
-# s: a scan ending this close before the window's end covers it (the last shots of a window
-# may have no return; shots are 5 us apart; a source that knows its window says so:
-# LidarScan.window_end)
-PAIRING_SLACK = 0.01
 
 
 @dataclass(frozen=True)
@@ -75,12 +72,15 @@ class FlightSettings:
     """How the loop flies: localization ``method``, buffering ``policy``, s between detection
     events, the flight-time limit (s), the min-snap ``time_allocation``, progress output."""
 
-    method: str = "dbscan+ransac"
-    policy: str = "immediate"
+    method: str = BOUNDED  # the product's default (inspect --method): tests fly what users fly
+    policy: Policy = Policy.IMMEDIATE
     detect_period: float = 1.0
     max_flight_time: float = 1800.0
     time_allocation: str = "pmm"
     quiet: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "policy", Policy(self.policy))  # a bad policy is refused, named
 
 
 def gimballed_T_b_c(T_b_c: np.ndarray, pitch: float) -> np.ndarray:
@@ -97,22 +97,27 @@ class FlightLoop:
 
     def __init__(self, mission: Mission, vehicle: Vehicle, sensors: Sensors, detector: BoxDetector,
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
-                 overwrite: bool = False, recorder: Any = None, photo_camera: Any = None,
-                 observer: Any = None) -> None:
-        self.observer = observer  # a ports.observer.FlightObserver (the GCS's view) or None
+                 overwrite: bool = False, observer: FlightObserver | None = None,
+                 photo_camera: Any = None) -> None:
         self.mission = mission
         self.vehicle = vehicle
         self.sensors = sensors
         self.detector = detector
         self.rig = rig
         self.settings = settings
-        self.recorder = recorder  # insulator_rs.recording.writer.McapRecorder (--record) or None
+        # who watches the flight: the console unless quiet, and what the caller adds (the GCS)
+        watchers: list[FlightObserver] = [] if settings.quiet else [ConsoleObserver()]
+        if observer is not None:
+            watchers.append(observer)
+        self.observer = ObserverGroup(watchers)
         self.geom = MissionGeometry.from_mission(mission)
         lim = mission.vehicle
         self.v_max, self.a_max = lim.v_max(), lim.a_max()
         self.failsafe: VehicleFailsafe | None = None  # the failsafe that stopped the mission
         self.perception = PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, method=settings.method,
                                              insulator_length=mission.inspection.insulator_length)
+        self.runner = PerceptionRunner(sensors, detector, self.perception, detect_period=settings.detect_period,
+                                       on_sensor_error=self._sensor_error)
         self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate,
                                           mission.inspection.confirmations)
         # the photos' intrinsics (the rig camera's unless the sensors deliver another resolution)
@@ -122,24 +127,18 @@ class FlightLoop:
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints,
                                          policy=settings.policy, cost=self._cost)
         tower = mission.tower
-        self.report = ReportWriter(out, origin=GeoPoint(tower.lat, tower.lon, tower.alt), overwrite=overwrite)
+        self.origin = GeoPoint(tower.lat, tower.lon, tower.alt)
+        self.report = ReportWriter(out, origin=self.origin, overwrite=overwrite)
         self.clock = FlightClock(self.vehicle.state().time)  # UTC of vehicle stamps; re-anchored at take-off
         self.out = out
-        self.photos: list[dict[str, Any]] = []
-        self.photo_camera: Any = None  # intrinsics of the photos taken (the sensors say)
+        self.photos = InspectionPhotos(self.report, mission.inspection.insulator_length)
         self.waypoints: list[InspectionWaypoint] = []
         self.status = "running"
         self.abort_reason: str | None = None
         self.t_start = 0.0
-        self.events = 0
-        self.localizations = 0
-        self.sensor_errors = 0
+        self.sensor_errors = 0  # the runner's and the photos'
         self._airborne = False
-        self._pending: list[tuple[Any, np.ndarray]] = []  # detection frames and their boxes, oldest first
-        self._scan_horizon = -math.inf  # vehicle time of the newest LiDAR point handed to perception
-        self.pairing_short = 0  # frames handed over before the scans covered their whole window
         self._printed_transitions = 0
-        self._next_detect = 0.0
         self._next_status = STATUS_PERIOD
         self._next_summary = SUMMARY_PERIOD
         self._wall0 = wallclock.perf_counter()
@@ -159,29 +158,16 @@ class FlightLoop:
         return float(rest_to_rest_times(a, b, self.v_max, self.a_max))
 
     def say(self, text: str) -> None:
-        if not self.settings.quiet:
-            print(text, flush=True)
+        self.observer.message(self.now(), text)
 
     def now(self) -> float:
         return self.vehicle.state().time - self.t_start
 
     def _print_transitions(self) -> None:
         for tr in self.sm.transitions[self._printed_transitions:]:
-            self.say(f"[{tr.time - self.t_start if tr.time >= self.t_start else tr.time:7.1f} s] "
-                     f"{tr.source.value} -> {tr.target.value}: {tr.reason}")
-            t_tr = tr.time - self.t_start if tr.time >= self.t_start else tr.time
-            self._notify("phase", PhaseChange(t_tr, tr.source.value, tr.target.value, tr.reason))
-            if tr.target == State.ABORT:
-                self._notify("aborted", t_tr, tr.reason)
+            t = tr.time - self.t_start if tr.time >= self.t_start else tr.time
+            self.observer.phase(PhaseChange(t, tr.source.value, tr.target.value, tr.reason))
         self._printed_transitions = len(self.sm.transitions)
-
-    def _notify(self, event: str, *args: Any) -> None:
-        """Tell the observer (if any); a watcher's failure never stops the flight."""
-        if self.observer is not None:
-            try:
-                getattr(self.observer, event)(*args)
-            except Exception as exc:  # noqa: BLE001
-                self.say(f"observer {event}: {exc}")
 
     def _sensor_error(self, exc: SensorError) -> None:
         self.sensor_errors += 1
@@ -189,86 +175,32 @@ class FlightLoop:
             self.say(f"[{self.now():7.1f} s] sensor error ({self.sensor_errors} so far): {exc}")
 
     # -- sensing -------------------------------------------------------------------------
-    def detection_event(self, st: VehicleState) -> None:
-        """Take a detection frame and run the detector; a frame with boxes waits for the LiDAR
-        points of its instant (see :meth:`_pair_pending`)."""
-        self.events += 1
-        try:
-            frame = self.sensors.detection_frame(st.time)
-            if frame is None:
-                return
-            boxes = np.asarray(self.detector(frame.image), dtype=np.float64)
-            # the recorder keeps the raw stream: every frame and its scan, boxes or not
-            scan = self.sensors.lidar_scan(st.time) if len(boxes) or self.recorder is not None else None
-        except SensorError as exc:
-            self._sensor_error(exc)
+    @property
+    def events(self) -> int:
+        """Detection events so far (the runner's)."""
+        return self.runner.counts.events
+
+    @property
+    def localizations(self) -> int:
+        return self.runner.counts.localizations
+
+    @property
+    def pairing_short(self) -> int:
+        return self.runner.pairing_short
+
+    def _localized(self, fix: LocalizedInsulator, st: VehicleState) -> None:
+        """Tell the state machine of a localization; a new insulator is reported."""
+        outcome = self.sm.localized(fix.center, fix.axis, st.position, st.time)
+        if outcome not in ("new", "deferred"):
             return
-        scan = self._take_scan(scan, frame.T_b_c)
-        if self.recorder is not None:
-            self.recorder.frame(frame, scan.T_b_l if scan is not None else self.rig.T_b_l)
-        if len(boxes) == 0:
-            return
-        self._pending.append((frame, boxes))
-
-    def _take_scan(self, scan: Any, T_b_c: np.ndarray) -> Any:
-        """Hand perception (and the recorder) the points of ``scan`` it does not have yet: a live
-        source returns the same newest scan until the next is complete, and the simulator's
-        scans may overlap; None when nothing in it is new."""
-        if scan is None or not scan.covered_until > self._scan_horizon:  # nan (no point, no window): nothing
-            return None
-        if scan.time_start <= self._scan_horizon:
-            new = np.asarray(scan.times) > self._scan_horizon
-            scan = LidarScan(np.asarray(scan.points_l)[new], np.asarray(scan.times)[new], scan.T_b_l,
-                             None if scan.intensity is None else np.asarray(scan.intensity)[new],
-                             window_end=scan.window_end)
-        self._scan_horizon = scan.covered_until
-        self.perception.add_scan(scan)
-        if self.recorder is not None:
-            self.recorder.scan(scan, T_b_c)
-        return scan
-
-    def _pair_pending(self, st: VehicleState) -> None:
-        """Pair the pending frames with the LiDAR points of both sides of their instant (+- the
-        pairing window) and tell the state machine of each localization.
-
-        Driven by the data: once the window past a frame is over, the newest scan is asked for
-        every control tick and its new points go to perception, until a scan reaches the
-        window's end (a live 10 Hz driver delivers the scan covering it up to a frame period
-        and its reorder grace later; the simulator renders it at once). A frame still short
-        ``PAIRING_WAIT`` s after its window goes with what is there, counted in
-        ``pairing_short`` (a LiDAR that stopped delivering costs the pairing, never the flight)."""
-        window = self.perception.pairing_window
-        if not self._pending or st.time < self._pending[0][0].time + window - 1e-9:
-            return
-        try:
-            self._take_scan(self.sensors.lidar_scan(st.time), self._pending[0][0].T_b_c)
-        except SensorError as exc:
-            self._sensor_error(exc)
-        while self._pending:
-            frame, boxes = self._pending[0]
-            due = frame.time + window
-            if st.time < due - 1e-9:
-                break
-            if self._scan_horizon < due - PAIRING_SLACK:
-                if st.time < due + PAIRING_WAIT:
-                    break
-                self.pairing_short += 1
-            self._pending.pop(0)
-            self._localize(frame, boxes, st)
-
-    def _localize(self, frame: Any, boxes: np.ndarray, st: VehicleState) -> None:
-        for loc in self.perception.process(frame, boxes):
-            self.localizations += 1
-            outcome = self.sm.localized(loc.center, loc.axis, st.position, st.time)
-            if outcome in ("new", "deferred"):
-                ins, _ = self.registry.nearest(loc.center)
-                self.say(f"[{self.now():7.1f} s] insulator {ins.id if ins else '?'} localized at "
-                         f"{np.round(loc.center, 2).tolist()} ({loc.n_points} points) -> {outcome}")
-                if ins is not None:
-                    geo = enu_to_geodetic(ins.center, self.report.origin)[0]
-                    self._notify("insulator_found", InsulatorFound(self.now(), ins.id, ins.center,
-                                                                   tuple(float(g) for g in geo), outcome))
-                self.write_summary()
+        ins, _ = self.registry.nearest(fix.center)
+        self.say(f"[{self.now():7.1f} s] insulator {ins.id if ins else '?'} localized at "
+                 f"{np.round(fix.center, 2).tolist()} ({fix.n_points} points) -> {outcome}")
+        if ins is not None:
+            lat, lon, alt = enu_to_geodetic(ins.center, self.origin)[0]
+            self.observer.insulator_found(InsulatorFound(self.now(), ins.id, ins.center.copy(),
+                                                         (float(lat), float(lon), float(alt)), outcome))
+        self.write_summary()
 
     # -- flying --------------------------------------------------------------------------
     def tick(self, position: np.ndarray, velocity: np.ndarray | None, yaw: float) -> VehicleState:
@@ -285,15 +217,10 @@ class FlightLoop:
             st = self.vehicle.state()
         t = st.time - self.t_start
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
-        pose = PoseStamped(st.time, pose_from_yaw(st.position, st.yaw))
-        self.perception.add_pose(pose)
-        if self.recorder is not None:
-            self.recorder.pose(pose, st.velocity)
+        self.runner.add_pose(PoseStamped(st.time, pose_from_yaw(st.position, st.yaw)))
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
-            self._pair_pending(st)
-            if st.time >= self._next_detect:
-                self._next_detect = st.time + self.settings.detect_period
-                self.detection_event(st)
+            for fix in self.runner.step(st.time):
+                self._localized(fix, st)
         if t >= self._next_status:
             self._next_status += STATUS_PERIOD
             self.say(f"[{t:7.1f} s] {self.sm.state.value}: at {np.round(st.position, 1).tolist()}, "
@@ -311,6 +238,7 @@ class FlightLoop:
     def abort(self, reason: str, time: float | None = None) -> None:
         self.abort_reason = reason
         self.sm.abort(reason, self.vehicle.state().time if time is None else time)
+        self.observer.aborted(self.now(), reason)
 
     def on_failsafe(self, exc: VehicleFailsafe) -> None:
         """The vehicle's failsafe fired: the autopilot now flies it (hold, land, return, or the
@@ -323,7 +251,7 @@ class FlightLoop:
         """Fly a min-snap trajectory through ``items`` (the plan's head); report each item reached
         to the state machine. Returns False if the plan changed on the way (re-plan)."""
         st = self.vehicle.state()
-        seg = plan_segment(self.geom, st.position, st.velocity, items, v_max=self.v_max, a_max=self.a_max,
+        seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity, items, v_max=self.v_max, a_max=self.a_max,
                            clearance=self.mission.inspection.crossing_clearance,
                            time_allocation=self.settings.time_allocation)
         traj = seg.trajectory
@@ -332,7 +260,7 @@ class FlightLoop:
         k = 0
         t = 0.0
         t0 = st.time
-        plan_ids = [id(it) for it in self.sm.plan]
+        version = self.sm.plan_version  # a change of the plan on the way means: re-plan
         while t < traj.total_time - 1e-9:
             # by vehicle time, not ticks: through MAVLink a period ends on a telemetry sample, and
             # sensing takes wall time while the vehicle flies on
@@ -345,15 +273,14 @@ class FlightLoop:
             while k < len(items) - 1 and t >= seg.item_times[k] - 1e-9:
                 self.sm.reached(self.vehicle.state().time)
                 k += 1
-                plan_ids = plan_ids[1:]  # what the plan is unless reaching it changed it
-                if [id(it) for it in self.sm.plan] != plan_ids:
+                if self.sm.plan_version != version:
                     return False
-            if [id(it) for it in self.sm.plan] != plan_ids:
+            if self.sm.plan_version != version:
                 return False
         last = items[-1]
-        if last.kind == "inspect" and last.waypoint is not None:
+        if last.kind == PlanKind.INSPECT and last.waypoint is not None:
             self.take_photo(last.waypoint)
-        if self.sm.plan and self.sm.plan[0] is last:
+        if self.sm.target() is last:
             self.sm.reached(self.vehicle.state().time)
         return True
 
@@ -402,29 +329,18 @@ class FlightLoop:
         if frame is None:
             self.say(f"[{self.now():7.1f} s] photo of insulator {wp.insulator_id}: no image from the camera")
             return
-        n = sum(1 for p in self.photos if p["insulator_id"] == wp.insulator_id)
-        name = f"insulator_{wp.insulator_id:02d}_{n + 1}.jpg"
-        record = self.report.save_photo(name, frame.image, time_utc=self.clock.at(frame.time),
-                                        position_enu=st.position, yaw_enu=st.yaw, gimbal_pitch=wp.gimbal_pitch,
-                                        description=f"insulator {wp.insulator_id}, photo {n + 1}")
-        self.photo_camera = frame.camera
-        # the photo's figures as the flight knows them: odometry pose, gimbal, the localized string
         ins = next((i for i in self.registry.insulators if i.id == wp.insulator_id), None)
-        axis = ins.axis if ins is not None else np.array([0.0, 0.0, 1.0])
-        T_c_w = np.linalg.inv(pose_from_yaw(st.position, st.yaw) @ frame.T_b_c)
-        quality = photo_quality(frame.camera, T_c_w, wp.target, axis,
-                                length=self.mission.inspection.insulator_length,
-                                speed=float(np.linalg.norm(st.velocity)))
-        self.photos.append({**record, "insulator_id": wp.insulator_id,
-                            "time_s": frame.time - self.t_start, "position": st.position, "yaw": st.yaw,
-                            "gimbal_pitch": wp.gimbal_pitch, "T_b_c": frame.T_b_c,
-                            "quality": quality.as_dict(), "planned_gsd_mm": wp.planned_gsd_mm})
-        self._notify("photo_taken", PhotoTaken(
-            frame.time - self.t_start, self.clock.at(frame.time).timestamp(), wp.insulator_id, len(self.photos),
-            record["file"], np.asarray(st.position, dtype=np.float64),
-            (record["wgs84"]["lat"], record["wgs84"]["lon"], record["wgs84"]["alt"]), st.yaw, wp.gimbal_pitch))
-        self.say(f"[{self.now():7.1f} s] photo {name}: GSD {quality.gsd_mm_px:.1f} mm/px, "
-                 f"blur {quality.motion_blur_px:.2f} px")
+        time_utc = self.clock.at(frame.time)
+        record = self.photos.save(wp, frame, time_utc=time_utc, time_s=frame.time - self.t_start,
+                                  position=st.position, yaw=st.yaw, velocity=st.velocity,
+                                  axis=None if ins is None else ins.axis)
+        q = record["quality"]
+        self.say(f"[{self.now():7.1f} s] photo {record['file']}: GSD {q['gsd_mm_px']:.1f} mm/px, "
+                 f"blur {q['motion_blur_px']:.2f} px")
+        w = record["wgs84"]  # where the GCS draws the photo's marker
+        self.observer.photo_taken(PhotoTaken(record["time_s"], time_utc.timestamp(), wp.insulator_id,
+                                             len(self.photos), record["file"], st.position.copy(),
+                                             (w["lat"], w["lon"], w["alt"]), st.yaw, wp.gimbal_pitch))
         self.write_summary()
 
     def takeoff(self) -> None:
@@ -529,36 +445,53 @@ class FlightLoop:
             head = self.sm.target()
             if head is None:
                 break
-            if head.kind == "land":
-                above = PlanItem("land", head.position + np.array([0.0, 0.0, LAND_HEIGHT]), head.yaw, head.side)
-                if head.side != self.sm.side and self.sm.deferred.get(head.side):
-                    # Far-side finds are owed on the landing side, and the state machine releases
-                    # them on arrival there: arrive above the landing point first, not on the ground.
-                    self.sm.plan.insert(0, PlanItem("scan", above.position, head.yaw, head.side))
-                    continue
+            if head.kind == PlanKind.LAND:
+                if self.sm.approach_landing(LAND_HEIGHT) is not None:
+                    continue  # far-side finds are owed on the landing side: arrive above it first
+                above = PlanItem(PlanKind.LAND, head.position + np.array([0.0, 0.0, LAND_HEIGHT]), head.yaw,
+                                 head.side)
                 if self.fly_segment([above]):
                     self.land()
                     self.sm.reached(self.vehicle.state().time)
                 continue
-            items: list[PlanItem] = []
-            for it in self.sm.plan:
-                if it.kind == "land":
-                    break
-                items.append(it)
-                if it.kind == "inspect":
-                    break
+            items = self.sm.next_leg()
             try:
                 self.fly_segment(items)
             except PlanningError as exc:
-                if items[-1].kind != "inspect":
+                if items[-1].kind != PlanKind.INSPECT:
                     raise  # the exploration itself cannot go on: abort (on_planning_failure)
                 self.skip_inspection(items[-1], exc)
 
     # -- report --------------------------------------------------------------------------
-    def summary(self) -> dict[str, Any]:
-        from insulator_rs.flight.record import flight_summary
-
-        return flight_summary(self)
+    def summary(self) -> RunSummary:
+        """What the flight knows now (summary.json), nothing of ground truth."""
+        st = self.vehicle.state()
+        photos: dict[int, list[str]] = {}
+        for p in self.photos.records:
+            photos.setdefault(p["insulator_id"], []).append(p["file"])
+        traj = np.array([p[1:] for p in self.report.trajectory]) if self.report.trajectory else np.zeros((0, 3))
+        s = self.settings
+        details = FlightDetails(
+            mission=str(self.mission.source), rig=str(self.rig.source), policy=s.policy.value,
+            time_allocation=s.time_allocation, state=self.sm.state.value, vehicle=type(self.vehicle).__name__,
+            sensors=type(self.sensors).__name__,
+            failsafe=None if self.failsafe is None else {"reason": self.failsafe.reason,
+                                                         "action": self.failsafe.action},
+            distance_m=float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
+            detections_dropped_by_sanitiser=detections_dropped(self.detector),
+            inspections_skipped=[{"insulator_id": it.waypoint.insulator_id if it.waypoint is not None else None,
+                                  "position": np.asarray(it.position).tolist(), "reason": reason}
+                                 for it, reason in self.sm.skipped],
+            photo_camera=camera_record(self.photos.camera),
+            inspection_waypoints=[{"insulator_id": w.insulator_id, "position": w.position, "yaw": w.yaw,
+                                   "gimbal_pitch": w.gimbal_pitch} for w in self.waypoints],
+            transitions=[{"time_s": tr.time - self.t_start, "from": tr.source.value, "to": tr.target.value,
+                          "reason": tr.reason} for tr in self.sm.transitions])
+        return RunSummary(run="flight", status=self.status, detector=detector_name(self.detector),
+                          method=s.method, flight_time_s=st.time - self.t_start,
+                          perception=perception_record(self.runner, self.sensor_errors),
+                          insulators=insulator_records(self.registry, photos), photos=self.photos.records,
+                          sensors_health=self.sensors.health(), flight=details)
 
     def write_summary(self) -> None:
         self.report.write_summary(self.summary())
@@ -567,8 +500,9 @@ class FlightLoop:
         """Write the final summary and the plot. ``reference``: (K, 3) points drawn as ground
         truth, known only after the flight (the evaluation's), or None."""
         self.report.flush()
-        summary = self.summary()
-        self.report.write_summary(summary)
+        run = self.summary()
+        self.report.write_summary(run)
+        summary = run.as_dict()
         wps = np.array([w.position for w in self.waypoints]) if self.waypoints else np.zeros((0, 3))
         found = np.array([i.center for i in self.registry.insulators]) if len(self.registry) else np.zeros((0, 3))
         truth = np.zeros((0, 3)) if reference is None else np.asarray(reference, dtype=np.float64).reshape(-1, 3)

@@ -6,7 +6,8 @@ as PX4 companion software does, through the autopilot, which forwards it to its 
 
 * **STATUSTEXT** from the companion computer (``MAV_COMP_ID_ONBOARD_COMPUTER``, 191) for each
   phase change (INFO; NOTICE when the mission finishes, WARNING for a hold), each insulator
-  found (NOTICE), each photo (INFO) and an abort (CRITICAL); texts longer than STATUSTEXT's 50
+  found (NOTICE), each photo (INFO) and an abort (CRITICAL); the flight's other progress lines
+  (``message``: the console's lines) at DEBUG, below what a GCS shows by default; texts longer than STATUSTEXT's 50
   characters go in chunks (MAVLink 2 ``id`` / ``chunk_seq``), as PX4 does.
 * A **MAVLink camera** (``MAV_COMP_ID_CAMERA``, 100, camera protocol v2): its own HEARTBEAT
   (``MAV_TYPE_CAMERA``) at 1 Hz, CAMERA_INFORMATION at start and when asked
@@ -187,7 +188,8 @@ class MavlinkGcsObserver:
         self.statustext(f"Inspection aborted: {reason}", M.MAV_SEVERITY_CRITICAL)
 
     def message(self, time_s: float, text: str) -> None:
-        self.statustext(text, M.MAV_SEVERITY_INFO)
+        # the console's progress lines (the events above come as their own STATUSTEXT too)
+        self.statustext(text, M.MAV_SEVERITY_DEBUG)
 
     # -- sending --------------------------------------------------------------------------------
     def _write(self, buf: bytes) -> None:

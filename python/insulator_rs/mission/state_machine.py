@@ -30,13 +30,21 @@ from enum import Enum
 
 import numpy as np
 
-from insulator_rs.planning.exploration import PathWaypoint
+from insulator_rs.planning.exploration import PathWaypoint, PlanKind
 from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 from insulator_rs.planning.waypoints import InspectionWaypoint
 
 LOG = logging.getLogger("insulator_rs.mission")
 
-POLICIES = ("immediate", "insertion")
+class Policy(str, Enum):
+    """How new inspection waypoints enter the plan: ``immediate`` (fly to them now, then
+    return) or ``insertion`` (cheapest insertion into the rest of the plan)."""
+
+    IMMEDIATE = "immediate"
+    INSERTION = "insertion"
+
+
+POLICIES = tuple(p.value for p in Policy)
 
 
 class State(str, Enum):
@@ -52,14 +60,17 @@ class State(str, Enum):
 
 @dataclass(frozen=True)
 class PlanItem:
-    """One target of the plan in W. ``kind``: "scan", "inspect", "return", "cross", "land".
+    """One target of the plan in W. ``kind``: scan, inspect, return, cross, land (PlanKind).
     ``side``: +1/-1, or 0 above the tower. ``waypoint``: the inspection waypoint for "inspect"."""
 
-    kind: str
+    kind: PlanKind
     position: np.ndarray
     yaw: float
     side: int
     waypoint: InspectionWaypoint | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", PlanKind(self.kind))  # a bad kind is refused here
 
 
 @dataclass(frozen=True)
@@ -83,7 +94,7 @@ class InspectionStateMachine:
     path: list[PathWaypoint]
     registry: InsulatorRegistry
     make_waypoints: Callable[[Insulator], list[InspectionWaypoint]]
-    policy: str = "immediate"
+    policy: Policy = Policy.IMMEDIATE
     cost: Callable[[np.ndarray, np.ndarray], float] | None = None
     state: State = State.IDLE
     plan: list[PlanItem] = field(default_factory=list)
@@ -92,13 +103,17 @@ class InspectionStateMachine:
     visited: list[PlanItem] = field(default_factory=list)
     skipped: list[tuple[PlanItem, str]] = field(default_factory=list)
     side: int = 0
+    # bumped by every change of the plan other than reaching its head: a leg being flown is
+    # re-planned when it moves (the loop compares it before and after each tick)
+    plan_version: int = 0
     _held_from: State | None = None
     _remaining: dict[int, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.policy not in POLICIES:
             raise ValueError(f"policy: expected one of {POLICIES}, got {self.policy!r}")
-        if self.policy == "insertion" and self.cost is None:
+        self.policy = Policy(self.policy)
+        if self.policy == Policy.INSERTION and self.cost is None:
             raise ValueError("cost: the insertion policy needs a cost function")
         if len(self.path) < 2 or self.path[0].kind != "takeoff":
             raise ValueError("path: expected an exploration path starting with its take-off point")
@@ -116,12 +131,12 @@ class InspectionStateMachine:
     def _derive(self, time: float, reason: str) -> None:
         if self.state in (State.HOLD, State.ABORT):
             return
-        if not any(it.kind in ("scan", "inspect", "return") for it in self.plan):
+        if not any(it.kind in (PlanKind.SCAN, PlanKind.INSPECT, PlanKind.RETURN) for it in self.plan):
             self._set(State.FINISH, time, reason)
             return
         head = self.plan[0].kind
-        new = {"scan": State.EXPLORE, "inspect": State.INSPECT, "return": State.RETURN,
-               "cross": State.CROSS, "land": State.FINISH}[head]
+        new = {PlanKind.SCAN: State.EXPLORE, PlanKind.INSPECT: State.INSPECT, PlanKind.RETURN: State.RETURN,
+               PlanKind.CROSS: State.CROSS, PlanKind.LAND: State.FINISH}[head]
         self._set(new, time, reason)
 
     @property
@@ -141,6 +156,7 @@ class InspectionStateMachine:
         if self.state != State.IDLE:
             raise RuntimeError(f"start: the mission already started (state {self.state.value})")
         self.plan = [PlanItem(w.kind, w.position, w.yaw, w.side) for w in self.path[1:]]
+        self.plan_version += 1
         self._derive(time, "take-off complete")
 
     def reached(self, time: float) -> PlanItem:
@@ -150,7 +166,7 @@ class InspectionStateMachine:
         item = self.plan.pop(0)
         self.visited.append(item)
         reason = f"reached {item.kind} waypoint"
-        if item.kind == "inspect" and item.waypoint is not None:
+        if item.kind == PlanKind.INSPECT and item.waypoint is not None:
             iid = item.waypoint.insulator_id
             self._remaining[iid] = self._remaining.get(iid, 1) - 1
             if self._remaining[iid] == 0:
@@ -171,9 +187,10 @@ class InspectionStateMachine:
         """An inspection waypoint of the plan that cannot be flown to (no safe trajectory) is
         dropped: its insulator stays uninspected (``skipped`` keeps the item and the reason)
         and the mission goes on. Only inspection waypoints may be skipped."""
-        if item.kind != "inspect" or not any(it is item for it in self.plan):
+        if item.kind != PlanKind.INSPECT or not any(it is item for it in self.plan):
             raise RuntimeError(f"skip: only a planned inspection waypoint can be skipped, got {item.kind}")
         self.plan = [it for it in self.plan if it is not item]
+        self.plan_version += 1
         self.skipped.append((item, reason))
         self._derive(time, f"inspection waypoint skipped: {reason}")
 
@@ -224,25 +241,54 @@ class InspectionStateMachine:
         """Unrecoverable fault: stop the mission (the vehicle's own failsafe takes over)."""
         self._set(State.ABORT, time, f"abort: {reason}")
         self.plan = []
+        self.plan_version += 1
+
+    def next_leg(self) -> list[PlanItem]:
+        """The plan's items flown as one trajectory: from the head up to and including the first
+        inspection waypoint (a photo ends a leg), stopping before the landing."""
+        items: list[PlanItem] = []
+        for it in self.plan:
+            if it.kind == PlanKind.LAND:
+                break
+            items.append(it)
+            if it.kind == PlanKind.INSPECT:
+                break
+        return items
+
+    def approach_landing(self, height: float) -> PlanItem | None:
+        """The plan's head is the landing: where inspection waypoints found on the far side are
+        owed on the landing side (they are released on arrival there), a scan item ``height`` m
+        above the landing point is put first, so the vehicle arrives there in the air, not on the
+        ground. Returns that item, or None when the landing can go ahead."""
+        head = self.target()
+        if head is None or head.kind != PlanKind.LAND:
+            raise RuntimeError("approach_landing: the plan's head is not the landing")
+        if head.side == self.side or not self.deferred.get(head.side):
+            return None
+        above = PlanItem(PlanKind.SCAN, head.position + np.array([0.0, 0.0, height]), head.yaw, head.side)
+        self.plan.insert(0, above)
+        self.plan_version += 1
+        return above
 
     # -- buffering ---------------------------------------------------------------------
     def _items(self, wps: list[InspectionWaypoint]) -> list[PlanItem]:
-        return [PlanItem("inspect", w.position, w.yaw, w.side, w) for w in wps]
+        return [PlanItem(PlanKind.INSPECT, w.position, w.yaw, w.side, w) for w in wps]
 
     def _buffer(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
-        if self.policy == "immediate":
+        self.plan_version += 1
+        if self.policy == Policy.IMMEDIATE:
             self._buffer_immediate(wps, position)
         else:
             self._buffer_insertion(wps, position)
 
     def _buffer_immediate(self, wps: list[InspectionWaypoint], position: np.ndarray) -> None:
         items = self._items(wps)
-        in_detour = self.plan and self.plan[0].kind in ("inspect", "return")
+        in_detour = self.plan and self.plan[0].kind in (PlanKind.INSPECT, PlanKind.RETURN)
         if in_detour:
-            k = next((i for i, it in enumerate(self.plan) if it.kind == "return"), len(self.plan))
+            k = next((i for i, it in enumerate(self.plan) if it.kind == PlanKind.RETURN), len(self.plan))
             self.plan[k:k] = items
         else:
-            back = PlanItem("return", position.copy(), self.plan[0].yaw if self.plan else 0.0,
+            back = PlanItem(PlanKind.RETURN, position.copy(), self.plan[0].yaw if self.plan else 0.0,
                             self.side)
             self.plan[0:0] = items + [back]
 

@@ -14,6 +14,11 @@ from typing import Any
 
 _PACKAGE = "insulator_rs.models"
 
+# The shipped networks, by name: their one home (the CLI defaults and the ports refer to these).
+SIMULATOR_MODEL = "insulator-sim"  # trained on rendered images: the simulator's camera
+REAL_PHOTO_MODEL = "insulator-field"  # trained on field photos at the camera's geometry: real cameras
+REAL_CROP_MODEL = "insulator-real"  # trained on the exported (stretched, rotated) photo set: `detect` default
+
 
 def _folder() -> Path:
     return Path(str(resources.files(_PACKAGE)))

@@ -153,6 +153,8 @@ class PerceptionPipeline:
         self.counters = PerceptionCounters()
         # Localizations refused because the cluster does not look like an insulator, by reason.
         self.not_insulator: dict[str, int] = {}
+        # the points (W) paired with the latest frame processed, and the body pose at its exposure
+        self.last_paired: tuple[np.ndarray, np.ndarray] | None = None
 
     # kept as attributes for the studies' tables
     @property
@@ -188,6 +190,7 @@ class PerceptionPipeline:
             self.counters.unpaired += 1
             return []
         T_w_b = self.poses.pose_at(frame.time)
+        self.last_paired = (points_w, T_w_b)  # for a viewer (the replay's Rerun log)
         return self._event_w(boxes, points_w, T_w_b, frame.camera, frame.T_b_c, frame.time)
 
     def _paired_points_w(self, time: float) -> np.ndarray:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
@@ -29,6 +30,17 @@ WIDENING_STEP = 0.5
 MAX_WIDENING = 30.0
 
 
+class PlanKind(str, Enum):
+    """What a waypoint of the path or the plan is for (a ``str`` enum: compares equal to its value)."""
+
+    TAKEOFF = "takeoff"
+    SCAN = "scan"  # a pass corner of the exploration path
+    CROSS = "cross"  # above the safety volumes, from one side to the other
+    LAND = "land"
+    INSPECT = "inspect"  # an inspection waypoint: a photo
+    RETURN = "return"  # back to where a detour for inspection began
+
+
 @dataclass(frozen=True)
 class PathWaypoint:
     """One exploration-path waypoint in W. ``kind``: "takeoff", "scan" (a pass corner),
@@ -36,9 +48,12 @@ class PathWaypoint:
     tower it is on, 0 above the tower. ``yaw``: rad, heading that faces the tower."""
 
     position: np.ndarray
-    kind: str
+    kind: PlanKind
     side: int
     yaw: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", PlanKind(self.kind))  # a bad kind is refused here
 
 
 def facing_yaw(line: LineFrame, side: int) -> float:

@@ -3,19 +3,28 @@ trajectory, with the time at which the trajectory passes each item."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.minsnap import MinSnapTrajectory, plan_min_snap_safe
-from insulator_rs.mission.state_machine import PlanItem
 from insulator_rs.planning.routes import route
+from insulator_rs.planning.safety import SafetyVolumes
 
 SAFETY_CHECK_DT = 0.05  # s: sampling of planned trajectories for the safety check
 # m: a min-snap curve straying further than this from its straight path gets extra waypoints
 # (keeps the flight near the planned path, away from the conductors beyond it).
 MAX_PATH_DEVIATION = 2.0
+
+
+class Target(Protocol):
+    """Anything the plan flies to: a position in W (the mission's plan items)."""
+
+    @property
+    def position(self) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -27,12 +36,13 @@ class Segment:
     item_times: list[float]
 
 
-def polyline(geom: MissionGeometry, start: np.ndarray, items: list[PlanItem], clearance: float) -> np.ndarray:
+def polyline(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, items: Sequence[Target],
+             clearance: float) -> np.ndarray:
     """The safe route (crossing above the tower, out of the conductor corridor) from ``start``
     through every item, repeated points removed."""
     pts = [start]
     for it in items:
-        r = route(geom.line, geom.volumes, pts[-1], it.position, clearance)
+        r = route(line, volumes, pts[-1], it.position, clearance)
         pts.extend(r[1:])
     keep = [pts[0]]
     for p in pts[1:]:
@@ -41,15 +51,16 @@ def polyline(geom: MissionGeometry, start: np.ndarray, items: list[PlanItem], cl
     return np.array(keep)
 
 
-def plan_segment(geom: MissionGeometry, start: np.ndarray, velocity: np.ndarray, items: list[PlanItem], *,
+def plan_segment(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, velocity: np.ndarray,
+                 items: Sequence[Target], *,
                  v_max: np.ndarray, a_max: np.ndarray, clearance: float, time_allocation: str) -> Segment:
     """Plan the min-snap, safety-checked trajectory through ``items`` from ``start`` (W) moving
     at ``velocity`` (m/s, as measured: over the limits it starts by slowing down to them).
     PlanningError when none is safe (the vehicle cannot stop before a safety volume)."""
-    pts = polyline(geom, start, items, clearance)
+    pts = polyline(line, volumes, start, items, clearance)
     if len(pts) < 2:
         return Segment(None, [])
-    traj = plan_min_snap_safe(pts, v_max, a_max, geom.volumes, dt=SAFETY_CHECK_DT, v_start=velocity,
+    traj = plan_min_snap_safe(pts, v_max, a_max, volumes, dt=SAFETY_CHECK_DT, v_start=velocity,
                               max_deviation=MAX_PATH_DEVIATION, time_allocation=time_allocation)
     # items are among the trajectory's waypoints: the knot time of each
     knots = np.concatenate([[0.0], np.cumsum(traj.durations)])

@@ -13,12 +13,12 @@ from typing import Protocol
 
 import numpy as np
 
-from insulator_rs.detection.detector import Detector
+from insulator_rs.detection.detector import Detector, open_detector
 from insulator_rs.detection.sanitize import DroppedDetections
+from insulator_rs.models import REAL_PHOTO_MODEL, SIMULATOR_MODEL
 
 STANDIN = "standin"  # --detector standin: the simulator's ground-truth stand-in, by name only
-SIMULATOR_MODEL = "insulator-sim"  # trained on rendered images: the simulator's camera
-REAL_PHOTO_MODEL = "insulator-field"  # trained on field photos at the camera's geometry: real cameras
+DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
 
 
 def default_model(live_camera: bool) -> str:
@@ -53,3 +53,9 @@ def detections_dropped(detector: object) -> dict[str, int] | None:
     """The sanitiser's counts summed over the flight (a network), None for a detector without them."""
     dropped = getattr(detector, "dropped", None)
     return dropped.to_dict() if isinstance(dropped, DroppedDetections) else None
+
+
+def open_network_detector(model: str, *, conf: float = DETECT_CONF) -> NetworkDetector:
+    """A shipped network (by name) or an ONNX file as the flight's box detector. ModelError
+    (a ValueError) for a missing, truncated or foreign model."""
+    return NetworkDetector(open_detector(model, conf=conf))

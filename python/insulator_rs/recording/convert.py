@@ -106,7 +106,8 @@ def scan_to_pointcloud2(scan: LidarScan, frame_id: str) -> tuple[float, Any]:
         rec["intensity"] = scan.intensity
     times = np.asarray(scan.times, dtype=np.float64)
     rec["timestamp"] = times * 1e9
-    t0 = float(times.min()) if n else 0.0
+    # stamped at its first point (livox_ros_driver2's convention); a scan with no return at its window's end
+    t0 = float(times.min()) if n else float(scan.covered_until)
     layout: Any = LIVOX_POINT_DTYPE.fields or {}
     fields = [_types["sensor_msgs/msg/PointField"](name=name, offset=layout[name][1],
                                                    datatype=_POINTFIELD_OF[layout[name][0].str], count=1)

@@ -91,7 +91,8 @@ class FlightBag:
     """One recorded flight opened for reading (see the module docstring). Use as a context
     manager or call :meth:`close`."""
 
-    def __init__(self, path: Path, topics: T.Topics = T.Topics(), *, max_gap: float = MAX_GAP) -> None:
+    def __init__(self, path: Path, topics: T.Topics = T.Topics(), *, max_gap: float = MAX_GAP,
+                 scan_windows: bool = False) -> None:
         from rosbags.highlevel import AnyReader
 
         if not (math.isfinite(max_gap) and max_gap > 0):
@@ -99,6 +100,10 @@ class FlightBag:
         self.path = Path(path)
         self.topics = topics
         self.max_gap = max_gap
+        # insulator_rs logs each scan at the instant the flight had all of it (its window's end):
+        # a scan's log time is then its window_end (a scan whose last returns were lost, or one
+        # with none, still covers its whole window). Other recorders' log times are receive times.
+        self.scan_windows = scan_windows
         paths = bag_paths(self.path)
         self._store = T.typestore()
         self.truncated = False
@@ -243,7 +248,11 @@ class FlightBag:
                     pts, times, inten = C.custom_msg_points(msg, topic)
                 if len(times) and not np.all(np.isfinite(times)):
                     raise BagError(f"{self.path}: {topic} at t={t:.3f} s: non-finite per-point times")
-                yield Item("scan", t, topic, LidarScan(points_l=pts, times=times, T_b_l=self.T_b_l, intensity=inten))
+                window_end = None
+                if self.scan_windows:
+                    window_end = max(ns * 1e-9, float(times.max())) if len(times) else ns * 1e-9
+                yield Item("scan", t, topic, LidarScan(points_l=pts, times=times, T_b_l=self.T_b_l, intensity=inten,
+                                                       window_end=window_end))
             elif topic == self.image_topic:
                 if camera is None:
                     raise BagError(f"{self.path}: {topic} at t={t:.3f} s: an image before any CameraInfo on "

@@ -22,6 +22,8 @@ from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
+from insulator_rs.ports.vehicle import Vehicle, VehicleState
+from insulator_rs.poses import pose_from_yaw
 
 # Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
 RECORDED_ODOMETRY = "/odom"
@@ -75,10 +77,14 @@ class McapRecorder:
         return self._channels[topic]
 
     def write(self, topic: str, msgtype: str, t: float, msg: Any) -> None:
+        self.write_stamped(topic, msgtype, log_time=t, msg=msg)
+
+    def write_stamped(self, topic: str, msgtype: str, *, log_time: float, msg: Any) -> None:
+        """``msg`` on ``topic``, logged at ``log_time`` (s, vehicle clock)."""
         if self.closed:
             raise BagError(f"{self.path}: recorder already closed")
         data = self._store.serialize_cdr(msg, msgtype)
-        ns = int(round(t * 1e9))
+        ns = int(round(log_time * 1e9))
         seq = self.counts.get(topic, 0)
         self._writer.add_message(self._channel(topic, msgtype), log_time=ns, data=bytes(data), publish_time=ns,
                                  sequence=seq)
@@ -98,13 +104,17 @@ class McapRecorder:
             self.write("/tf", T.TF_MESSAGE, t, C.tf_message([tf]))
 
     def scan(self, scan: LidarScan, T_b_c: np.ndarray | None = None) -> None:
-        if len(scan) == 0:
-            return
+        """One scan, logged at the instant the flight had all of it (``covered_until``: the
+        window's end, see ``FlightBag(scan_windows=True)``); a scan with no return is recorded
+        too when it knows its window (it says the LiDAR saw nothing there)."""
+        done = scan.covered_until
+        if not np.isfinite(done):
+            return  # no point and no window: nothing it covers
         self._T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
         t0, msg = C.scan_to_pointcloud2(scan, self.topics.lidar_frame)
         if not self._static_written and T_b_c is not None:
             self._extrinsics(t0, scan.T_b_l, T_b_c)
-        self.write(self.topics.lidar, T.POINTCLOUD2, t0, msg)
+        self.write_stamped(self.topics.lidar, T.POINTCLOUD2, log_time=done, msg=msg)
 
     def frame(self, frame: CameraFrame, T_b_l: np.ndarray | None = None) -> None:
         T_b_l = T_b_l if T_b_l is not None else self._T_b_l
@@ -140,13 +150,16 @@ class McapRecorder:
 
 
 class RecordingSensors:
-    """A :class:`~insulator_rs.ports.sensors.Sensors` adapter that records what ``inner`` delivers."""
+    """A :class:`~insulator_rs.ports.sensors.Sensors` decorator that records what ``inner``
+    delivers (every detection frame and every scan the flight asks for), wired by the
+    composition root: the flight does not know it is recorded. ``T_b_l``: the rig's LiDAR
+    extrinsics, recorded with the frames until a scan brings its own."""
 
-    def __init__(self, inner: Sensors, recorder: McapRecorder) -> None:
+    def __init__(self, inner: Sensors, recorder: McapRecorder, *, T_b_l: np.ndarray | None = None) -> None:
         self.inner = inner
         self.recorder = recorder
         self._T_b_c: np.ndarray | None = None
-        self._T_b_l: np.ndarray | None = None
+        self._T_b_l = None if T_b_l is None else np.asarray(T_b_l, dtype=np.float64)
 
     def detection_frame(self, now: float) -> CameraFrame | None:
         frame = self.inner.detection_frame(now)
@@ -176,27 +189,44 @@ class RecordingSensors:
 
 
 class RecordingVehicle:
-    """A :class:`~insulator_rs.ports.vehicle.Vehicle` wrapper that records the pose stream it reports
-    (level body at the reported position and yaw: what the Vehicle port gives)."""
+    """A :class:`~insulator_rs.ports.vehicle.Vehicle` decorator that records the pose stream
+    ``inner`` reports (level body at the reported position and yaw: what the Vehicle port
+    gives, and what the flight's perception is fed), wired by the composition root."""
 
-    def __init__(self, inner: Any, recorder: McapRecorder) -> None:
+    def __init__(self, inner: Vehicle, recorder: McapRecorder) -> None:
         self.inner = inner
         self.recorder = recorder
 
-    def _record(self, st: Any) -> Any:
-        T_w_b = np.eye(4)
-        c, s = math.cos(st.yaw), math.sin(st.yaw)
-        T_w_b[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-        T_w_b[:3, 3] = st.position
+    def _record(self, st: VehicleState) -> VehicleState:
+        T_w_b = pose_from_yaw(st.position, st.yaw)
         if math.isfinite(st.time) and st.time >= 0 and np.all(np.isfinite(T_w_b)):
             self.recorder.pose(PoseStamped(float(st.time), T_w_b), st.velocity)
         return st
 
-    def state(self) -> Any:
+    def state(self) -> VehicleState:
         return self._record(self.inner.state())
 
-    def advance(self, dt: float) -> Any:
+    def advance(self, dt: float) -> VehicleState:
         return self._record(self.inner.advance(dt))
 
-    def __getattr__(self, name: str) -> Any:
+    def arm(self) -> None:
+        self.inner.arm()
+
+    def start_offboard(self) -> None:
+        self.inner.start_offboard()
+
+    def takeoff(self, altitude: float) -> None:
+        self.inner.takeoff(altitude)
+
+    def send_setpoint(self, position: np.ndarray, velocity: np.ndarray | None = None,
+                      yaw: float | None = None) -> None:
+        self.inner.send_setpoint(position, velocity, yaw)
+
+    def land(self) -> None:
+        self.inner.land()
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def __getattr__(self, name: str) -> Any:  # what else an adapter offers (link_stats, ...)
         return getattr(self.inner, name)

@@ -1,6 +1,6 @@
 """Many recorded flights re-processed in parallel on Ray, plus a fleet summary.
 
-Each flight is one Ray task running :func:`~insulator_rs.app.replay_command.replay_one`, the
+Each flight is one Ray task running :func:`~insulator_rs.replay.batch.replay_one`, the
 function a single ``replay`` runs, into ``OUT/<recording name>/``. ``address=None`` starts a
 local Ray with ``workers`` CPUs (and stops it after); an address joins a running cluster
 (every node needs insulator_rs installed; the recordings and ``OUT`` on storage all nodes
@@ -13,13 +13,13 @@ ground truth exists; per tower (its GPS position) the insulators each flight fou
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from insulator_rs.app.replay_command import ReplayOptions, replay_one
+from insulator_rs.replay.batch import ReplayOptions, replay_one
+from insulator_rs.report.jsonfile import write_json
 
 
 def _name(path: Path, used: set[str]) -> str:
@@ -43,8 +43,10 @@ def replay_fleet(flights: list[Path], out: Path, options: ReplayOptions, *, work
         summaries = [replay_one(f, o, options) for f, o in jobs]
     else:
         summaries = _on_ray(jobs, options, workers, address)
+    for (_, o), summary in zip(jobs, summaries):
+        summary["out"] = str(o)
     fleet = fleet_summary(summaries)
-    (out / "fleet_summary.json").write_text(json.dumps(fleet, indent=2, default=_plain))
+    write_json(out / "fleet_summary.json", fleet)
     return fleet
 
 
@@ -83,9 +85,8 @@ def fleet_summary(summaries: list[dict[str, Any]]) -> dict[str, Any]:
     flights = []
     towers: dict[str, list[dict[str, Any]]] = {}
     for s in summaries:
-        rec = {k: s.get(k) for k in ("recording", "status", "detector", "scene", "tower", "insulators_found",
-                                     "insulators_matched", "insulators_in_scene", "mean_error_m", "flight_time_s",
-                                     "wall_time_s", "speed_vs_real_time")}
+        rec = {k: s.get(k) for k in ("recording", "out", "status", "detector", "scene", "tower", "insulators_found",
+                                     "flight_time_s", "wall_time_s", "speed_vs_real_time")}
         flights.append(rec)
         if s.get("tower"):
             towers.setdefault(s["tower"], []).append({"recording": s["recording"],
@@ -93,13 +94,3 @@ def fleet_summary(summaries: list[dict[str, Any]]) -> dict[str, Any]:
     return {"flights": flights, "flights_ok": sum(1 for f in flights if f["status"] == "finished"),
             "towers": towers,
             "detectors": sorted({str(f["detector"]) for f in flights if f.get("detector")})}
-
-
-def _plain(value: Any) -> Any:
-    import numpy as np
-
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)

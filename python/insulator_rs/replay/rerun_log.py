@@ -57,14 +57,12 @@ class RerunLog:
                                     array_format=self.rr.Box2DFormat.XYXY),
                     recording=self.rec)
 
-    def culled(self, frame: CameraFrame, T_b_l: np.ndarray, points_l: np.ndarray, boxes: np.ndarray) -> None:
-        """The event's (deskewed) scan in W and the points culled to each box."""
-        T_w_l = self._T_w_b @ np.asarray(T_b_l)
-        pts = np.asarray(points_l, dtype=np.float64)
-        pts_w = pts @ T_w_l[:3, :3].T + T_w_l[:3, 3]
+    def paired(self, frame: CameraFrame, boxes: np.ndarray, points_w: np.ndarray, T_w_b: np.ndarray) -> None:
+        """The points paired with a frame (W, deskewed) and those culled to each box."""
+        pts_w = np.asarray(points_w, dtype=np.float64)
         self.rr.log("world/lidar", self.rr.Points3D(pts_w[::4], radii=0.02), recording=self.rec)
-        T_c_l = np.linalg.inv(frame.T_b_c) @ np.asarray(T_b_l)
-        for k, idx in enumerate(ir.points_in_boxes(pts, T_c_l, frame.camera, boxes)):
+        T_c_w = np.linalg.inv(np.asarray(T_w_b) @ frame.T_b_c)
+        for k, idx in enumerate(ir.points_in_boxes(pts_w, T_c_w, frame.camera, boxes)):
             self.rr.log(f"world/culled/box_{k}", self.rr.Points3D(pts_w[idx], radii=0.04, class_ids=k),
                         recording=self.rec)
 

@@ -1,118 +1,77 @@
-"""Re-process one recorded flight offline: detection, fusion, localization, registry, report.
+"""Re-process one recorded flight offline, through the flight's own perception.
 
-The recording is read as a :class:`~insulator_rs.recording.reader.FlightBag` stream and fed
-to the flight's own :class:`~insulator_rs.perception.pipeline.PerceptionPipeline` as the
-flight loop feeds it: every pose (``add_pose``), every scan (``add_scan``), and each camera
-frame with the flight's detector's boxes (``process``: paired with the scans' points of
-+-``pairing_window``, deskewed with the pose history) once the stream has passed the frame's
-time by the pairing window, as the loop waits for the scan after a frame. Localizations feed
-the flight's :class:`~insulator_rs.tracking.registry.InsulatorRegistry`. With deskew off, a
-frame's nearest scan is used as measured at the frame's pose (``PerceptionPipeline.event``).
+The recording is played by two adapters of the flight's ports over one pass of the file
+(:class:`~insulator_rs.replay.player.RecordingPlayer`): a passive
+:class:`~insulator_rs.replay.vehicle.ReplayVehicle` whose clock steps from one recorded datum
+to the next, and :class:`~insulator_rs.replay.sensors.ReplaySensors`, which hands over each
+frame and scan when a live source would have. The flight's
+:class:`~insulator_rs.perception.runner.PerceptionRunner` (detector, the one pairing rule,
+:class:`~insulator_rs.perception.pipeline.PerceptionPipeline`) runs on them exactly as in
+flight; its localizations feed the flight's
+:class:`~insulator_rs.tracking.registry.InsulatorRegistry`.
 
-The report folder has the flight's layout (``summary.json``, ``insulators.csv``,
-``trajectory.csv``, ``trajectory.png``). A broken recording (a :class:`BagError` mid-way) ends
-the replay with status ``failed: <error>``; everything processed before it stays in the report.
+The report folder has the flight's layout (``summary.json``: a
+:class:`~insulator_rs.report.summary.RunSummary`, ``insulators.csv``, ``trajectory.csv``,
+``trajectory.png``). Ground truth is not read here: the ``replay`` command scores the report
+afterwards. A broken recording (a :class:`BagError` mid-way) ends the replay with status
+``failed: <error>``; everything processed before it stays in the report.
 """
 
 from __future__ import annotations
 
 import math
 import time as wallclock
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-import insulator_rs as ir
 from insulator_rs.exceptions import BagError
-from insulator_rs.ports.detector import detector_name
-from insulator_rs.mission.config import Mission
+from insulator_rs.flight.record import insulator_records, perception_record
 from insulator_rs.geodesy import GeoPoint
+from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
-from insulator_rs.tracking.registry import InsulatorRegistry
+from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.ports.detector import BoxDetector, detector_name
+from insulator_rs.recording.reader import FlightBag
+from insulator_rs.replay.player import RecordingPlayer
+from insulator_rs.replay.sensors import ReplaySensors
+from insulator_rs.replay.vehicle import ReplayVehicle
+from insulator_rs.report.summary import ReplayDetails, RunSummary
 from insulator_rs.report.writer import ReportWriter
-from insulator_rs.recording.reader import FlightBag, Item
-from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.rig import simulator_rig
+from insulator_rs.tracking.registry import InsulatorRegistry
 
-# s of poses kept behind the oldest pending scan.
-POSE_KEEP = 2.0
 RERUN_FILE = "replay.rrd"
-# m: a localized insulator this close to a true one counts as finding it.
-MATCH_DISTANCE = 1.5
 
 
 @dataclass(frozen=True)
 class ReplaySettings:
     """``method``: localization method; ``deskew``: motion-compensate scans (default on);
-    ``detect_period``: s between detection events (0: every frame); ``pairing_window`` s."""
+    ``detect_period``: s between detection events (0: every recorded frame); ``pairing_window`` s."""
 
     method: str = BOUNDED  # the flight's default
     deskew: bool = True
     detect_period: float = 0.0
     pairing_window: float = PAIRING_WINDOW
-    quiet: bool = True
     progress: bool = False
-
-
-@dataclass
-class _Poses:
-    """The pose stream read so far (times strictly increasing)."""
-
-    times: list[float] = field(default_factory=list)
-    T: list[np.ndarray] = field(default_factory=list)
-
-    def add(self, p: PoseStamped) -> None:
-        if self.times and p.time <= self.times[-1]:
-            return
-        self.times.append(p.time)
-        self.T.append(p.T_w_b)
-
-    def drop_before(self, t: float) -> None:
-        k = 0
-        while k + 2 < len(self.times) and self.times[k + 1] < t:
-            k += 1
-        if k:
-            del self.times[:k]
-            del self.T[:k]
-
-
-def _interpolate(times: list[float], poses: list[np.ndarray], t: float) -> np.ndarray:
-    """The pose at ``t``: the image of the body origin and axes under ``ir.deskew``'s motion
-    (so frames and points use one interpolation), clamped to the stream's ends."""
-    t = min(max(t, times[0]), times[-1])
-    k = int(np.searchsorted(times, t, side="right")) - 1
-    k = min(max(k, 0), len(times) - 2)
-    # Body origin and unit axes at time t, expressed in the body frame of times[k] ...
-    probe = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
-    q = ir.deskew(probe, np.full(4, t), np.array(times[k:k + 2]), np.stack(poses[k:k + 2]), times[k], np.eye(4))
-    # ... then into W with that knot's pose.
-    T_k = poses[k]
-    pw = q @ T_k[:3, :3].T + T_k[:3, 3]
-    T = np.eye(4)
-    T[:3, 3] = pw[0]
-    T[:3, :3] = (pw[1:] - pw[0]).T
-    return T
 
 
 class ReplayRun:
     """One recorded flight re-processed (see the module docstring)."""
 
-    def __init__(self, bag: FlightBag, out: Path, *, mission: Mission, detector: Any,
-                 settings: ReplaySettings = ReplaySettings(), ground_truth: list[Any] | None = None,
-                 rerun: bool = False, overwrite: bool = False) -> None:
+    def __init__(self, bag: FlightBag, out: Path, *, mission: Mission, detector: BoxDetector,
+                 settings: ReplaySettings = ReplaySettings(), rerun: bool = False, overwrite: bool = False) -> None:
         self.bag = bag
         self.out = Path(out)
         self.mission = mission
         self.geom = MissionGeometry.from_mission(mission)
         self.detector = detector
         self.settings = settings
-        self.ground_truth = ground_truth
         self.registry = InsulatorRegistry(self.geom.line, mission.inspection.registry_gate,
                                           mission.inspection.confirmations)
-        self.perception: PerceptionPipeline | None = None
         self.report = ReportWriter(self.out, origin=GeoPoint(mission.tower.lat, mission.tower.lon, mission.tower.alt),
                                    overwrite=overwrite)
         self.rerun: Any = None
@@ -120,21 +79,25 @@ class ReplayRun:
             from insulator_rs.replay.rerun_log import RerunLog
 
             self.rerun = RerunLog(self.report.layout.path / RERUN_FILE, name=bag.path.name)
-        self.poses = _Poses()
-        self.scans: deque[LidarScan] = deque(maxlen=8)
-        self.pending: deque[CameraFrame] = deque()
-        self._early: list[tuple[str, Any]] = []
-        self.counts = {"poses": 0, "scans": 0, "frames": 0, "detection_events": 0, "unpaired_frames": 0,
-                       "localizations": 0}
+        self.player = RecordingPlayer(bag.items())
+        self.vehicle = ReplayVehicle(self.player)
+        self.sensors = ReplaySensors(self.player)
+        # The rig's camera and T_b_c serve only the pipeline's known-pose form; frames carry their
+        # own intrinsics and camera pose, scans the recording's T_b_l.
+        rig = mission.rig if mission.rig is not None else simulator_rig()
+        pipeline = PerceptionPipeline(rig.camera, bag.T_b_c, bag.T_b_l, method=settings.method,
+                                      insulator_length=mission.inspection.insulator_length,
+                                      pairing_window=settings.pairing_window, deskew=settings.deskew)
+        self.runner = PerceptionRunner(self.sensors, detector, pipeline, detect_period=settings.detect_period,
+                                       viewer=self.rerun)
         self.status = "running"
         self.error: str | None = None
         self.t0: float | None = None
         self.t_last = 0.0
-        self._next_detect = -math.inf
         self.wall = 0.0
 
     # -- the stream ---------------------------------------------------------------------------
-    def run(self) -> dict[str, Any]:
+    def run(self) -> RunSummary:
         wall0 = wallclock.perf_counter()
         bar = None
         if self.settings.progress:
@@ -143,15 +106,15 @@ class ReplayRun:
             bar = tqdm(total=self.bag.counts.get(self.bag.image_topic, 0), unit="frame",
                        desc=self.bag.path.name, dynamic_ncols=True)
         try:
-            for item in self.bag.items():
-                self._take(item)
-                if bar is not None and item.kind == "frame":
-                    bar.update(1)
+            while not self.vehicle.ended:
+                self._tick()
+                if bar is not None:
+                    bar.update(self.player.counts["frames"] - bar.n)
                     bar.set_postfix(insulators=len(self.registry), refresh=False)
-            self._flush_pending(final=True)
+            self._observe(self.runner.finish(math.inf))
             self.status = "finished"
         except BagError as exc:
-            self._flush_pending(final=True)
+            self._observe(self.runner.finish(math.inf))
             self.status = f"failed: {exc}"
             self.error = str(exc)
         except KeyboardInterrupt:
@@ -162,158 +125,55 @@ class ReplayRun:
             self.wall = wallclock.perf_counter() - wall0
         return self.finish()
 
-    def _take(self, item: Item) -> None:
+    def _tick(self) -> None:
+        before = self.vehicle.pose()
+        st = self.vehicle.advance(0.0)
+        if self.player.time is None:
+            return
         if self.t0 is None:
-            self.t0 = item.time
-        self.t_last = max(self.t_last, item.time)
-        # A frame is handed over once the stream has passed its time by the pairing window:
-        # the flight loop waits as long for the scan after the frame (flight.loop._pair_pending).
-        while self.pending and item.time >= self.pending[0].time + self.settings.pairing_window - 1e-9:
-            self._event(self.pending.popleft())
-        if item.kind == "pose":
-            p: PoseStamped = item.value
-            self.poses.add(p)
-            self.counts["poses"] += 1
-            self._feed("pose", p)
-            R = p.T_w_b[:3, :3]
-            self.report.log_pose(p.time - self.t0, p.T_w_b[:3, 3], math.atan2(R[1, 0], R[0, 0]), "replay")
+            self.t0 = self.player.time
+        self.t_last = self.player.time
+        pose = self.vehicle.pose()
+        if pose is not None and pose is not before:  # a new recorded pose: the history, the path
+            self.runner.add_pose(pose)
+            self.report.log_pose(pose.time - self.t0, st.position, st.yaw, "replay")
             if self.rerun is not None:
-                self.rerun.pose(p)
-        elif item.kind == "scan":
-            self.scans.append(item.value)
-            self.counts["scans"] += 1
-            self._feed("scan", item.value)
-        else:
-            self.counts["frames"] += 1
-            frame: CameraFrame = item.value
-            if self.settings.detect_period > 0 and frame.time < self._next_detect:
-                return
-            self._next_detect = frame.time + self.settings.detect_period
-            if self.perception is None:
-                self._start_perception(frame)
-            self.pending.append(frame)
-        if self.scans:
-            self.poses.drop_before(self.scans[0].time_start - POSE_KEEP)
+                self.rerun.pose(pose)
+        self._observe(self.runner.step(self.player.time))
 
-    def _feed(self, kind: str, value: Any) -> None:
-        """Poses and scans go to the perception pipeline as the flight loop feeds it (kept
-        until the first frame brings the camera the pipeline is built with)."""
-        if self.perception is None:
-            self._early.append((kind, value))
-        elif kind == "pose":
-            self.perception.add_pose(value)
-        else:
-            self.perception.add_scan(value)
-
-    def _start_perception(self, frame: CameraFrame) -> None:
-        self.perception = PerceptionPipeline(frame.camera, frame.T_b_c, self.bag.T_b_l, method=self.settings.method,
-                                             insulator_length=self.mission.inspection.insulator_length,
-                                             pairing_window=self.settings.pairing_window)
-        early, self._early = self._early, []
-        for kind, value in early:
-            self._feed(kind, value)
-
-    def _flush_pending(self, final: bool) -> None:
-        """At the end of the stream (or at a break) the waiting frames go with what there is."""
-        while final and self.pending:
-            self._event(self.pending.popleft())
-
-    def _paired_scan(self, t: float) -> LidarScan | None:
-        best, gap = None, math.inf
-        for s in self.scans:
-            d = max(s.time_start - t, t - s.time_end, 0.0)
-            if d < gap:
-                best, gap = s, d
-        return best if gap <= self.settings.pairing_window else None
-
-    # -- one detection event ------------------------------------------------------------------
-    def _event(self, frame: CameraFrame) -> None:
-        """The flight's detection event: detector, then the pipeline pairs the frame with the
-        buffered scans' points of +-pairing_window, deskewed with the pose history (or, with
-        deskew off, the nearest scan as measured at the frame's pose)."""
-        boxes = np.asarray(self.detector(frame.image), dtype=np.float64)
-        if self.rerun is not None:
-            self.rerun.frame(frame, boxes[:, :4])
-        if len(boxes) == 0 or self.perception is None:
-            return
-        self.counts["detection_events"] += 1
-        scan = self._paired_scan(frame.time)
-        if self.settings.deskew:
-            locs = self.perception.process(frame, boxes)
-        elif scan is None or not self.poses.times:
-            self.counts["unpaired_frames"] += 1
-            return
-        else:
-            locs = self.perception.event(boxes, scan.points_l, _interpolate(self.poses.times, self.poses.T, frame.time))
-        if self.rerun is not None and scan is not None:
-            self.rerun.culled(frame, scan.T_b_l, self._deskewed(scan, frame.time), boxes[:, :4])
-        for loc in locs:
-            self.counts["localizations"] += 1
-            self.registry.observe(loc.center, loc.axis)
-        if self.rerun is not None and locs:
-            self.rerun.insulators(frame.time, self.registry.insulators)
-
-    def _deskewed(self, scan: LidarScan, t_ref: float) -> np.ndarray:
-        """The scan's points in L at ``t_ref``, deskewed with ``ir.deskew`` against the recorded
-        poses (for the Rerun view; as measured with deskew off or fewer than two poses)."""
-        if not self.settings.deskew or len(self.poses.times) < 2:
-            return np.asarray(scan.points_l)
-        lo, hi = self.poses.times[0], self.poses.times[-1]
-        # At the recording's ends a point may lie beyond the pose stream: hold the end pose there.
-        times = np.clip(scan.times, lo, hi)
-        return ir.deskew(scan.points_l, times, np.array(self.poses.times), np.stack(self.poses.T),
-                         min(max(t_ref, lo), hi), scan.T_b_l)
+    def _observe(self, fixes: list[Any]) -> None:
+        for fix in fixes:
+            self.registry.observe(fix.center, fix.axis)
+        if fixes and self.rerun is not None:
+            self.rerun.insulators(fixes[-1].time, self.registry.insulators)
 
     # -- report -------------------------------------------------------------------------------
-    def summary(self) -> dict[str, Any]:
-        insulators = []
-        errors = []
-        for ins in self.registry.insulators:
-            rec: dict[str, Any] = {"id": ins.id, "center": ins.center, "axis": ins.axis,
-                                   "observations": ins.observations, "side": ins.side,
-                                   "confirmed": ins.confirmed,
-                                   "inspected": False, "photos": []}  # a replay flies nowhere
-            if self.ground_truth:
-                d = [float(np.linalg.norm(g.center - ins.center)) for g in self.ground_truth]
-                k = int(np.argmin(d))
-                rec.update(gt_instance_id=self.ground_truth[k].instance_id, error_m=d[k])
-                errors.append(d[k])
-            insulators.append(rec)
+    def summary(self) -> RunSummary:
         duration = self.t_last - self.t0 if self.t0 is not None else 0.0
-        matched = {r["gt_instance_id"] for r in insulators if r.get("error_m", math.inf) < MATCH_DISTANCE}
-        return {
-            "status": self.status,
-            "error": self.error,
-            "recording": str(self.bag.path),
-            "topics": {"lidar": self.bag.lidar_topic, "image": self.bag.image_topic,
-                       "odometry": self.bag.odometry_topic},
-            "detector": detector_name(self.detector),
-            "method": self.settings.method,
-            "deskew": self.settings.deskew,
-            "flight_time_s": duration,
-            "wall_time_s": self.wall,
-            "speed_vs_real_time": duration / self.wall if self.wall > 0 else None,
-            **self.counts,
-            "insulators_found": len(insulators),
-            "insulators_in_scene": len(self.ground_truth) if self.ground_truth else None,
-            "insulators_matched": len(matched) if self.ground_truth else None,
-            "mean_error_m": float(np.mean(errors)) if errors else None,
-            "insulators": insulators,
-            "rerun": RERUN_FILE if self.rerun is not None else None,
-        }
+        c = self.player.counts
+        details = ReplayDetails(
+            recording=str(self.bag.path),
+            topics={"lidar": self.bag.lidar_topic, "image": self.bag.image_topic, "odometry": self.bag.odometry_topic},
+            deskew=self.settings.deskew, poses=c["poses"], scans=c["scans"], frames=c["frames"],
+            wall_time_s=self.wall, speed_vs_real_time=duration / self.wall if self.wall > 0 else None,
+            rerun=RERUN_FILE if self.rerun is not None else None)
+        return RunSummary(run="replay", status=self.status, error=self.error, detector=detector_name(self.detector),
+                          method=self.settings.method, flight_time_s=duration,
+                          perception=perception_record(self.runner),
+                          insulators=insulator_records(self.registry, {}),  # a replay takes no photos
+                          sensors_health=self.sensors.health(), replay=details)
 
-    def finish(self) -> dict[str, Any]:
+    def finish(self) -> RunSummary:
         if self.rerun is not None:
             self.rerun.close()
         self.report.flush()
         summary = self.summary()
         self.report.write_summary(summary)
         found = np.array([i.center for i in self.registry.insulators]) if len(self.registry) else np.zeros((0, 3))
-        truth = (np.array([g.center for g in self.ground_truth]) if self.ground_truth else np.zeros((0, 3)))
         try:
-            self.report.plot(self.geom.volumes, np.zeros((0, 3)), found, truth,
-                             f"replay of {self.bag.path.name}: {summary['status'][:40]}, "
-                             f"{summary['insulators_found']} insulators")
+            self.report.plot(self.geom.volumes, np.zeros((0, 3)), found, np.zeros((0, 3)),
+                             f"replay of {self.bag.path.name}: {summary.status[:40]}, "
+                             f"{summary.insulators_found} insulators")
         finally:
             self.report.close()
         return summary

@@ -395,7 +395,8 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
                      f'<div class="k">{e(label)}</div></div>')
     parts.append("</div><table>")
     origin = s.get("origin") or {}
-    facts = [("detector", s.get("detector")), ("localization", s.get("method")), ("vehicle", s.get("vehicle")),
+    facts = [("run", s.get("run")), ("recording", s.get("recording")),
+             ("detector", s.get("detector")), ("localization", s.get("method")), ("vehicle", s.get("vehicle")),
              ("sensors", s.get("sensors")),
              ("tower base (WGS-84)", f"{_num(origin.get('lat'), '.7f')}°, {_num(origin.get('lon'), '.7f')}°, "
                                      f"{_num(origin.get('alt'), '.1f', ' m')}" if origin else None)]

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from datetime import datetime, timezone
 from pathlib import Path
@@ -36,26 +35,13 @@ from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
 from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.report.exif import compass_heading_deg, photo_exif, write_jpeg
 from insulator_rs.report.folder import ReportFolder, write_atomic
+from insulator_rs.report.jsonfile import jsonable, write_json
+from insulator_rs.report.summary import RunSummary
 from insulator_rs.report.geoexport import PATH_SPACING, map_layers, write_geojson, write_kml
 from insulator_rs.report.html import write_report_html
 
 GEOJSON_NAME = "inspection.geojson"
 KML_NAME = "inspection.kml"
-
-
-def _jsonable(value: Any) -> Any:
-    """Plain JSON values: arrays to lists, numpy scalars to Python ones, NaN/inf to null."""
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return _jsonable(value.item())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    return value
 
 
 def _wgs84(geo: np.ndarray) -> dict[str, float]:
@@ -95,8 +81,8 @@ class ReportWriter:
         self._map_key: tuple[Any, ...] | None = None
         self._last_summary: dict[str, Any] = {}
         # summary.json first: from here on the folder says which run it holds and that it is not done
-        self.write_summary({"status": "running", "started_utc": utc_text(self.opened_utc),
-                            "insulators": [], "photos": []})
+        self._write_summary({"status": "running", "started_utc": utc_text(self.opened_utc),
+                             "insulators": [], "photos": []})
         self.images.mkdir(exist_ok=True)
         self._traj = (path / "trajectory.csv").open("w", newline="")
         self._traj_writer = csv.writer(self._traj)
@@ -139,12 +125,15 @@ class ReportWriter:
             record["gimbal_pitch_deg"] = math.degrees(gimbal_pitch)
         return record
 
-    def write_summary(self, summary: dict[str, Any]) -> None:
+    def write_summary(self, run: RunSummary) -> None:
         """summary.json atomically (temp file + rename), insulators.csv, and the map layers.
 
-        Added to what the caller gives: ``origin`` (W's origin, WGS-84) and each insulator's
+        Added to the run's summary: ``origin`` (W's origin, WGS-84) and each insulator's
         ``wgs84`` position (from its ``center`` in W)."""
-        summary = dict(summary)
+        self._write_summary(run.as_dict())
+
+    def _write_summary(self, summary: dict[str, Any]) -> None:
+        """The JSON object of a summary (the run's, or the folder's first word: ``running``)."""
         summary.setdefault("started_utc", utc_text(self.opened_utc))
         summary["origin"] = {"lat": self.origin.lat, "lon": self.origin.lon, "alt": self.origin.alt,
                              "frame": "W: ENU (x east, y north, z up), m, at the tower base"}
@@ -155,24 +144,16 @@ class ReportWriter:
                 r["wgs84"] = _wgs84(g)
         summary["insulators"] = rows
         path = self.layout.path
-        write_atomic(path / "summary.json", json.dumps(_jsonable(summary), indent=2, allow_nan=False),
-                     durable=True)
+        write_json(path / "summary.json", summary, durable=True)
         table = io.StringIO(newline="")
         w = csv.writer(table)
-        # ground truth only where the caller has it (a replay scored against its scene); a flight's
-        # comparison is the scorer's, after the flight, in its own file
-        truth = any("gt_instance_id" in r for r in rows)
         w.writerow(["id", "x_m", "y_m", "z_m", "lat_deg", "lon_deg", "alt_m", "observations", "side",
-                    "inspected", "photos"] + (["gt_instance_id", "error_m", "axis_error_deg"] if truth else []))
+                    "inspected", "photos"])
         for r in rows:
             g = r["wgs84"]
-            row = [r["id"], *(f"{c:.3f}" for c in r["center"]), f"{g['lat']:.9f}", f"{g['lon']:.9f}",
-                   f"{g['alt']:.3f}", r.get("observations"), r.get("side"), r.get("inspected"),
-                   len(r.get("photos", []))]
-            if truth:
-                row += [r.get("gt_instance_id"), "" if r.get("error_m") is None else f"{r['error_m']:.3f}",
-                        "" if r.get("axis_error_deg") is None else f"{r['axis_error_deg']:.2f}"]
-            w.writerow(row)
+            w.writerow([r["id"], *(f"{c:.3f}" for c in r["center"]), f"{g['lat']:.9f}", f"{g['lon']:.9f}",
+                        f"{g['alt']:.3f}", r.get("observations"), r.get("side"), r.get("inspected"),
+                        len(r.get("photos", []))])
         write_atomic(path / "insulators.csv", table.getvalue())
         self._last_summary = summary
         if _map_key(summary) != self._map_key:

@@ -31,6 +31,7 @@ import numpy as np
 
 from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsafe
 from insulator_rs.validation import as_finite, as_vector3, require_non_negative, require_positive
+from insulator_rs.poses import interpolate_poses, pose_from_yaw
 from insulator_rs.ports.vehicle import FlightMode, VehicleState, wrap_angle
 
 # Integration step: the model is sub-stepped so that ``advance`` with a large
@@ -443,8 +444,12 @@ class KinematicVehicle:
             _, position, yaw = self.true_track[0 if k <= 0 else -1]
             return position.copy(), yaw
         (t0, p0, y0), (t1, p1, y1) = self.true_track[k - 1], self.true_track[k]
-        f = (time - t0) / (t1 - t0) if t1 > t0 else 1.0
-        return p0 + f * (p1 - p0), wrap_angle(y0 + f * wrap_angle(y1 - y0))
+        if not t1 > t0:
+            return p1.copy(), y1
+        # poses.py interpolates (linear in position, geodesic in rotation: here the yaw's shorter way)
+        T = interpolate_poses(np.array([t0, t1]), np.stack([pose_from_yaw(p0, y0), pose_from_yaw(p1, y1)]),
+                              np.array([time]))[0]
+        return T[:3, 3].copy(), math.atan2(T[1, 0], T[0, 0])
 
     def raise_pending_failsafe(self) -> None:
         """Raise the failsafe that fired since the last call, if any (once each)."""

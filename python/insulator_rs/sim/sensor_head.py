@@ -48,6 +48,7 @@ import numpy as np
 
 from insulator_rs.exceptions import InsulatorError
 from insulator_rs.mavlink.frames import attitude_ned_frd_to_enu_flu, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
+from insulator_rs.poses import interpolate_poses
 from insulator_rs.sim.livox_emitter import SensorClock, send
 from insulator_rs.sim.livox_wire import LidarStream
 from insulator_rs.timesync import TelemetryClock
@@ -182,16 +183,16 @@ class Px4PoseFeed:
             t0, p0, v0 = pos[0]
             return p0 + v0 * (t - t0)
         (ta, pa, _), (tb, pb, _) = pos
-        return pa + (pb - pa) * ((t - ta) / (tb - ta))
+        return _between(ta, tb, pa, pb, np.eye(3), np.eye(3), t)[:3, 3]
 
     def _rotation(self, att: list[Any], t: float) -> np.ndarray:
-        if len(att) == 1:
+        if len(att) == 1:  # past the newest sample: carried along its yaw rate
             ta, yaw, roll, pitch, rate = att[0]
             return _body_rotation(yaw + rate * (t - ta), roll, pitch, self.full_attitude)
         (ta, ya, ra, pa, _), (tb, yb, rb, pb, _) = att
-        f = (t - ta) / (tb - ta)
-        dy = math.remainder(yb - ya, 2 * math.pi)
-        return _body_rotation(ya + f * dy, ra + f * (rb - ra), pa + f * (pb - pa), self.full_attitude)
+        Ra = _body_rotation(ya, ra, pa, self.full_attitude)
+        Rb = _body_rotation(yb, rb, pb, self.full_attitude)
+        return _between(ta, tb, np.zeros(3), np.zeros(3), Ra, Rb, t)[:3, :3]
 
     def close(self) -> None:
         self._stop.set()
@@ -431,3 +432,12 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _between(ta: float, tb: float, pa: np.ndarray, pb: np.ndarray, Ra: np.ndarray, Rb: np.ndarray,
+             t: float) -> np.ndarray:
+    """The pose at ``t`` between two samples, as poses.py interpolates every pose."""
+    Ta, Tb = np.eye(4), np.eye(4)
+    Ta[:3, :3], Ta[:3, 3] = Ra, pa
+    Tb[:3, :3], Tb[:3, 3] = Rb, pb
+    return interpolate_poses(np.array([ta, tb]), np.stack([Ta, Tb]), np.array([t]))[0]

@@ -1,6 +1,7 @@
-"""The flight loop pairs a detection frame with the LiDAR points of its whole window, driven by
-the data: a live 10 Hz LiDAR delivers the scan covering ``frame.time + window`` only once that
-scan's 100 ms window is closed (plus the driver's reorder grace), so the loop asks every tick
+"""The perception runner (the flight's and the replay's) pairs a detection frame with the LiDAR
+points of its whole window, driven by the data: a live 10 Hz LiDAR delivers the scan covering
+``frame.time + window`` only once that scan's 100 ms window is closed (plus the driver's
+reorder grace), so the runner asks every tick
 until it has it, hands the same scan's points to perception once, and never waits longer
 than ``PAIRING_WAIT`` past the window (then it pairs with what is there and counts it).
 
@@ -9,15 +10,14 @@ Reference: the scans' own per-point times (what the source delivered, and when).
 from __future__ import annotations
 
 import numpy as np
-from test_mission_inspect import small_scene
 
-from insulator_rs.flight.loop import CONTROL_PERIOD, PAIRING_WAIT, FlightLoop, FlightSettings
-from insulator_rs.app.inspect_command import kinematic_vehicle
-from insulator_rs.mission.config import load_mission
+from insulator_rs.flight.loop import CONTROL_PERIOD
+from insulator_rs.perception.pairing import PAIRING_WAIT
+from insulator_rs.perception.pipeline import PerceptionPipeline
+from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.poses import pose_from_yaw
-from insulator_rs.rig import simulator_rig
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
-from insulator_rs.ports.vehicle import VehicleState
+from insulator_rs.rig import simulator_rig
 
 FRAME = 0.1  # s: the LiDAR's scan period
 GRACE = 0.005  # s: the driver closes a scan once a packet this far past its end arrives
@@ -58,47 +58,41 @@ class LateLidar:
         pass
 
 
-def _loop(tmp_path, sensors) -> FlightLoop:
-    _, mission_path = small_scene(tmp_path)
-    mission = load_mission(mission_path)
+def _runner(sensors) -> PerceptionRunner:
     rig = simulator_rig()
-    vehicle = kinematic_vehicle(mission, 0)
     detector = lambda image: np.array([[10.0, 10.0, 50.0, 50.0, 0.9]])  # noqa: E731
-    return FlightLoop(mission, vehicle, sensors, detector, tmp_path / "report", rig=rig,
-                      settings=FlightSettings(quiet=True))
+    pipeline = PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, insulator_length=2.0)
+    return PerceptionRunner(sensors, detector, pipeline, detect_period=10.0)  # one detection event per run
 
 
-def _state(t: float) -> VehicleState:
-    return VehicleState(t, np.zeros(3), np.zeros(3), 0.0, True, "OFFBOARD", False)
-
-
-def _run(loop: FlightLoop, t_frame: float, until: float) -> list[float]:
+def _run(runner: PerceptionRunner, t_frame: float, until: float) -> list[float]:
     """Detection at ``t_frame``, then control ticks to ``until``; the times at which perception
     got the frame (its frame counter went up)."""
     handed = []
     t = t_frame
-    loop.detection_event(_state(t))
+    runner.add_pose(PoseStamped(t, pose_from_yaw(np.zeros(3), 0.0)))
+    runner.step(t)
     while t < until:
         t = round(t + CONTROL_PERIOD, 9)
-        loop.perception.add_pose(PoseStamped(t, pose_from_yaw(np.zeros(3), 0.0)))
-        before = loop.perception.counters.frames
-        loop._pair_pending(_state(t))
-        if loop.perception.counters.frames > before:
+        runner.add_pose(PoseStamped(t, pose_from_yaw(np.zeros(3), 0.0)))
+        before = runner.pipeline.counters.frames
+        runner.step(t)
+        if runner.pipeline.counters.frames > before:
             handed.append(t)
     return handed
 
 
 def test_a_frame_waits_for_the_scan_that_covers_its_window(tmp_path) -> None:
     sensors = LateLidar(simulator_rig())
-    loop = _loop(tmp_path, sensors)
+    runner = _runner(sensors)
     for t in np.arange(0.0, 10.0, CONTROL_PERIOD):
-        loop.perception.add_pose(PoseStamped(float(t), pose_from_yaw(np.zeros(3), 0.0)))
+        runner.add_pose(PoseStamped(float(t), pose_from_yaw(np.zeros(3), 0.0)))
     t_frame = 10.03
-    handed = _run(loop, t_frame, 11.0)
+    handed = _run(runner, t_frame, 11.0)
     # the scan [10.1, 10.2) holds the window's end 10.13; delivered at 10.205, first seen at 10.23
     assert handed == [10.23]
-    assert loop.pairing_short == 0
-    times = np.concatenate([s.times for s in loop.perception.scans])
+    assert runner.pairing_short == 0
+    times = np.concatenate([s.times for s in runner.pipeline.scans])
     assert len(times) == len(np.unique(times))  # each point handed over once, however often asked
     assert times.min() <= t_frame - 0.1 + 0.03 and times.max() >= t_frame + 0.1  # the whole window
     # asked every tick from the window's end until the covering scan came
@@ -107,13 +101,13 @@ def test_a_frame_waits_for_the_scan_that_covers_its_window(tmp_path) -> None:
 
 def test_a_lidar_that_stops_costs_the_pairing_not_the_flight(tmp_path) -> None:
     sensors = LateLidar(simulator_rig(), stop_at=10.0)
-    loop = _loop(tmp_path, sensors)
+    runner = _runner(sensors)
     t_frame = 10.03
-    handed = _run(loop, t_frame, 11.0)
+    handed = _run(runner, t_frame, 11.0)
     # nothing covers 10.13 ever: handed over with what is there once the bounded wait is over
     assert handed == [round(t_frame + 0.1 + PAIRING_WAIT, 2)] == [10.43]
-    assert loop.pairing_short == 1 and loop.summary()["pairing_short"] == 1
-    assert loop._pending == []
+    assert runner.pairing_short == 1
+    assert not runner.pairing.pending
 
 
 class RenderingLidar(LateLidar):
@@ -129,7 +123,7 @@ class RenderingLidar(LateLidar):
 
 def test_a_source_that_knows_its_window_pairs_at_once(tmp_path) -> None:
     sensors = RenderingLidar(simulator_rig())
-    loop = _loop(tmp_path, sensors)
-    handed = _run(loop, 10.03, 11.0)
-    assert handed == [10.13] and loop.pairing_short == 0  # not held for the returns it lacks
+    runner = _runner(sensors)
+    handed = _run(runner, 10.03, 11.0)
+    assert handed == [10.13] and runner.pairing_short == 0  # not held for the returns it lacks
     assert [round(c, 2) for c in sensors.calls] == [10.03, 10.13]

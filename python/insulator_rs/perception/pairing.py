@@ -1,0 +1,101 @@
+"""The one pairing rule: which LiDAR points go with a detection frame, and when the frame is due.
+
+A frame is paired with the points of both sides of its instant (+- the pipeline's pairing
+window, per-point times). It is handed to perception once the window past it is over and a
+scan reaches the window's end (a live 10 Hz driver delivers the scan covering it up to a frame
+period and its reorder grace later; the simulator renders it at once; a replay delivers each
+recorded scan once the replay's clock has passed what it covers). A frame still short
+:data:`PAIRING_WAIT` s after its window goes with what is there, counted as short: a LiDAR that
+stopped delivering costs the pairing, never the flight.
+
+The flight and the replay both pair through :class:`FramePairing` (driven by
+:class:`~insulator_rs.perception.runner.PerceptionRunner`), so there is one rule.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from insulator_rs.ports.sensors import CameraFrame, LidarScan
+
+# s past the pairing window a frame may wait for the scan that covers the window's end: a live
+# 10 Hz LiDAR delivers a scan once its 100 ms window is closed (plus the driver's reorder grace
+# and the link's latency); a frame still short after that goes to perception with what is there
+PAIRING_WAIT = 0.3
+# s: a scan ending this close before the window's end covers it (the last shots of a window
+# may have no return; shots are 5 us apart; a source that knows its window says so:
+# LidarScan.window_end)
+PAIRING_SLACK = 0.01
+# s: comparisons of stamps on the vehicle clock tolerate this (float sums of control periods)
+TIME_EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class PendingFrame:
+    """A detection frame with boxes, waiting for the LiDAR points after its instant."""
+
+    frame: CameraFrame
+    boxes: np.ndarray
+
+
+class ScanIntake:
+    """The points of each delivered scan that perception does not have yet.
+
+    A live source returns the same newest scan until the next is complete, and the simulator's
+    scans may overlap; only points newer than everything taken so far (the horizon) are new."""
+
+    def __init__(self) -> None:
+        self.horizon = -math.inf  # vehicle time of the newest LiDAR point taken
+
+    def take(self, scan: LidarScan | None) -> LidarScan | None:
+        """The new part of ``scan``, None when nothing in it is new; advances the horizon."""
+        if scan is None or not scan.covered_until > self.horizon:  # nan (no point, no window): nothing
+            return None
+        if scan.time_start <= self.horizon:
+            new = np.asarray(scan.times) > self.horizon
+            scan = LidarScan(np.asarray(scan.points_l)[new], np.asarray(scan.times)[new], scan.T_b_l,
+                             None if scan.intensity is None else np.asarray(scan.intensity)[new],
+                             window_end=scan.window_end)
+        self.horizon = scan.covered_until
+        return scan
+
+
+class FramePairing:
+    """Frames with boxes waiting for their window's points, oldest first (see the module docstring)."""
+
+    def __init__(self, window: float) -> None:
+        self.window = float(window)
+        self.pending: deque[PendingFrame] = deque()
+        self.short = 0  # frames handed over before the scans covered their whole window
+
+    def add(self, frame: CameraFrame, boxes: np.ndarray) -> None:
+        self.pending.append(PendingFrame(frame, boxes))
+
+    def waiting_for_points(self, now: float) -> bool:
+        """Whether the oldest frame's window is over, so the newest scan should be asked for."""
+        return bool(self.pending) and now >= self.pending[0].frame.time + self.window - TIME_EPS
+
+    def due(self, now: float, horizon: float) -> list[PendingFrame]:
+        """The frames to hand to perception at ``now``, given the LiDAR ``horizon`` reached."""
+        out = []
+        while self.pending:
+            head = self.pending[0]
+            due = head.frame.time + self.window
+            if now < due - TIME_EPS:
+                break
+            if horizon < due - PAIRING_SLACK:
+                if now < due + PAIRING_WAIT:
+                    break
+                self.short += 1
+            out.append(self.pending.popleft())
+        return out
+
+    def drain(self) -> list[PendingFrame]:
+        """Every waiting frame (the stream ended): they go with what there is."""
+        out = list(self.pending)
+        self.pending.clear()
+        return out

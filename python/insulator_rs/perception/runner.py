@@ -1,0 +1,165 @@
+"""The perception runner: sensors -> detector -> pairing -> :class:`PerceptionPipeline`.
+
+One runner serves the flight loop and the replay of a recorded flight, driven by the data's
+times (the vehicle clock of each pose, frame and point):
+
+* every pose the vehicle reports goes to the pipeline's pose history (:meth:`add_pose`);
+* every ``detect_period`` s (:meth:`step`) the newest camera frame is taken from the
+  :class:`~insulator_rs.ports.sensors.Sensors` port and run through the detector; the frame,
+  with the newest LiDAR scan, waits for the points of its instant
+  (:mod:`~insulator_rs.perception.pairing`: the one pairing rule), then goes to the pipeline;
+* what the pipeline localizes is returned to the caller, who decides what it means (the flight
+  tells its state machine, a replay its registry).
+
+A sensor error costs that detection event, never the caller (it is counted and handed to
+``on_sensor_error``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from insulator_rs.exceptions import SensorError
+from insulator_rs.perception.pairing import FramePairing, PendingFrame, ScanIntake
+from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
+from insulator_rs.ports.detector import BoxDetector
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
+
+
+class RunnerViewer(Protocol):
+    """Who watches perception (the replay's Rerun log): each detection frame with its boxes,
+    and the points paired with it (W) with the body pose at its exposure."""
+
+    def frame(self, frame: CameraFrame, boxes: np.ndarray) -> None: ...
+
+    def paired(self, frame: CameraFrame, boxes: np.ndarray, points_w: np.ndarray, T_w_b: np.ndarray) -> None: ...
+
+
+@dataclass
+class RunnerCounts:
+    """What the runner did: detection ``events`` (a frame asked for), ``frames`` run through the
+    detector, ``events_with_boxes`` (frames with boxes handed to the pipeline), ``repeated_frames`` (a source handing the same frame again:
+    not run twice), ``sensor_errors``, ``localizations``."""
+
+    events: int = 0
+    frames: int = 0
+    events_with_boxes: int = 0
+    repeated_frames: int = 0
+    sensor_errors: int = 0
+    localizations: int = 0
+
+
+class PerceptionRunner:
+    """Sensors, detector and pipeline, stepped by the caller's clock (see the module docstring)."""
+
+    def __init__(self, sensors: Sensors, detector: BoxDetector, pipeline: PerceptionPipeline, *,
+                 detect_period: float, on_sensor_error: Callable[[SensorError], None] | None = None,
+                 viewer: RunnerViewer | None = None) -> None:
+        if not (math.isfinite(detect_period) and detect_period >= 0):
+            raise ValueError(f"detect_period: must be a finite number >= 0, got {detect_period!r}")
+        self.sensors = sensors
+        self.detector = detector
+        self.pipeline = pipeline
+        self.detect_period = float(detect_period)
+        self.on_sensor_error = on_sensor_error
+        self.viewer = viewer
+        self.intake = ScanIntake()
+        self.pairing = FramePairing(pipeline.pairing_window)
+        self.counts = RunnerCounts()
+        self._next_detect = -math.inf
+        self._last_frame_time = -math.inf
+        # the boxes of the latest detection event (an observer draws them; None before the first)
+        self.last_boxes: np.ndarray | None = None
+
+    @property
+    def pairing_short(self) -> int:
+        return self.pairing.short
+
+    def add_pose(self, pose: PoseStamped) -> None:
+        """The vehicle's estimated pose (every control tick, or every recorded pose, in time order)."""
+        self.pipeline.add_pose(pose)
+
+    def step(self, now: float) -> list[LocalizedInsulator]:
+        """One tick at vehicle time ``now``: pair what is due, then a detection event if one is due."""
+        fixes = self._pair_due(now)
+        if now >= self._next_detect:
+            self._next_detect = now + self.detect_period
+            self._detection_event(now)
+        return fixes
+
+    def finish(self, now: float) -> list[LocalizedInsulator]:
+        """A recorded stream has ended at ``now``: the scans there are go in, and every waiting
+        frame with them."""
+        self._take_scan(self._ask_scan(now))
+        return self._process(self.pairing.drain())
+
+    # -- internals ------------------------------------------------------------------------
+    def _sensor_error(self, exc: SensorError) -> None:
+        self.counts.sensor_errors += 1
+        if self.on_sensor_error is not None:
+            self.on_sensor_error(exc)
+
+    def _ask_scan(self, now: float) -> LidarScan | None:
+        try:
+            return self.sensors.lidar_scan(now)
+        except SensorError as exc:
+            self._sensor_error(exc)
+            return None
+
+    def _take_scan(self, scan: LidarScan | None) -> None:
+        new = self.intake.take(scan)
+        if new is not None:
+            self.pipeline.add_scan(new)
+
+    def _detection_event(self, now: float) -> None:
+        """Take a detection frame and run the detector; a frame with boxes waits for the LiDAR
+        points of its instant, with the newest scan taken now."""
+        self.counts.events += 1
+        try:
+            frame = self.sensors.detection_frame(now)
+            if frame is None:
+                return
+            if not frame.time > self._last_frame_time:
+                self.counts.repeated_frames += 1
+                return
+            self._last_frame_time = frame.time
+            self.counts.frames += 1
+            boxes = np.asarray(self.detector(frame.image), dtype=np.float64)
+            self.last_boxes = boxes
+            if self.viewer is not None:
+                self.viewer.frame(frame, boxes[:, :4])
+            scan = self.sensors.lidar_scan(now)
+        except SensorError as exc:
+            self._sensor_error(exc)
+            return
+        self._take_scan(scan)
+        # A frame without boxes waits for its window's scans too: they are asked for all the
+        # same, so what the sensors deliver (and a recording keeps) does not depend on what the
+        # detector saw; a replay with another detector finds every frame's points.
+        self.pairing.add(frame, boxes)
+
+    def _pair_due(self, now: float) -> list[LocalizedInsulator]:
+        """Once the window past the oldest waiting frame is over, the newest scan is asked for
+        every tick and its new points go to the pipeline; the frames then due are processed."""
+        if not self.pairing.waiting_for_points(now):
+            return []
+        self._take_scan(self._ask_scan(now))
+        return self._process(self.pairing.due(now, self.intake.horizon))
+
+    def _process(self, frames: list[PendingFrame]) -> list[LocalizedInsulator]:
+        fixes: list[LocalizedInsulator] = []
+        for p in frames:
+            if len(p.boxes) == 0:
+                continue
+            self.counts.events_with_boxes += 1
+            self.pipeline.last_paired = None
+            fixes.extend(self.pipeline.process(p.frame, p.boxes))
+            if self.viewer is not None and self.pipeline.last_paired is not None:
+                self.viewer.paired(p.frame, p.boxes[:, :4], *self.pipeline.last_paired)
+        self.counts.localizations += len(fixes)
+        return fixes

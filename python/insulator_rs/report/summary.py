@@ -1,0 +1,134 @@
+"""The one summary schema: what a run (a flight, or the replay of a recorded flight) knows.
+
+``summary.json`` of every report folder is a :class:`RunSummary`, written by
+:meth:`~insulator_rs.report.writer.ReportWriter.write_summary` (atomically, through
+:mod:`~insulator_rs.report.jsonfile`). Nothing of ground truth is in it: a scorer
+(``insulator_rs.evaluation.scoring``) compares it with a scene afterwards, in ``score.json``.
+
+The JSON is flat, as crews and scripts read it: the common fields, the perception counts, then
+the flight's or the replay's own fields (:class:`FlightDetails`, :class:`ReplayDetails`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from insulator_rs.report.jsonfile import jsonable
+
+
+@dataclass
+class InsulatorRecord:
+    """One insulator the run found: ``center`` and unit ``axis`` in W (m), localizations fused,
+    side of the tower (+1/-1), whether confirmed and inspected, its photos (files)."""
+
+    id: int
+    center: np.ndarray
+    axis: np.ndarray
+    observations: int
+    side: int
+    confirmed: bool
+    inspected: bool
+    photos: list[str] = field(default_factory=list)
+
+
+@dataclass
+class PerceptionRecord:
+    """What perception did (the runner's and the pipeline's counts)."""
+
+    detection_events: int = 0  # frames asked for
+    frames_detected: int = 0  # frames run through the detector
+    localizations: int = 0
+    pairing_short: int = 0  # frames paired before the scans covered their whole window
+    sensor_errors: int = 0
+    counters: dict[str, int] = field(default_factory=dict)  # PerceptionCounters
+    refused_not_insulator: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class FlightDetails:
+    """What only a flight has."""
+
+    mission: str
+    rig: str
+    policy: str
+    time_allocation: str
+    state: str
+    vehicle: str
+    sensors: str
+    failsafe: dict[str, str] | None
+    distance_m: float
+    detections_dropped_by_sanitiser: dict[str, int] | None
+    inspections_skipped: list[dict[str, Any]]
+    photo_camera: dict[str, Any] | None
+    inspection_waypoints: list[dict[str, Any]]
+    transitions: list[dict[str, Any]]
+
+
+@dataclass
+class ReplayDetails:
+    """What only a replay has: the recording, its topics, and how fast it went."""
+
+    recording: str
+    topics: dict[str, str]
+    deskew: bool
+    poses: int
+    scans: int
+    frames: int
+    wall_time_s: float
+    speed_vs_real_time: float | None
+    rerun: str | None
+
+
+@dataclass
+class RunSummary:
+    """``summary.json`` (see the module docstring). ``status``: ``running``, ``finished``,
+    ``aborted: ...``, ``interrupted`` or ``failed: ...`` (``error`` says what failed)."""
+
+    run: str  # "flight" or "replay"
+    status: str
+    detector: str
+    method: str
+    flight_time_s: float
+    perception: PerceptionRecord
+    insulators: list[InsulatorRecord]
+    photos: list[dict[str, Any]] = field(default_factory=list)
+    sensors_health: dict[str, Any] = field(default_factory=dict)
+    error: str | None = None
+    flight: FlightDetails | None = None
+    replay: ReplayDetails | None = None
+
+    @property
+    def insulators_found(self) -> int:
+        return len(self.insulators)
+
+    @property
+    def insulators_inspected(self) -> int:
+        return sum(1 for r in self.insulators if r.inspected)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The flat JSON object (plain values)."""
+        p = self.perception
+        out: dict[str, Any] = {
+            "run": self.run, "status": self.status, "error": self.error, "detector": self.detector,
+            "method": self.method, "flight_time_s": self.flight_time_s,
+            "detection_events": p.detection_events, "frames_detected": p.frames_detected,
+            "localizations": p.localizations, "pairing_short": p.pairing_short, "sensor_errors": p.sensor_errors,
+            "perception": dict(p.counters), "refused_not_insulator": dict(p.refused_not_insulator),
+            "sensors_health": self.sensors_health,
+        }
+        for details in (self.flight, self.replay):
+            if details is not None:
+                out.update({f.name: getattr(details, f.name) for f in fields(details)})
+        out.update({"insulators_found": self.insulators_found, "insulators_inspected": self.insulators_inspected,
+                    "insulators": [jsonable(r) for r in self.insulators], "photos": self.photos})
+        return jsonable(out)
+
+
+def failed_summary(run: str, error: str, **replay_fields: Any) -> dict[str, Any]:
+    """The summary of a run that could not start (a recording that cannot be opened, a bad
+    option): status ``failed: <error>``, nothing found."""
+    return {"run": run, "status": f"failed: {error}", "error": error, "insulators_found": 0, "insulators": [],
+            **replay_fields}
