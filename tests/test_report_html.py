@@ -26,6 +26,7 @@ from insulator_rs.exceptions import ReportError
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.html import HTML_NAME, write_report_html
+from insulator_rs.report.summary import FlightDetails, InsulatorRecord, PerceptionRecord, RunSummary
 
 ORIGIN = GeoPoint(49.5, 15.0, 420.0)
 
@@ -53,11 +54,11 @@ def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
         w.log_pose(0.1 * k, p, ang[k] + np.pi, "explore")
     clock = FlightClock(0.0, datetime(2026, 6, 1, 10, 0, tzinfo=timezone.utc))
     insulators = [{"id": 1, "center": np.array([2.4, -1.8, 9.1]), "axis": np.array([0.0, 0.0, 1.0]),
-                   "observations": 10, "side": 1, "inspected": True, "photos": []},
+                   "observations": 10, "side": 1, "confirmed": True, "inspected": True, "photos": []},
                   {"id": 2, "center": np.array([-2.4, 1.8, 9.0]), "axis": np.array([0.0, 0.1, 0.99]),
-                   "observations": 6, "side": -1, "inspected": True, "photos": []},
+                   "observations": 6, "side": -1, "confirmed": True, "inspected": True, "photos": []},
                   {"id": 3, "center": np.array([-2.5, 1.9, 14.0]), "axis": np.array([0.0, 0.0, 1.0]),
-                   "observations": 4, "side": -1, "inspected": False, "photos": []}]
+                   "observations": 4, "side": -1, "confirmed": True, "inspected": False, "photos": []}]
     photos = []
     for k, (ins, pos, yaw, q) in enumerate(((1, path[40], 0.3, _quality(1.8, True)),
                                             (2, path[160], -2.0, _quality(8.6, False)),
@@ -68,11 +69,21 @@ def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
         insulators[ins - 1]["photos"].append(rec["file"])
     skipped = [{"insulator_id": 3, "position": [-6.0, 1.9, 14.0],
                 "reason": "no safe route to the waypoint (enters the tower's safety volume)"}]
-    w.write_summary({"status": "finished", "scene": "test tower", "insulators": insulators, "photos": photos,
-                     "insulators_found": 3, "insulators_inspected": 2, "flight_time_s": 612.4,
-                     "distance_m": 240.0, "inspections_skipped": skipped, "detector": "standin"})
+    w.write_summary(_run("finished", insulators, photos, skipped))
     w.close()
     return tmp_path / "report", insulators, photos
+
+
+def _run(status: str, insulators: list[dict], photos: list[dict], skipped: list[dict]) -> RunSummary:
+    """A flight's RunSummary, as the loop writes it."""
+    return RunSummary(
+        run="flight", status=status, detector="standin", method="bounded", flight_time_s=612.4,
+        perception=PerceptionRecord(), insulators=[InsulatorRecord(**i) for i in insulators], photos=photos,
+        flight=FlightDetails(mission="missions/test_tower.toml", rig="simulator", policy="immediate",
+                             time_allocation="pmm", state="finish", vehicle="KinematicVehicle",
+                             sensors="SimulatedSensors", failsafe=None, distance_m=240.0,
+                             detections_dropped_by_sanitiser=None, inspections_skipped=skipped,
+                             photo_camera=None, inspection_waypoints=[], transitions=[]))
 
 
 def test_close_writes_a_self_contained_page(tmp_path):
@@ -88,7 +99,7 @@ def test_close_writes_a_self_contained_page(tmp_path):
     assert "<script" not in low and "<link" not in low and "@import" not in low
     assert low.count("data:image/jpeg;base64,") == len(photos)
     assert "no safe route to the waypoint" in text  # skipped, with the reason
-    assert "10 min 12.4 s" in text  # flight time
+    assert "10 min 12.4 s" in text and "Insulator inspection — test_tower" in text  # flight time, mission
     # which insulators have no fit photo, and why
     assert "2 photos, none fit; the finest: GSD 8.6 mm/px &gt; 2" in text
     assert "not inspected; skipped: no safe route" in text
@@ -184,7 +195,7 @@ def test_not_a_folder(tmp_path, capsys):
 
 def test_page_of_a_report_with_nothing_found(tmp_path):
     w = ReportWriter(tmp_path / "r", origin=ORIGIN)
-    w.write_summary({"status": "aborted: heartbeat lost", "insulators": [], "photos": []})
+    w.write_summary(_run("aborted: heartbeat lost", [], [], []))
     w.close()
     text = (tmp_path / "r" / HTML_NAME).read_text()
     assert "aborted: heartbeat lost" in text and 'class="status aborted"' in text
