@@ -186,13 +186,20 @@ def _map_svg(title: str, axes: tuple[str, str], pts_by_kind: dict[str, np.ndarra
                        f'stroke-width="1.2"/>')
         out.append(f'<a href="#{_anchor(ph)}"><circle class="photo-marker" cx="{_fmt(x)}" cy="{_fmt(y)}" r="3.5" '
                    f'fill="#1f6fd1"><title>{html.escape(ph["file"])}</title></circle></a>')
+    labels: list[tuple[float, float, list[str]]] = []  # markers closer than 16 px share one label
     for ins, (a, b) in zip(insulators, pts_by_kind.get("insulator", np.zeros((0, 2)))):
         x, y = panel.xy(a, b)
         color = {"fit": "#1a9850", "unfit": "#f28e2b", "none": "#d62728"}[ins["_verdict"]]
         out.append(f'<a href="#insulator-{html.escape(str(ins["id"]))}"><circle class="insulator-marker" '
                    f'cx="{_fmt(x)}" cy="{_fmt(y)}" r="6" fill="{color}" stroke="#222" stroke-width="0.8">'
-                   f'<title>insulator {html.escape(str(ins["id"]))}</title></circle>'
-                   f'<text x="{_fmt(x + 8)}" y="{_fmt(y - 6)}" class="label">{html.escape(str(ins["id"]))}</text></a>')
+                   f'<title>insulator {html.escape(str(ins["id"]))}</title></circle></a>')
+        near = next((lab for lab in labels if math.hypot(lab[0] - x, lab[1] - y) < 16.0), None)
+        if near is None:
+            labels.append((x, y, [str(ins["id"])]))
+        else:
+            near[2].append(str(ins["id"]))
+    for x, y, ids in labels:
+        out.append(f'<text x="{_fmt(x + 8)}" y="{_fmt(y - 6)}" class="label">{html.escape(", ".join(ids))}</text>')
     # scale bar and axes
     bar = _nice_length(panel.span)
     px = bar * panel.scale
