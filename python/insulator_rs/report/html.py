@@ -454,7 +454,8 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
         verdict = {"fit": '<span class="fit">fit photo</span>', "unfit": '<span class="unfit">no fit photo</span>',
                    "none": '<span class="unfit">no photo</span>'}[ins["_verdict"]]
         side_v = ins.get("side")
-        side_text = {1: "+ side of the line", -1: "− side of the line"}.get(side_v, str(side_v) if side_v is not None else "–")
+        side_text = ("+ side of the line" if side_v == 1 else "− side of the line" if side_v == -1
+                     else "–" if side_v is None else str(side_v))
         parts.append(f'<section class="insulator" id="insulator-{iid}" data-insulator-id="{iid}">'
                      f'<h3>Insulator {iid} · {verdict}</h3><table>'
                      f'<tr><th>WGS-84</th><td class="wgs84">{_latlon(g["lat"], g["lon"])}, {g["alt"]:.2f} m</td></tr>'
@@ -487,6 +488,9 @@ def _photos_html(folder: Path, photos: Sequence[Mapping[str, Any]], report: Html
     for ph in photos:
         rel = str(ph["file"])
         target = folder / rel
+        thumb: str | None
+        size: tuple[int, int] | None
+        problem: str | None
         if Path(rel).is_absolute() or ".." in Path(rel).parts:
             thumb, size, problem = None, None, "outside the report folder"
         else:
@@ -502,7 +506,8 @@ def _photos_html(folder: Path, photos: Sequence[Mapping[str, Any]], report: Html
         else:
             report.problems.append(f"{rel}: {problem}")
             img = f'<div class="missing">{e(rel)}: {e(problem or "")}</div>'
-        geo = ph.get("wgs84") if isinstance(ph.get("wgs84"), dict) else {}
+        geo_v = ph.get("wgs84")
+        geo: Mapping[str, Any] = geo_v if isinstance(geo_v, dict) else {}
         rows = [("file", f'<a href="{e(href)}">{e(rel)}</a>' + (f" ({size[0]}×{size[1]} px)" if size else "")),
                 ("time (UTC)", e(str(ph.get("time_utc", "–")))),
                 ("from", f"{_num(geo.get('lat'), '.7f')}°, {_num(geo.get('lon'), '.7f')}°, {_num(geo.get('alt'), '.1f')} m"),
