@@ -290,7 +290,11 @@ def run(args: argparse.Namespace) -> int:
     if mavlink:  # the pilot's view: STATUSTEXT and a MAVLink camera through the autopilot (mavlink/gcs.py)
         from insulator_rs.mavlink.gcs import CameraDescription, MavlinkGcsObserver
 
-        observer = MavlinkGcsObserver.on_vehicle(vehicle, camera=CameraDescription.from_camera_model(photo_camera),
+        lens = rig.lens  # focal length and sensor size from the full-resolution calibration
+        camera = replace(CameraDescription.from_camera_model(rig.camera, pixel_pitch_um=lens.pixel_pitch_um,
+                                                             vendor=lens.make, model=lens.model),
+                         width_px=int(photo_camera.width), height_px=int(photo_camera.height))
+        observer = MavlinkGcsObserver.on_vehicle(vehicle, camera=camera,
                                                  file_url_prefix=f"{Path(args.out).resolve().as_uri()}/")
     link_stats = getattr(vehicle, "link_stats", None) if mavlink else None  # the MAVLink adapter's counters
     recorder = None

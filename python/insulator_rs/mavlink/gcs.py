@@ -71,11 +71,14 @@ class CameraDescription:
     firmware_version: int = 0
 
     @classmethod
-    def from_camera_model(cls, camera: Any, *, pixel_pitch_um: float = 3.45, vendor: str = "insulator_rs",
-                          model: str = "inspection camera") -> CameraDescription:
-        """From an ``ir.CameraModel``: the focal length and sensor size follow from the pixel
-        pitch (default 3.45 um, a Sony IMX 12 MP class sensor)."""
-        pitch_mm = pixel_pitch_um * 1e-3
+    def from_camera_model(cls, camera: Any, *, pixel_pitch_um: float | None = None, vendor: str | None = None,
+                          model: str | None = None) -> CameraDescription:
+        """From an ``ir.CameraModel`` and the rig's lens (:class:`~insulator_rs.rig.CameraLens`
+        fields): the focal length and sensor size follow from the pixel pitch (default 3.45 um,
+        a Sony IMX 12 MP class sensor)."""
+        vendor = vendor or "insulator_rs"
+        model = model or "inspection camera"
+        pitch_mm = (pixel_pitch_um or 3.45) * 1e-3
         return cls(vendor=vendor, model=model, focal_length_mm=0.5 * (camera.fx + camera.fy) * pitch_mm,
                    sensor_width_mm=camera.width * pitch_mm, sensor_height_mm=camera.height * pitch_mm,
                    width_px=int(camera.width), height_px=int(camera.height))
