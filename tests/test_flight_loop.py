@@ -133,12 +133,12 @@ def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(t
     original = loop.plan_segment
     refused = []
 
-    def first_inspection_unreachable(geom, start, velocity, items, **kwargs):
+    def first_inspection_unreachable(line, volumes, start, velocity, items, **kwargs):
         last = items[-1]
         if last.kind == "inspect" and (not refused or refused[0] is last):
             refused.append(last)
             raise PlanningError("the waypoint lies in the tower safety box")
-        return original(geom, start, velocity, items, **kwargs)
+        return original(line, volumes, start, velocity, items, **kwargs)
 
     monkeypatch.setattr(loop, "plan_segment", first_inspection_unreachable)
     rc, out, s = _run(tmp_path)

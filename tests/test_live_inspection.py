@@ -65,7 +65,7 @@ def fly_with_wire_lidar(tmp_path: Path, px4: bool) -> tuple[dict, dict, dict]:
     try:
         loop.fly()
         health = sensors.health()
-        summary = loop.summary()
+        summary = loop.summary().as_dict()
     finally:
         vehicle.close()
         sensors.close()

@@ -2,9 +2,13 @@
 replay, the Ray fleet and the Rerun log.
 
 The flight is the small scene of ``test_mission_inspect`` (two insulators) flown with the
-shipped network ``insulator-sim`` and ``--record``. Its replay runs the same detector, the
-same perception and registry on the recorded frames, scans and poses; the insulators must
-agree within 5 cm (jpeg-compressed frames move a box by a pixel or so, nothing more).
+shipped network ``insulator-sim`` and ``--record`` (JPEG frames, the default). Its replay runs
+the same detector, the same perception runner and registry on the recorded frames, scans and
+poses. JPEG (quality 95) changes what the network sees at the detection scale: measured on
+this flight, 48 of 86 frames had boxes in flight and 39 of the same frames decoded from the
+recording, so the two accumulate different boxes and the insulators agree to the localization's
+own accuracy, not to the millimetre: within 0.15 m of each other (measured 0.02 and 0.08 m),
+both matched to the truth. The exact parity, on the same pixels, is ``test_one_pipeline.py``.
 """
 
 import json
@@ -25,7 +29,7 @@ from test_mission_inspect import small_scene
 pytestmark = pytest.mark.slow
 ARGS = ["--detect-period", "1.0", "--detect-scale", "0.25", "--photo-scale", "0.2", "--quiet",
         "--detector", "insulator-sim"]
-ROUND_TRIP_TOLERANCE = 0.05  # m
+ROUND_TRIP_TOLERANCE = 0.15  # m: JPEG frames (see the module docstring); lossless parity in test_one_pipeline
 
 
 @pytest.fixture(scope="module")
@@ -62,9 +66,8 @@ def test_recorded_flight_replays_to_the_same_insulators(flight, capsys):
     # ground truth is the command's, after the replay: score.json beside the summary, none in it
     assert "insulators_matched" not in replayed and "mean_error_m" not in replayed
     score = json.loads((out / "score.json").read_text())
-    assert score["insulators_matched"] == 2 and score["mean_error_m"] < 0.6
-    print("flight perception", flown["perception"], flown["localizations"], flown["pairing_short"])
-    print("replay perception", replayed["perception"], replayed["localizations"], replayed["pairing_short"])
+    assert score["insulators_matched"] == 2 and score["mean_error_m"] < 0.15
+    assert replayed["pairing_short"] == flown["pairing_short"] == 0  # every frame's scans are in the recording
     assert (out / "trajectory.png").stat().st_size > 10_000
     assert "finished" in capsys.readouterr().out
 
@@ -150,6 +153,9 @@ def test_fleet_on_a_local_ray(flight):
     assert s["detectors"] == ["insulator-sim"]
     (tower,) = s["towers"].values()
     assert [f["insulators_found"] for f in tower][:2] == [flown["insulators_found"]] * 2
+    # scored by the command after the fleet, each against the scene: score.json and the fleet's rows
+    assert [f.get("insulators_matched") for f in s["flights"]] == [2, 2, None]
+    assert (out / "a" / "score.json").is_file() and not (out / "c" / "score.json").exists()
     for name in ("a", "b"):
         one = json.loads((out / name / "summary.json").read_text())
         _same_insulators(flown, one)

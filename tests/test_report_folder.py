@@ -30,6 +30,7 @@ from insulator_rs.app.cli import main
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import ReportWriter, check_out_folder
 from insulator_rs.report import folder as folder_mod
+from summaries import run_summary
 from test_mission_inspect import ARGS, small_scene  # the small scene of the inspect tests (tests/ is on sys.path)
 
 # where the insulator_rs under test was imported from (the source tree, or site-packages in CI)
@@ -44,8 +45,7 @@ def _old_report(out: Path) -> dict[str, str]:
     w.log_pose(0.0, np.zeros(3), 0.0, "idle")
     rec = w.save_photo("insulator_01_1.jpg", np.full((16, 16, 3), 200, np.uint8),
                        time_utc=w.opened_utc, position_enu=np.ones(3), yaw_enu=0.0)
-    w.write_summary({"status": "finished", "marker": "old run", "insulators": [],
-                     "photos": [{**rec, "position": [1.0, 1.0, 1.0]}]})
+    w.write_summary(run_summary("finished", marker="old run", photos=[{**rec, "position": [1.0, 1.0, 1.0]}]))
     w.close()
     return _hashes(out)
 
@@ -106,12 +106,12 @@ def test_overwrite_keeps_the_old_report_whole_until_the_new_one_is_done(tmp_path
     assert w.layout.staged and w.layout.path.parent == tmp_path and w.layout.path.name.startswith(".report.new-")
     w.save_photo("insulator_02_1.jpg", np.zeros((16, 16, 3), np.uint8), time_utc=w.opened_utc,
                  position_enu=np.zeros(3), yaw_enu=0.0)
-    w.write_summary({"status": "running", "marker": "new run", "insulators": [], "photos": []})
+    w.write_summary(run_summary("running", marker="new run"))
     assert _hashes(out) == before  # nothing of the new run in --out yet
-    w.write_summary({"status": "finished", "marker": "new run", "insulators": [], "photos": []})
+    w.write_summary(run_summary("finished", marker="new run"))
     w.close()
     s = json.loads((out / "summary.json").read_text())
-    assert s["marker"] == "new run" and s["status"] == "finished"
+    assert s["detector"] == "new run" and s["status"] == "finished"
     assert sorted(p.name for p in (out / "images").iterdir()) == ["insulator_02_1.jpg"]
     assert _siblings(out) == []  # the old report is gone, no staging folder left
     assert out.stat().st_mode & 0o7777 == mode  # not the temporary folder's 0700
@@ -133,9 +133,9 @@ def test_the_fallback_without_exchange_still_replaces(tmp_path, monkeypatch):
     out = tmp_path / "report"
     _old_report(out)
     w = ReportWriter(out, origin=ORIGIN, overwrite=True)
-    w.write_summary({"status": "finished", "marker": "new run", "insulators": [], "photos": []})
+    w.write_summary(run_summary("finished", marker="new run"))
     w.close()
-    assert json.loads((out / "summary.json").read_text())["marker"] == "new run"
+    assert json.loads((out / "summary.json").read_text())["detector"] == "new run"
     assert _siblings(out) == [] and not (out / "images" / "insulator_01_1.jpg").exists()
 
 
@@ -145,13 +145,15 @@ CHILD = textwrap.dedent("""
     import numpy as np
     from insulator_rs.geodesy import GeoPoint
     from insulator_rs.report import ReportWriter
+    from insulator_rs.report.summary import PerceptionRecord, RunSummary
     out, overwrite, ready = Path(sys.argv[1]), sys.argv[2] == "1", Path(sys.argv[3])
     w = ReportWriter(out, origin=GeoPoint(49.5, 15.0, 420.0), overwrite=overwrite)
     w.log_pose(0.0, np.zeros(3), 0.0, "explore")
     rec = w.save_photo("insulator_07_1.jpg", np.zeros((16, 16, 3), np.uint8), time_utc=w.opened_utc,
                        position_enu=np.zeros(3), yaw_enu=0.0)
-    w.write_summary({"status": "running", "marker": "new run", "insulators": [],
-                     "photos": [{**rec, "position": [0.0, 0.0, 0.0]}]})
+    w.write_summary(RunSummary(run="flight", status="running", detector="new run", method="bounded",
+                               flight_time_s=0.0, perception=PerceptionRecord(), insulators=[],
+                               photos=[{**rec, "position": [0.0, 0.0, 0.0]}]))
     ready.write_text("photo written")
     while True:
         w.log_pose(0.0, np.zeros(3), 0.0, "explore")
@@ -183,7 +185,7 @@ def test_sigkill_mid_run_with_overwrite_leaves_the_old_report_whole(tmp_path):
     assert _hashes(out) == before  # the old report, byte for byte, its photo included
     (staged,) = _siblings(out)
     s = json.loads((staged / "summary.json").read_text())
-    assert s["status"] == "running" and s["marker"] == "new run"  # the partial new run says so
+    assert s["status"] == "running" and s["detector"] == "new run"  # the partial new run says so
     assert (staged / "images" / "insulator_07_1.jpg").is_file()
     # the next run names what the killed one left, deletes nothing of it, and replaces the old report
     w = ReportWriter(out, origin=ORIGIN, overwrite=True)
@@ -263,7 +265,7 @@ def test_inspect_interrupted_with_overwrite_replaces_with_the_interrupted_run(tm
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=CHILD_TIMEOUT) == 130
     s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "interrupted" and "marker" not in s and len(s["photos"]) >= 1
+    assert s["status"] == "interrupted" and s["detector"] != "new run" and len(s["photos"]) >= 1
     assert sorted(f"images/{p.name}" for p in (out / "images").iterdir()) == sorted(p["file"] for p in s["photos"])
     assert _siblings(out) == []
     _check_deliverables(out, s)

@@ -22,6 +22,7 @@ import pytest
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.geoexport import PATH_SPACING
+from summaries import run_summary
 
 ORIGIN = GeoPoint(49.5, 15.0, 420.0)
 ROUND_TRIP_M = 0.01
@@ -43,8 +44,7 @@ def _flight(tmp_path, *, poses: int = 400):
         w.log_pose(20.0, path[-1], 0.0, "inspect")
     clock = FlightClock(0.0, datetime(2026, 6, 1, 10, 0, tzinfo=timezone.utc))
     insulators = [{"id": 1, "center": np.array([2.43, -1.81, 9.08]), "axis": np.array([0.0, 0.0, 1.0]),
-                   "observations": 10, "side": 1, "inspected": True, "photos": [], "gt_instance_id": 3,
-                   "error_m": 0.1},
+                   "observations": 10, "side": 1, "inspected": True, "photos": []},
                   {"id": 2, "center": np.array([-2.41, 1.82, 17.5]), "axis": np.array([0.0, 0.1, 0.99]),
                    "observations": 4, "side": -1, "inspected": False, "photos": []}]
     photos = []
@@ -53,7 +53,7 @@ def _flight(tmp_path, *, poses: int = 400):
                            time_utc=clock.at(2.0 * k), position_enu=pos, yaw_enu=yaw)
         photos.append({**rec, "insulator_id": ins, "position": pos, "yaw": yaw})
         insulators[ins - 1]["photos"].append(rec["file"])
-    w.write_summary({"status": "finished", "scene": "test", "insulators": insulators, "photos": photos})
+    w.write_summary(run_summary("finished", insulators=insulators, photos=photos))
     w.close()
     return tmp_path / "report", insulators, photos, np.vstack([path, path[-1:]])
 
@@ -136,7 +136,7 @@ def test_summary_and_csv_give_wgs84(tmp_path):
         g = p["wgs84"]
         assert np.linalg.norm(_to_enu(g["lat"], g["lon"], g["alt"]) - np.array(p["position"])) < ROUND_TRIP_M
     rows = list(csv.DictReader((out / "insulators.csv").open()))
-    assert rows[0]["error_m"] == "0.100" and rows[1]["error_m"] == ""  # this summary holds ground truth
+    assert "error_m" not in rows[0] and "gt_instance_id" not in rows[0]  # ground truth is score.json's alone
     for r, ins in zip(rows, insulators):
         enu = _to_enu(float(r["lat_deg"]), float(r["lon_deg"]), float(r["alt_m"]))
         assert np.linalg.norm(enu - ins["center"]) < ROUND_TRIP_M
@@ -146,7 +146,7 @@ def test_summary_and_csv_give_wgs84(tmp_path):
 def test_a_report_without_a_path_or_finds_is_still_valid(tmp_path):
     w = ReportWriter(tmp_path / "r", origin=ORIGIN)
     w.log_pose(0.0, np.zeros(3), 0.0, "idle")
-    w.write_summary({"status": "aborted: no offboard", "insulators": [], "photos": []})
+    w.write_summary(run_summary("aborted: no offboard"))
     w.close()
     header = (tmp_path / "r" / "insulators.csv").read_text().splitlines()[0]
     assert header.endswith(",photos")  # no ground-truth columns a flight cannot fill

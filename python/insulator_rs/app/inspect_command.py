@@ -58,7 +58,7 @@ from insulator_rs.sim.sensors import (
 from insulator_rs.sim.towers import load_tower
 from insulator_rs.ports.vehicle import Vehicle
 
-MISSIONS_DIR = Path(__file__).resolve().parent / "missions"
+MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 MAX_MAVLINK_TIME_SCALE = 4.0  # the client's timeouts and the 20 Hz stream hold up to this speed-up
 # The vehicle's own limits get this much headroom over the planning limits so the
 # position loop can track the trajectory.

@@ -86,14 +86,14 @@ def run(args: argparse.Namespace) -> int:
     fleet = len(flights) > 1 or any(p.is_dir() and not (p / "metadata.yaml").is_file() for p in args.flights)
     if not fleet:
         summary = replay_one(flights[0], args.out, options)
-        score = _score(summary, args.out)
+        score = _score(args.out, summary.get("scene"))
         _print_one(summary, score, args.out)
         return 0 if summary["status"] == "finished" else 1
     from insulator_rs.replay.fleet import replay_fleet
 
     fleet_summary = replay_fleet(flights, args.out, options, workers=args.workers, address=args.address)
     for f in fleet_summary["flights"]:
-        score = _score(f, Path(f["out"])) if f.get("out") else None
+        score = _score(Path(f["out"]), f.get("scene")) if f.get("out") else None
         if score is not None:
             f.update({k: score[k] for k in ("insulators_matched", "insulators_in_scene", "mean_error_m")})
         print(f"{f['recording']}: {f['status'][:200]}: {f['insulators_found']} insulators")
@@ -102,20 +102,24 @@ def run(args: argparse.Namespace) -> int:
     return 0 if fleet_summary["flights_ok"] == len(flights) else 1
 
 
-def _score(summary: dict[str, Any], out: Path) -> dict[str, Any] | None:
-    """After the replay: the report against the scene it names (a simulated flight's), written to
-    ``score.json`` beside it; None without a scene or a report."""
-    scene = summary.get("scene")
-    if not scene or not (Path(out) / "summary.json").is_file() or summary.get("run") != "replay":
+def _score(out: Path, scene: str | None) -> dict[str, Any] | None:
+    """After the replay: its report (``out/summary.json``) against the scene the recording names
+    (a simulated flight's), written to ``score.json`` beside it; None without a scene or a report."""
+    path = Path(out) / "summary.json"
+    if not scene or not path.is_file():
         return None
+    import json
+
     from insulator_rs.evaluation.scoring import score_flight, write_score
     from insulator_rs.sim.towers import load_tower
 
     try:
+        summary = json.loads(path.read_text())
+        if summary.get("run") != "replay" or "insulators" not in summary:
+            return None  # a replay that could not start: nothing to score
         tower = load_tower(scene)
     except (ConfigError, ValueError, OSError) as exc:
-        print(f"insulator-rs replay: note: scene {scene!r} cannot be loaded to score the replay: {exc}",
-              file=sys.stderr)
+        print(f"insulator-rs replay: note: {out} cannot be scored against scene {scene!r}: {exc}", file=sys.stderr)
         return None
     score = score_flight(summary, tower, photos=False)
     write_score(Path(out), score)

@@ -15,9 +15,7 @@ The result is ``score.json`` beside the summary.
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +25,8 @@ from insulator_rs.evaluation.photo_coverage import photo_coverage
 
 from insulator_rs._core import CameraModel
 from insulator_rs.poses import pose_from_yaw
+from insulator_rs.report.jsonfile import write_json
+from insulator_rs.report.summary import RunSummary
 from insulator_rs.sim.camera_render import Camera
 from insulator_rs.sim.towers import InsulatorTruth, Tower
 
@@ -56,9 +56,11 @@ def _photo_visibility(tower: Tower, camera: CameraModel, photo: dict[str, Any], 
     return True, bool(whole)
 
 
-def score_flight(summary: dict[str, Any], tower: Tower, *, photos: bool = True) -> dict[str, Any]:
+def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: bool = True) -> dict[str, Any]:
     """Score a flight summary (as written to ``summary.json``) against ``tower``'s truth.
     ``photos``: also re-render each photo for its visibility (costs a render per photo)."""
+    if isinstance(summary, RunSummary):
+        summary = summary.as_dict()
     truth = list(tower.insulators)
     found = summary.get("insulators", [])
     rows: list[dict[str, Any]] = []
@@ -111,17 +113,5 @@ def score_flight(summary: dict[str, Any], tower: Tower, *, photos: bool = True) 
 
 
 def write_score(folder: Path, score: dict[str, Any]) -> Path:
-    """``score.json`` in the report folder (atomically: temp file + rename)."""
-    path = Path(folder) / "score.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(score, indent=2, default=_plain))
-    os.replace(tmp, path)
-    return path
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+    """``score.json`` in the report folder (atomically, the package's one JSON writer)."""
+    return write_json(Path(folder) / "score.json", score)

@@ -49,7 +49,6 @@ from insulator_rs.ports.detector import BoxDetector, detections_dropped, detecto
 from insulator_rs.ports.observer import FlightObserver, InsulatorFound, PhaseChange, PhotoTaken
 from insulator_rs.ports.sensors import PoseStamped, Sensors
 from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
-from insulator_rs.poses import pose_from_yaw
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.summary import FlightDetails, RunSummary
 from insulator_rs.rig import SensorRig
@@ -218,7 +217,7 @@ class FlightLoop:
             st = self.vehicle.state()
         t = st.time - self.t_start
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
-        self.runner.add_pose(PoseStamped(st.time, pose_from_yaw(st.position, st.yaw)))
+        self.runner.add_pose(PoseStamped(st.time, st.T_w_b))  # the whole reported attitude
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
             for fix in self.runner.step(st.time):
                 self._localized(fix, st)

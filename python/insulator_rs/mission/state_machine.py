@@ -43,6 +43,12 @@ class Policy(str, Enum):
     IMMEDIATE = "immediate"
     INSERTION = "insertion"
 
+    def __str__(self) -> str:  # "scan", not "PlanKind.SCAN", in reasons and reports
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
 
 POLICIES = tuple(p.value for p in Policy)
 

@@ -70,7 +70,7 @@ class FramePairing:
     def __init__(self, window: float) -> None:
         self.window = float(window)
         self.pending: deque[PendingFrame] = deque()
-        self.short = 0  # frames handed over before the scans covered their whole window
+        self.short = 0  # frames with boxes handed over before the scans covered their whole window
 
     def add(self, frame: CameraFrame, boxes: np.ndarray) -> None:
         self.pending.append(PendingFrame(frame, boxes))
@@ -90,7 +90,8 @@ class FramePairing:
             if horizon < due - PAIRING_SLACK:
                 if now < due + PAIRING_WAIT:
                     break
-                self.short += 1
+                if len(head.boxes):  # a frame without boxes needed its scans asked for, not its points
+                    self.short += 1
             out.append(self.pending.popleft())
         return out
 

@@ -40,6 +40,12 @@ class PlanKind(str, Enum):
     INSPECT = "inspect"  # an inspection waypoint: a photo
     RETURN = "return"  # back to where a detour for inspection began
 
+    def __str__(self) -> str:  # "scan", not "PlanKind.SCAN", in reasons and reports
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
 
 @dataclass(frozen=True)
 class PathWaypoint:

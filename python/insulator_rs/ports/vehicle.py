@@ -18,6 +18,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from insulator_rs.poses import pose_from_yaw
+
 
 class FlightMode(str, Enum):
     """PX4 navigation states a vehicle can be in (names as PX4 prints them; the ``mode`` of
@@ -45,6 +47,9 @@ class VehicleState:
     ``position``/``velocity`` are (3,) float64 in W (ENU, m and m/s); ``yaw`` is
     the heading of the body x axis from W's x (east) axis, counter-clockwise, rad.
     ``time`` is the vehicle clock in seconds (simulated time in the simulator).
+    ``attitude``: R_w_b (3x3, body FLU -> W), the whole estimated attitude where the vehicle
+    reports one (PX4's ATTITUDE: a multirotor leans atan(a/g) when it brakes and into the
+    wind); None: a level body at ``yaw`` (a vehicle model that does not tilt).
     """
 
     time: float
@@ -57,6 +62,15 @@ class VehicleState:
     battery_fraction: float = 1.0
     healthy: bool = True
     fault: str | None = field(default=None)
+    attitude: np.ndarray | None = field(default=None)
+
+    @property
+    def T_w_b(self) -> np.ndarray:
+        """The body pose in W (4x4): the reported attitude, or a level body at ``yaw``."""
+        T = pose_from_yaw(self.position, self.yaw)
+        if self.attitude is not None:
+            T[:3, :3] = self.attitude
+        return T
 
 
 @runtime_checkable

@@ -23,7 +23,6 @@ from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
 from insulator_rs.ports.vehicle import Vehicle, VehicleState
-from insulator_rs.poses import pose_from_yaw
 
 # Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
 RECORDED_ODOMETRY = "/odom"
@@ -190,15 +189,15 @@ class RecordingSensors:
 
 class RecordingVehicle:
     """A :class:`~insulator_rs.ports.vehicle.Vehicle` decorator that records the pose stream
-    ``inner`` reports (level body at the reported position and yaw: what the Vehicle port
-    gives, and what the flight's perception is fed), wired by the composition root."""
+    ``inner`` reports (``VehicleState.T_w_b``: the reported attitude, or a level body at the
+    reported yaw; what the flight's perception is fed), wired by the composition root."""
 
     def __init__(self, inner: Vehicle, recorder: McapRecorder) -> None:
         self.inner = inner
         self.recorder = recorder
 
     def _record(self, st: VehicleState) -> VehicleState:
-        T_w_b = pose_from_yaw(st.position, st.yaw)
+        T_w_b = st.T_w_b
         if math.isfinite(st.time) and st.time >= 0 and np.all(np.isfinite(T_w_b)):
             self.recorder.pose(PoseStamped(float(st.time), T_w_b), st.velocity)
         return st
