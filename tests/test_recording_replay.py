@@ -60,6 +60,8 @@ def test_recorded_flight_replays_to_the_same_insulators(flight, capsys):
     replayed = json.loads((out / "summary.json").read_text())
     assert replayed["status"] == "finished" and replayed["detector"] == "insulator-sim"
     assert replayed["frames"] == flown["detection_events"]
+    page = (out / "report.html").read_text()  # the replay's report has the crew's page too
+    assert page.count("data-insulator-id=") == replayed["insulators_found"] and "<td>replay</td>" in page
     _same_insulators(flown, replayed)
     # ground truth is the command's, after the replay: score.json beside the summary, none in it
     assert "insulators_matched" not in replayed and "mean_error_m" not in replayed

@@ -88,3 +88,9 @@ class PlanningError(InsulatorError, ValueError):
 
     The flight loop aborts the mission on it (lands, status ``aborted: planning failed: ...``).
     """
+
+
+class ReportError(InsulatorError, ValueError):
+    """A report folder cannot be read back (``insulator-rs report``, ``report.html``): a missing
+    or malformed ``summary.json`` or ``inspection.geojson``. The message names the file and what
+    is wrong with it."""

@@ -38,14 +38,39 @@ SIMULATOR_RIG = "simulator"
 
 
 @dataclass(frozen=True)
+class CameraLens:
+    """What the photos' EXIF and the GCS's CAMERA_INFORMATION say of the camera: ``make``,
+    ``model`` (rig file ``[camera] make``/``model``, at most 32 characters) and
+    ``pixel_pitch_um`` (``[camera] pixel_pitch_um``: the sensor's pixel size, which turns the
+    calibration's focal length in px into mm); None where the rig does not say."""
+
+    make: str | None = None
+    model: str | None = None
+    pixel_pitch_um: float | None = None
+
+    def focal_length_mm(self, camera: CameraModel) -> float | None:
+        if self.pixel_pitch_um is None:
+            return None
+        return 0.5 * (camera.fx + camera.fy) * self.pixel_pitch_um * 1e-3
+
+
+@dataclass(frozen=True)
 class SensorRig:
     """A validated rig: ``camera`` (full-resolution intrinsics), ``T_b_c`` and ``T_b_l`` (4x4
-    float64 rigid transforms), ``source`` (the file it came from)."""
+    float64 rigid transforms), ``source`` (the file it came from), ``lens`` (make, model, pixel
+    pitch of the camera, where the rig gives them)."""
 
     source: str
     camera: CameraModel
     T_b_c: np.ndarray
     T_b_l: np.ndarray
+    lens: CameraLens = CameraLens()
+
+    def exif_camera(self) -> dict[str, Any]:
+        """The photos' EXIF camera fields: make, model and the focal length in mm (from the
+        full-resolution calibration and the pixel pitch; None where the rig does not say)."""
+        return {"make": self.lens.make, "model": self.lens.model,
+                "focal_length_mm": self.lens.focal_length_mm(self.camera)}
 
 
 def resolve_rig(name: str, relative_to: Path | None = None) -> Path:
@@ -97,7 +122,7 @@ def load_rig(path: str | Path) -> SensorRig:
     extra = sorted(set(data) - {"camera", "lidar"})
     if extra:
         raise ConfigError(f"{source}: {extra[0]}: unknown field (allowed: camera, lidar)")
-    cam_t = _table(source, data, "camera", {"calibration", "T_b_c"})
+    cam_t = _table(source, data, "camera", {"calibration", "T_b_c", "make", "model", "pixel_pitch_um"})
     lidar_t = _table(source, data, "lidar", {"T_b_l"})
     calibration = cam_t.get("calibration")
     if not isinstance(calibration, str) or not calibration:
@@ -111,7 +136,25 @@ def load_rig(path: str | Path) -> SensorRig:
     except (ConfigError, OSError) as exc:  # a bad calibration, or none at that path
         raise ConfigError(f"{source}: camera.calibration: {exc}") from exc
     return SensorRig(source, camera, _matrix(source, cam_t, "camera", "T_b_c"),
-                     _matrix(source, lidar_t, "lidar", "T_b_l"))
+                     _matrix(source, lidar_t, "lidar", "T_b_l"), _lens(source, cam_t))
+
+
+def _lens(source: str, cam_t: dict[str, Any]) -> CameraLens:
+    """``[camera] make``, ``model`` (printable ASCII, 1-32 characters: EXIF and MAVLink's
+    CAMERA_INFORMATION hold 32 bytes) and ``pixel_pitch_um`` (0.5-50 um: phone to machine-vision
+    sensors)."""
+    names: dict[str, str | None] = {}
+    for key in ("make", "model"):
+        v = cam_t.get(key)
+        if v is not None and not (isinstance(v, str) and 1 <= len(v) <= 32 and all(32 <= ord(c) < 127 for c in v)):
+            raise ConfigError(f"{source}: camera.{key}: expected 1-32 printable ASCII characters, got {v!r}")
+        names[key] = v
+    pitch = cam_t.get("pixel_pitch_um")
+    if pitch is not None:
+        if isinstance(pitch, bool) or not isinstance(pitch, (int, float)) or not (0.5 <= float(pitch) <= 50.0):
+            raise ConfigError(f"{source}: camera.pixel_pitch_um: expected a number in [0.5, 50] um, got {pitch!r}")
+        pitch = float(pitch)
+    return CameraLens(names["make"], names["model"], pitch)
 
 
 @functools.lru_cache(maxsize=1)
@@ -122,7 +165,7 @@ def _simulator_rig() -> SensorRig:
 def simulator_rig() -> SensorRig:
     """The shipped rig of the simulated airframe (arrays copied: callers may modify them)."""
     rig = _simulator_rig()
-    return SensorRig(rig.source, rig.camera, rig.T_b_c.copy(), rig.T_b_l.copy())
+    return SensorRig(rig.source, rig.camera, rig.T_b_c.copy(), rig.T_b_l.copy(), rig.lens)
 
 
 def scaled_camera(model: CameraModel, scale: float) -> CameraModel:

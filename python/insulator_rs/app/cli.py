@@ -22,6 +22,7 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("train", "insulator_rs.app.train_command"),
     ("dataset", "insulator_rs.app.dataset_command"),
     ("replay", "insulator_rs.app.replay_command"),
+    ("report", "insulator_rs.app.report_command"),
 )
 
 

@@ -78,7 +78,7 @@ def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
 
 
 def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time_scale: float,
-                    signing_key: Path | None) -> Vehicle:
+                    signing_key: Path | None, gcs_port: int | None = None) -> Vehicle:
     """The MAVLink offboard client: to the simulated PX4 (started here on loopback, flying
     :func:`kinematic_vehicle`) when ``connection`` is None, else to that autopilot with W's
     origin put at the tower base."""
@@ -87,7 +87,8 @@ def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time
 
     tower = mission.tower
     if connection is None:
-        sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt)}
+        sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt),
+                       "gcs_port": gcs_port}
         vehicle = connect_simulated_px4(time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
     else:
         vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key)
@@ -171,6 +172,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         f"{MAX_MAVLINK_TIME_SCALE:g}; give the SITL's speed factor with --connection)")
     p.add_argument("--signing-key", type=Path, default=None,
                    help="MAVLink only: file with the 32-byte MAVLink 2 signing key (both ends sign)")
+    p.add_argument("--gcs-port", type=int, default=None,
+                   help="MAVLink, the simulated PX4 only: UDP port of its GCS link (as PX4 SITL's 18570+N), where a "
+                        "ground station sees the mission's STATUSTEXT and photo markers")
     cli_options.add_arguments(p)
     p.set_defaults(func=run)
 
@@ -186,7 +190,11 @@ def _vehicle_kind(args: argparse.Namespace) -> str:
                 raise ValueError(f"{flag}: only applies to --vehicle mavlink")
         if args.sim_sensors:
             raise ValueError("--sim-sensors: only applies with --connection")
+        if args.gcs_port is not None:
+            raise ValueError("--gcs-port: only applies to --vehicle mavlink (the simulated PX4)")
         return kind
+    if args.gcs_port is not None and (args.connection is not None or not 0 <= args.gcs_port <= 65535):
+        raise ValueError("--gcs-port: a UDP port in [0, 65535] of the simulated PX4 (PX4 SITL has its own)")
     if args.time_scale is not None and not (math.isfinite(args.time_scale)
                                             and 0 < args.time_scale <= MAX_MAVLINK_TIME_SCALE):
         raise ValueError(f"--time-scale: must be in (0, {MAX_MAVLINK_TIME_SCALE:g}], got {args.time_scale}")
@@ -248,7 +256,8 @@ def run(args: argparse.Namespace) -> int:
     if mavlink:
         try:
             vehicle = mavlink_vehicle(mission, args.seed, connection=args.connection,
-                                      time_scale=args.time_scale or 1.0, signing_key=args.signing_key)
+                                      time_scale=args.time_scale or 1.0, signing_key=args.signing_key,
+                                      gcs_port=args.gcs_port)
         except (VehicleError, ConfigError) as exc:  # no autopilot answering, a bad key file
             print(f"insulator-rs inspect: error: MAVLink vehicle: {exc}", file=sys.stderr)
             return 2
@@ -277,6 +286,16 @@ def run(args: argparse.Namespace) -> int:
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
                               quiet=args.quiet)
+    observer = None
+    if mavlink:  # the pilot's view: STATUSTEXT and a MAVLink camera through the autopilot (mavlink/gcs.py)
+        from insulator_rs.mavlink.gcs import CameraDescription, MavlinkGcsObserver
+
+        lens = rig.lens  # focal length and sensor size from the full-resolution calibration
+        camera = replace(CameraDescription.from_camera_model(rig.camera, pixel_pitch_um=lens.pixel_pitch_um,
+                                                             vendor=lens.make, model=lens.model),
+                         width_px=int(photo_camera.width), height_px=int(photo_camera.height))
+        observer = MavlinkGcsObserver.on_vehicle(vehicle, camera=camera,
+                                                 file_url_prefix=f"{Path(args.out).resolve().as_uri()}/")
     link_stats = getattr(vehicle, "link_stats", None) if mavlink else None  # the MAVLink adapter's counters
     recorder = None
     if args.record is not None:  # recording wraps the ports: the flight does not know it is recorded
@@ -292,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
         sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
     try:
         loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
-                          overwrite=args.overwrite, photo_camera=photo_camera)
+                          overwrite=args.overwrite, photo_camera=photo_camera, observer=observer)
         code = 0
         try:
             loop.fly()
@@ -312,6 +331,8 @@ def run(args: argparse.Namespace) -> int:
             summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
             write_score(args.out, score)
     finally:
+        if observer is not None:
+            observer.close()
         vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started
         sensors.close()
         if recorder is not None:

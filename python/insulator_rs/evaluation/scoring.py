@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from insulator_rs.evaluation.photo_coverage import photo_coverage
+
 from insulator_rs._core import CameraModel
 from insulator_rs.poses import pose_from_yaw
 from insulator_rs.report.jsonfile import write_json
@@ -103,6 +105,8 @@ def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: 
         "mean_error_m": float(np.mean(errors)) if errors else None,
         "insulators": rows,
         "photos": photo_rows,
+        # every string covered by photos at >= 60 % of the long side and <= 2 mm/px? (from the truth)
+        "photo_coverage": photo_coverage(summary, truth),
         "ground_truth": [{"instance_id": t.instance_id, "center": t.center.tolist(), "axis": t.axis.tolist(),
                           "side": t.side} for t in truth],
     }

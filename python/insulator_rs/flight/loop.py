@@ -130,7 +130,8 @@ class FlightLoop:
         self.report = ReportWriter(out, origin=self.origin, overwrite=overwrite)
         self.clock = FlightClock(self.vehicle.state().time)  # UTC of vehicle stamps; re-anchored at take-off
         self.out = out
-        self.photos = InspectionPhotos(self.report, mission.inspection.insulator_length)
+        self.photos = InspectionPhotos(self.report, mission.inspection.insulator_length,
+                                       exif_camera=rig.exif_camera())
         self.waypoints: list[InspectionWaypoint] = []
         self.status = "running"
         self.abort_reason: str | None = None

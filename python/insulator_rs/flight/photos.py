@@ -26,8 +26,10 @@ def photo_name(insulator_id: int, n: int) -> str:
 class InspectionPhotos:
     """The photos of one flight, in the order taken (``records``: the summary's ``photos``)."""
 
-    def __init__(self, report: ReportWriter, insulator_length: float) -> None:
+    def __init__(self, report: ReportWriter, insulator_length: float,
+                 exif_camera: dict[str, Any] | None = None) -> None:
         self.report = report
+        self.exif_camera = exif_camera or {}  # make, model, focal_length_mm (SensorRig.exif_camera)
         self.insulator_length = insulator_length
         self.records: list[dict[str, Any]] = []
         self.camera: Any = None  # intrinsics of the photos taken (the sensors say)
@@ -46,13 +48,18 @@ class InspectionPhotos:
         name = photo_name(wp.insulator_id, n)
         record = self.report.save_photo(name, frame.image, time_utc=time_utc, position_enu=position, yaw_enu=yaw,
                                         gimbal_pitch=wp.gimbal_pitch,
-                                        description=f"insulator {wp.insulator_id}, photo {n}")
+                                        description=f"insulator {wp.insulator_id}, photo {n}",
+                                        **self.exif_camera)
         self.camera = frame.camera
-        T_c_w = np.linalg.inv(pose_from_yaw(position, yaw) @ frame.T_b_c)
+        T_w_c = pose_from_yaw(position, yaw) @ frame.T_b_c  # the photo's camera pose (odometry)
+        T_c_w = np.linalg.inv(T_w_c)
         quality = photo_quality(frame.camera, T_c_w, wp.target, VERTICAL if axis is None else axis,
                                 length=self.insulator_length, speed=float(np.linalg.norm(velocity)))
         record = {**record, "insulator_id": wp.insulator_id, "time_s": time_s, "position": position, "yaw": yaw,
                   "gimbal_pitch": wp.gimbal_pitch, "T_b_c": frame.T_b_c, "quality": quality.as_dict(),
-                  "planned_gsd_mm": wp.planned_gsd_mm}
+                  "planned_gsd_mm": wp.planned_gsd_mm, "T_w_c": T_w_c,
+                  "camera": {"fx": frame.camera.fx, "fy": frame.camera.fy, "cx": frame.camera.cx,
+                             "cy": frame.camera.cy, "width": frame.camera.width, "height": frame.camera.height,
+                             "dist": [float(k) for k in frame.camera.dist]}}
         self.records.append(record)
         return record

@@ -153,6 +153,11 @@ class MavlinkVehicle:
         return self._link.stats
 
     @property
+    def link(self) -> AutopilotLink:
+        """The link to the autopilot (other components of the companion send through it)."""
+        return self._link
+
+    @property
     def autopilot(self) -> tuple[int, int] | None:
         """(system id, component id) of the autopilot this client accepts."""
         return self._link.autopilot

@@ -104,6 +104,9 @@ class AutopilotLink:
         self.peer: tuple[str, int] | None = None
         self._send_lock = threading.Lock()
         self._socket: socket.socket | None = None
+        # Components of ours besides the client (the MAVLink camera, mavlink/gcs.py): they get the
+        # messages of other systems the autopilot forwards to us (a GCS's commands), from its address.
+        self._listeners: list[Any] = []
         if isinstance(self.conn, mavutil.mavudp):
             self._socket = self.conn.port
             if not self.conn.udp_server:  # udpout: the address is given, and the only one trusted
@@ -126,6 +129,20 @@ class AutopilotLink:
                 getattr(self.mav, f"{name}_send")(*args)
             except OSError:
                 pass
+
+    def send_raw(self, buf: bytes) -> None:
+        """One packed MAVLink frame of another of our components (its own system/component ids
+        and sequence), to the autopilot's address; dropped like :meth:`send`'s."""
+        with self._send_lock:
+            try:
+                self._write(buf)
+            except OSError:
+                pass
+
+    def add_listener(self, listener: Any) -> None:
+        """``listener(msg)`` gets each message from another system or component that came over
+        the autopilot's link (what the autopilot forwards, e.g. a GCS's commands to our camera)."""
+        self._listeners.append(listener)
 
     def _write(self, buf: bytes) -> None:
         if self._socket is not None and self.peer is not None:
@@ -207,6 +224,8 @@ class AutopilotLink:
                 self.peer = (str(addr[0]), int(addr[1]))
         elif source != self.autopilot:
             self.stats.foreign_source += 1
+            for listener in self._listeners:
+                listener(msg)
             return False
         self.stats.accepted += 1
         return True

@@ -64,9 +64,11 @@ def _utc(time_utc: datetime) -> datetime:
     return time_utc.astimezone(timezone.utc)
 
 
-def photo_exif(*, geo: GeoPoint, heading_deg: float, time_utc: datetime, description: str = "") -> bytes:
+def photo_exif(*, geo: GeoPoint, heading_deg: float, time_utc: datetime, description: str = "",
+               make: str | None = None, model: str | None = None, focal_length_mm: float | None = None) -> bytes:
     """The EXIF block (bytes for :func:`write_jpeg`) of a photo taken at ``geo`` (WGS-84),
-    looking along ``heading_deg`` (deg clockwise from true north), at ``time_utc``."""
+    looking along ``heading_deg`` (deg clockwise from true north), at ``time_utc``; with the
+    camera's ``make``, ``model`` (Make, Model) and ``focal_length_mm`` (FocalLength) where known."""
     for name, v in (("geo.lat", geo.lat), ("geo.lon", geo.lon), ("geo.alt", geo.alt), ("heading_deg", heading_deg)):
         if not math.isfinite(v):
             raise ValueError(f"{name}: must be finite, got {v}")
@@ -98,6 +100,14 @@ def photo_exif(*, geo: GeoPoint, heading_deg: float, time_utc: datetime, descrip
     zeroth = {piexif.ImageIFD.Software: SOFTWARE.encode(), piexif.ImageIFD.DateTime: stamp.encode()}
     if description:
         zeroth[piexif.ImageIFD.ImageDescription] = description.encode("ascii", "replace")
+    if make:
+        zeroth[piexif.ImageIFD.Make] = make.encode("ascii", "replace")
+    if model:
+        zeroth[piexif.ImageIFD.Model] = model.encode("ascii", "replace")
+    if focal_length_mm is not None:
+        if not (math.isfinite(focal_length_mm) and focal_length_mm > 0):
+            raise ValueError(f"focal_length_mm: must be finite and > 0, got {focal_length_mm}")
+        exif[piexif.ExifIFD.FocalLength] = (round(focal_length_mm * 100), 100)
     return bytes(piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps}))
 
 

@@ -38,6 +38,7 @@ from insulator_rs.report.folder import ReportFolder, write_atomic
 from insulator_rs.report.jsonfile import jsonable, write_json
 from insulator_rs.report.summary import RunSummary
 from insulator_rs.report.geoexport import PATH_SPACING, map_layers, write_geojson, write_kml
+from insulator_rs.report.html import write_report_html
 
 GEOJSON_NAME = "inspection.geojson"
 KML_NAME = "inspection.kml"
@@ -99,7 +100,9 @@ class ReportWriter:
         self._traj.flush()
 
     def save_photo(self, name: str, image_bgr: np.ndarray, *, time_utc: datetime, position_enu: np.ndarray,
-                   yaw_enu: float, gimbal_pitch: float | None = None, description: str = "") -> dict[str, Any]:
+                   yaw_enu: float, gimbal_pitch: float | None = None, description: str = "",
+                   make: str | None = None, model: str | None = None,
+                   focal_length_mm: float | None = None) -> dict[str, Any]:
         """Write ``images/<name>`` (a ``.jpg`` name) with EXIF GPS: position (W -> WGS-84 through
         the origin), heading (from the yaw in W, see :func:`.exif.compass_heading_deg`) and time.
         Returns the photo's report fields: ``file`` (relative to the folder), ``time_utc``,
@@ -116,7 +119,7 @@ class ReportWriter:
             text = f"{text}; " if text else ""
             text += f"gimbal pitch {math.degrees(gimbal_pitch):.1f} deg"
         exif = photo_exif(geo=GeoPoint(*(float(c) for c in geo)), heading_deg=heading, time_utc=time_utc,
-                          description=text)
+                          description=text, make=make, model=model, focal_length_mm=focal_length_mm)
         write_jpeg(self.images / name, image_bgr, exif=exif)
         record: dict[str, Any] = {"file": f"images/{name}", "time_utc": utc_text(time_utc),
                                   "heading_deg": heading, "wgs84": _wgs84(geo)}
@@ -219,4 +222,5 @@ class ReportWriter:
         """Close the files and put the report in place (with ``overwrite``: replace the old one now)."""
         self._traj.close()
         self._write_map(self._last_summary)  # the whole flown path
+        write_report_html(self.layout.path)  # report.html from the folder's own files
         self.layout.commit()

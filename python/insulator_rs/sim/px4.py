@@ -65,6 +65,7 @@ from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.exceptions import CommandRejected, VehicleFailsafe
 from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
+from insulator_rs.sim.px4_gcs import GcsLink, forwarded
 from insulator_rs.ports.vehicle import FlightMode
 
 M = mavlink2
@@ -162,6 +163,7 @@ class SimulatedPx4:
         component_id: int = 1,
         signing_key: bytes | None = None,
         seed: int = 0,
+        gcs_port: int | None = None,
     ) -> None:
         if not (math.isfinite(time_scale) and 0.0 < time_scale <= 100.0):
             raise ValueError(f"time_scale must be in (0, 100], got {time_scale!r}")
@@ -198,6 +200,8 @@ class SimulatedPx4:
         # switch (``pilot_mode_change``) models a transmitter and bypasses this.
         self.rc_connected = False
         self._command_faults: dict[int, int | None] = {}
+        # PX4's GCS link and its forwarding between links (sim/px4_gcs.py), when a port is given
+        self.gcs = GcsLink(gcs_port) if gcs_port is not None else None
 
     # -- lifecycle ---------------------------------------------------------------
 
@@ -219,6 +223,8 @@ class SimulatedPx4:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         self._sock.close()
+        if self.gcs is not None:
+            self.gcs.close()
 
     def __enter__(self) -> SimulatedPx4:
         return self.start()
@@ -294,13 +300,17 @@ class SimulatedPx4:
         last = time.monotonic()
         while not self._stop.is_set():
             try:
-                readable, _, _ = select.select([self._sock], [], [], LOOP_PERIOD_S)
+                readable, _, _ = select.select([self._sock] + ([self.gcs.sock] if self.gcs else []), [], [],
+                                               LOOP_PERIOD_S)
             except (OSError, ValueError):
                 return
             now = time.monotonic()
             with self._lock:
                 if readable:
                     self._receive(now)
+                    if self.gcs is not None:  # a GCS's frames for the companion's components
+                        for frame in self.gcs.receive(self.system_id, self.component_id):
+                            self._sendto_peers(frame, gcs=False)
                 self._deliver_due(now)
                 # Lockstep-like: if this thread fell behind (a loaded machine), the
                 # vehicle clock slows down rather than jumping, so no PX4 timeout
@@ -371,6 +381,8 @@ class SimulatedPx4:
             self.stats.received += 1
             if addr not in self._peers:
                 self._peers.append(addr)
+            if self.gcs is not None and forwarded(msg, self.system_id, self.component_id):
+                self.gcs.forward_to_gcs(msg)  # as PX4 forwards the companion's messages
             self._handle_message(msg)
 
     def _targets_us(self, msg: Any) -> bool:
@@ -497,7 +509,9 @@ class SimulatedPx4:
         else:
             self._sendto_peers(data)
 
-    def _sendto_peers(self, data: bytes) -> None:
+    def _sendto_peers(self, data: bytes, *, gcs: bool = True) -> None:
+        if gcs and self.gcs is not None:
+            self.gcs.send(data)
         for peer in self._peers:
             try:
                 self._sock.sendto(data, peer)
