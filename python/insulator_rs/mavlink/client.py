@@ -166,7 +166,7 @@ class MavlinkVehicle:
         in local coordinates: local_origin_w = ENU(home wrt origin, pymap3d) -
         ENU(home local). Returns the new ``local_origin_w`` (m, W).
         """
-        import pymap3d  # type: ignore[import-untyped]
+        import pymap3d
 
         lat = as_finite(latitude, "latitude")
         lon = as_finite(longitude, "longitude")

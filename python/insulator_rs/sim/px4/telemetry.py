@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 import numpy as np
-import pymap3d  # type: ignore[import-untyped]
+import pymap3d
 
 from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.frames import enu_to_ned, yaw_enu_to_ned
