@@ -32,23 +32,6 @@ PYTHON_DIR = PACKAGE_DIR.parent
 ARCHITECTURE = Path(__file__).resolve().parents[1] / "ARCHITECTURE.md"
 ROOT = "insulator_rs"
 
-# Where the code does not follow the table yet: (importer, imported), each to be fixed by the
-# change named beside it. The test fails on any other violation, and on an entry here that no
-# longer happens (delete it then), so this list can only shrink.
-PENDING: dict[tuple[str, str], str] = {
-    ("insulator_rs.planning.segments", "insulator_rs.mission.geometry"):
-        "issue 17: plan_segment plans the state machine's items; it belongs beside its one caller, flight/",
-    ("insulator_rs.planning.segments", "insulator_rs.mission.state_machine"):
-        "issue 17: as above (PlanItem)",
-    ("insulator_rs.replay.fleet", "insulator_rs.app.replay_command"):
-        "issue 17: replay_one is library code in a command module (the app <-> replay circle)",
-}
-# Import circles the table allows but the test does not, each with its fix: one edge of it.
-PENDING_CIRCLES: dict[tuple[str, str], str] = {
-    ("insulator_rs.flight.record", "insulator_rs.flight.loop"):
-        "issue 17: flight/record.py reads 20 of the loop's attributes (TYPE_CHECKING import of FlightLoop)",
-}
-
 
 # -- reading the source ----------------------------------------------------------------------
 
@@ -267,21 +250,14 @@ def test_the_table_has_every_row_and_rules_every_module(graph: dict[str, set[str
 
 
 def test_every_import_follows_its_row(graph: dict[str, set[str]], rules: Rules) -> None:
-    found = violations(graph, rules)
-    new = sorted(found - set(PENDING))
-    assert not new, "imports ARCHITECTURE.md's table does not allow:\n" + "\n".join(
-        f"  {a} -> {b}   (row: {rules.row_of(a).line.split('|')[1].strip()})" for a, b in new)
-    fixed = sorted(set(PENDING) - found)
-    assert not fixed, f"these are fixed: delete them from PENDING: {fixed}"
+    found = sorted(violations(graph, rules))
+    assert not found, "imports ARCHITECTURE.md's table does not allow:\n" + "\n".join(
+        f"  {a} -> {b}   (row: {rules.row_of(a).line.split('|')[1].strip()})" for a, b in found)
 
 
 def test_no_import_circle(graph: dict[str, set[str]]) -> None:
-    # a circle closed only by a pending edge is reported with it (PENDING*), not twice
-    pending = set(PENDING) | set(PENDING_CIRCLES)
-    circles = cycles({a: {b for b in bs if (a, b) not in pending} for a, bs in graph.items()})
+    circles = cycles(graph)
     assert not circles, f"import circles (function-level imports included): {circles}"
-    closed = [edge for edge in PENDING_CIRCLES if not any(set(edge) <= set(c) for c in cycles(graph))]
-    assert not closed, f"these circles are gone: delete them from PENDING_CIRCLES: {closed}"
 
 
 def test_mission_holds_no_perception(graph: dict[str, set[str]]) -> None:
