@@ -2,13 +2,17 @@
 //! helper that runs a kernel with the GIL released.
 //!
 //! * `FusionError::InvalidArgument` -> `ValueError("<argument>: <reason>")`.
-//! * `FusionError::NoInsulator` -> `insulator_rs.LocalizationError`, a class
-//!   created here at import time as a subclass of
-//!   `insulator_rs.exceptions.InsulatorError` (the package's base class).
+//! * `FusionError::NoInsulator` -> `insulator_rs.exceptions.LocalizationError`.
 //! * every `RaycastError` (scene_raycast) is an argument error naming the
 //!   argument -> `ValueError`.
 //! * livox_mid360's `PacketError` (a malformed datagram) and `ControlError` (a bad
-//!   command frame) -> `ValueError` with the crate's message.
+//!   command frame) -> `insulator_rs.exceptions.PacketError`, with the crate's message
+//!   (it starts with the packet or frame field at fault: `packet.crc32: ...`,
+//!   `command.sof: ...`).
+//!
+//! Every exception class is declared in Python (`insulator_rs/exceptions.py`); the
+//! bindings look the classes up there at module init ([`register`]) and keep them,
+//! so `insulator_rs.LocalizationError is insulator_rs.exceptions.LocalizationError`.
 //!
 //! A binding never maps a core error itself: it runs the kernel through
 //! [`detach`], which works for any error type implementing [`CoreError`].
@@ -23,26 +27,31 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::PyType;
 
 static LOCALIZATION_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static PACKET_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
-const LOCALIZATION_ERROR_DOC: &std::ffi::CStr = c"The cloud holds no usable insulator.
+/// `insulator_rs.exceptions.<name>`, looked up once and kept in `cell`.
+fn lookup<'py>(py: Python<'py>, cell: &'static PyOnceLock<Py<PyType>>, name: &str) -> PyResult<&'py Py<PyType>> {
+    cell.get_or_try_init(py, || {
+        let class = py.import("insulator_rs.exceptions")?.getattr(name)?;
+        Ok(class.cast_into::<PyType>()?.unbind())
+    })
+}
 
-Raised by ``localize`` when no cluster is found, fewer than two usable points
-remain, or the line fit fails. The message says which.";
-
-/// Creates `LocalizationError` (once) and adds it to the module.
+/// Looks up the exception classes declared in `exceptions.py`; re-exports
+/// `LocalizationError` from the module (the same class object).
 pub fn register(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
-    let class = LOCALIZATION_ERROR.get_or_try_init(py, || {
-        let base = py.import("insulator_rs.exceptions")?.getattr("InsulatorError")?;
-        let base = base.cast_into::<PyType>()?;
-        PyErr::new_type(
-            py,
-            c"insulator_rs.LocalizationError",
-            Some(LOCALIZATION_ERROR_DOC),
-            Some(&base),
-            None,
-        )
-    })?;
+    lookup(py, &PACKET_ERROR, "PacketError")?;
+    let class = lookup(py, &LOCALIZATION_ERROR, "LocalizationError")?;
     m.add("LocalizationError", class.clone_ref(py))
+}
+
+/// An exception of a class looked up by [`register`] (a `RuntimeError` if the module
+/// was never initialised, which cannot happen once it is imported: never a panic).
+fn raise(py: Python<'_>, cell: &'static PyOnceLock<Py<PyType>>, message: String) -> PyErr {
+    match cell.get(py) {
+        Some(class) => PyErr::from_type(class.bind(py).clone(), message),
+        None => PyRuntimeError::new_err(message),
+    }
 }
 
 /// An error of a core crate, with the Python exception it becomes.
@@ -54,11 +63,7 @@ impl CoreError for FusionError {
     fn into_pyerr(self, py: Python<'_>) -> PyErr {
         match self {
             FusionError::InvalidArgument { .. } => PyValueError::new_err(self.to_string()),
-            FusionError::NoInsulator(_) => match LOCALIZATION_ERROR.get(py) {
-                Some(class) => PyErr::from_type(class.bind(py).clone(), self.to_string()),
-                // Unreachable after module init; still an exception, never a panic.
-                None => PyRuntimeError::new_err(self.to_string()),
-            },
+            FusionError::NoInsulator(_) => raise(py, &LOCALIZATION_ERROR, self.to_string()),
         }
     }
 }
@@ -71,14 +76,14 @@ impl CoreError for RaycastError {
 }
 
 impl CoreError for PacketError {
-    fn into_pyerr(self, _py: Python<'_>) -> PyErr {
-        PyValueError::new_err(self.to_string())
+    fn into_pyerr(self, py: Python<'_>) -> PyErr {
+        raise(py, &PACKET_ERROR, self.to_string())
     }
 }
 
 impl CoreError for ControlError {
-    fn into_pyerr(self, _py: Python<'_>) -> PyErr {
-        PyValueError::new_err(self.to_string())
+    fn into_pyerr(self, py: Python<'_>) -> PyErr {
+        raise(py, &PACKET_ERROR, self.to_string())
     }
 }
 

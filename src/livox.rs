@@ -1,7 +1,9 @@
 //! Bindings of `livox_mid360`: the scan assembler (datagrams in, scans as numpy
 //! arrays out, moved without copying), the packet-header parser and the control-frame
-//! builders/parsers. Protocol errors become `ValueError` whose message starts with the
-//! field (`packet.crc32: ...`, `command.sof: ...`). No protocol logic lives here.
+//! builders/parsers. Protocol errors become `insulator_rs.exceptions.PacketError` (a
+//! `SensorError`) whose message starts with the packet or frame field at fault
+//! (`packet.crc32: ...`, `command.sof: ...`); bad arguments stay `ValueError`. No
+//! protocol logic lives here.
 
 use std::net::Ipv4Addr;
 use std::sync::{Mutex, MutexGuard};

@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
 # CI runs on two shared cores: per-example deadlines would only measure the neighbours.
-settings.register_profile(
-    "insulator_rs", deadline=None, suppress_health_check=[HealthCheck.too_slow]
-)
-settings.load_profile("insulator_rs")
+_COMMON = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow]}
+# Exploring (a developer's plain ``pytest``): fresh random examples each run, and the
+# example database replays what failed before.
+settings.register_profile("dev", **_COMMON)
+# The gate (CI, and the README's ``scripts/test.sh``): the same examples on every run and
+# every machine, so a red run is the code's doing, not the draw's (one run once failed on a
+# case no other run drew). No database: what one machine saw must not change another's run.
+settings.register_profile("ci", derandomize=True, database=None, print_blob=True, **_COMMON)
+# HYPOTHESIS_PROFILE picks one explicitly; otherwise CI (set by GitHub Actions, GitLab CI and
+# most others) means "ci".
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE") or ("ci" if os.environ.get("CI") else "dev"))
 
 
 @pytest.fixture

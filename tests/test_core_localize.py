@@ -124,6 +124,8 @@ def test_no_insulator_raises_localization_error(method: str) -> None:
         with pytest.raises(ir.LocalizationError, match="no insulator"):
             ir.localize(points, method)
     assert issubclass(ir.LocalizationError, ir.exceptions.InsulatorError)
+    # declared in exceptions.py and looked up by the bindings: one class, not a Rust-made twin
+    assert ir.LocalizationError is ir.exceptions.LocalizationError is ir._core.LocalizationError
 
 
 @pytest.mark.parametrize(

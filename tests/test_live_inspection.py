@@ -51,8 +51,8 @@ def fly_with_wire_lidar(tmp_path: Path, px4: bool) -> tuple[dict, dict, dict]:
     mission = load_mission(mission_path)
     rig = mission.rig if mission.rig is not None else simulator_rig()
     if px4:
-        vehicle = mavlink_vehicle(mission, 0, connection=None, time_scale=4.0, signing_key=None)
-        true_pose = simulated_px4_true_pose(getattr(vehicle, "simulator"))
+        vehicle, simulator = mavlink_vehicle(mission, 0, connection=None, time_scale=4.0, signing_key=None)
+        true_pose = simulated_px4_true_pose(simulator)
     else:
         vehicle = kinematic_vehicle(mission, 0)
         true_pose = kinematic_true_pose(vehicle)

@@ -24,6 +24,7 @@ from insulator_rs._core import (
     livox_parse_header,
     livox_work_mode_request,
 )
+from insulator_rs.exceptions import PacketError, SensorError
 from insulator_rs.sim.livox_emitter import encode_datagram
 
 
@@ -42,13 +43,13 @@ def test_header_fields_match_the_table() -> None:
 
 def test_header_errors_name_the_field() -> None:
     d = packet(0)
-    with pytest.raises(ValueError, match=r"^packet: truncated datagram, 10 bytes"):
+    with pytest.raises(PacketError, match=r"^packet: truncated datagram, 10 bytes"):
         livox_parse_header(d[:10])
-    with pytest.raises(ValueError, match=r"^packet\.crc32"):
+    with pytest.raises(PacketError, match=r"^packet\.crc32"):
         livox_parse_header(d[:-1] + bytes([d[-1] ^ 1]))
-    with pytest.raises(ValueError, match=r"^packet\.version"):
+    with pytest.raises(PacketError, match=r"^packet\.version"):
         livox_parse_header(b"\x05" + d[1:])
-    with pytest.raises(ValueError, match=r"^packet\.data_type"):
+    with pytest.raises(PacketError, match=r"^packet\.data_type"):
         livox_parse_header(d[:10] + b"\x09" + d[11:])
 
 
@@ -103,17 +104,17 @@ def test_acks_parse_and_bad_frames_name_the_field() -> None:
                                               "lidar_ip": "10.0.0.2", "cmd_port": 56100}
     cfg = livox_encode_command(0x0100, 2, b"\x21\x1a\x00", cmd_type=1, sender_type=1)
     assert livox_parse_config_ack(cfg) == (0x21, 0x001A)
-    with pytest.raises(ValueError, match=r"^command\.cmd_id"):
+    with pytest.raises(PacketError, match=r"^command\.cmd_id"):
         livox_parse_config_ack(ack)
-    with pytest.raises(ValueError, match=r"^command\.sof"):
+    with pytest.raises(PacketError, match=r"^command\.sof"):
         livox_decode_command(b"\x55" + ack[1:])
-    with pytest.raises(ValueError, match=r"^command\.crc16"):
+    with pytest.raises(PacketError, match=r"^command\.crc16"):
         livox_decode_command(ack[:4] + b"\xff" + ack[5:])
-    with pytest.raises(ValueError, match=r"^command\.data"):
+    with pytest.raises(PacketError, match=r"^command\.data"):
         livox_parse_discovery_ack(livox_encode_command(0, 1, b"\x00", cmd_type=1))
     with pytest.raises(ValueError, match=r"^host_ip"):
         livox_host_config_request(1, "not-an-ip", 1, 2)
-    with pytest.raises(ValueError, match=r"^command\.length"):
+    with pytest.raises(PacketError, match=r"^command\.length"):
         livox_encode_command(0x0100, 1, bytes(1400))
 
 
@@ -138,9 +139,18 @@ def test_arbitrary_datagrams_never_raise(datagrams: list[bytes]) -> None:
 
 
 @given(st.binary(max_size=1500))
-def test_arbitrary_frames_raise_only_value_error(frame: bytes) -> None:
+def test_arbitrary_frames_raise_only_packet_error(frame: bytes) -> None:
     for parse in (livox_decode_command, livox_parse_discovery_ack, livox_parse_config_ack, livox_parse_header):
         try:
             parse(frame)
-        except ValueError:
-            pass
+        except PacketError as exc:
+            assert str(exc).startswith(("packet", "command")), exc  # names the packet or frame field
+
+
+def test_protocol_errors_are_the_declared_packet_error() -> None:
+    """The bindings raise the class declared in exceptions.py (looked up, not created in Rust):
+    a SensorError, not a bare ValueError, so a caller cannot mistake it for a bad argument."""
+    assert issubclass(PacketError, SensorError) and not issubclass(PacketError, ValueError)
+    with pytest.raises(PacketError) as info:
+        livox_decode_command(b"\x55" * 30)
+    assert type(info.value) is PacketError

@@ -14,13 +14,14 @@ import threading
 import time
 import tty
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
 
 from insulator_rs.exceptions import VehicleError
 from insulator_rs.mavlink import connect_vehicle
-from insulator_rs.sim.px4 import connect_simulated_px4
+from insulator_rs.sim.px4 import start_simulated_px4
 from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle, VehicleFailsafe
 from insulator_rs.sim.px4 import SimulatedPx4
 from insulator_rs.mavlink.signing import key_from_passphrase
@@ -34,16 +35,25 @@ DT = 0.05
 
 @pytest.fixture
 def vehicle() -> Iterator[MavlinkVehicle]:
-    client = connect_simulated_px4(time_scale=TIME_SCALE)
+    client = _connect(time_scale=TIME_SCALE)
     try:
         yield client
     finally:
         client.close()
 
 
+_SIMULATORS: dict[int, SimulatedPx4] = {}
+
+
+def _connect(**options: Any) -> MavlinkVehicle:
+    """A client of a freshly started simulated PX4 (``start_simulated_px4``); ``sim_of`` finds it."""
+    sim, client = start_simulated_px4(**options)
+    _SIMULATORS[id(client)] = sim
+    return client
+
+
 def sim_of(client: MavlinkVehicle) -> SimulatedPx4:
-    assert isinstance(client.simulator, SimulatedPx4)
-    return client.simulator
+    return _SIMULATORS[id(client)]
 
 
 def wait_until(client: MavlinkVehicle, predicate, vehicle_seconds: float) -> None:
@@ -230,7 +240,7 @@ def test_link_loss_just_after_a_heartbeat_is_reported_as_link_loss(vehicle: Mavl
 
 def test_commands_survive_packet_loss_and_delay() -> None:
     """20 % loss each way and 30 ms latency: retransmission gets every command through."""
-    client = connect_simulated_px4(time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
+    client = _connect(time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
     try:
         sim = sim_of(client)
         sim.set_packet_loss(0.2)
@@ -274,7 +284,7 @@ def test_world_origin_from_geodetic_tower_position() -> None:
 
     tower = (47.3977, 8.5456, 500.0)
     px4_origin = pymap3d.enu2geodetic(30.0, 40.0, 0.0, *tower)
-    client = connect_simulated_px4(time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
+    client = _connect(time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
     try:
         np.testing.assert_allclose(client.state().position, [0.0, 0.0, 0.0], atol=1e-6)
         offset = client.set_world_origin(*tower)
@@ -301,7 +311,7 @@ def test_signing_rejects_unsigned_and_wrongly_signed_commands(tmp_path) -> None:
     key = key_from_passphrase("insulator tower 42")
     key_file = tmp_path / "mavlink.key"
     key_file.write_text(key.hex())
-    client = connect_simulated_px4(time_scale=TIME_SCALE, signing_key=str(key_file))
+    client = _connect(time_scale=TIME_SCALE, signing_key=str(key_file))
     try:
         sim = sim_of(client)
         host, port = sim.address

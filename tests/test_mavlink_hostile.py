@@ -13,13 +13,14 @@ from __future__ import annotations
 import math
 import socket
 import time
+from typing import Any
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from insulator_rs.sim.px4 import connect_simulated_px4
+from insulator_rs.sim.px4 import start_simulated_px4
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.link import AutopilotLink
 from insulator_rs.sim.px4 import SimulatedPx4
@@ -69,9 +70,23 @@ def _fly_a_little(vehicle: MavlinkVehicle, seconds: float) -> None:
         vehicle.advance(0.05)
 
 
+_SIMULATORS: dict[int, SimulatedPx4] = {}
+
+
+def _connect(**options: Any) -> MavlinkVehicle:
+    """A client of a freshly started simulated PX4 (``start_simulated_px4``); ``sim_of`` finds it."""
+    sim, client = start_simulated_px4(**options)
+    _SIMULATORS[id(client)] = sim
+    return client
+
+
+def sim_of(client: MavlinkVehicle) -> SimulatedPx4:
+    return _SIMULATORS[id(client)]
+
+
 @pytest.fixture
 def signed():
-    vehicle = connect_simulated_px4(time_scale=4.0, signing_key=KEY)
+    vehicle = _connect(time_scale=4.0, signing_key=KEY)
     try:
         yield vehicle
     finally:
@@ -82,7 +97,7 @@ def test_forged_future_timestamp_towards_the_vehicle_changes_nothing(signed: Mav
     """A datagram with the client's stream id (link 1, sys 1, comp 191), timestamp 2^48 - 100
     and a wrong signature, sent to the simulated PX4: rejected and counted, the stream's
     timestamp untouched, and the client's genuine commands are still obeyed."""
-    sim = signed.simulator
+    sim = sim_of(signed)
     forged = _frame(M.MAVLink_command_long_message(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0),
                     system=1, component=191, key=bytes(32), link_id=1, timestamp=FUTURE)
     stream = (1, 1, 191)
@@ -104,7 +119,7 @@ def test_forged_future_timestamp_towards_the_client_changes_nothing(signed: Mavl
     """The same forgery the other way (link 0, sys 1, comp 1: the simulated PX4's stream id),
     injected from the autopilot's own address: the client drops it, counts it, keeps the
     stream's timestamp and keeps hearing the autopilot (no heartbeat-loss failsafe)."""
-    sim = signed.simulator
+    sim = sim_of(signed)
     forged = _frame(_autopilot_heartbeat(), system=1, component=1, key=bytes(32), link_id=0, timestamp=FUTURE)
     signing = signed._link.mav.signing
     before = signing.stream_timestamps.get((0, 1, 1))
@@ -135,7 +150,7 @@ def test_signature_is_checked_before_the_stream_timestamp() -> None:
 
 @pytest.fixture
 def vehicle():
-    client = connect_simulated_px4(time_scale=4.0)
+    client = _connect(time_scale=4.0)
     try:
         yield client
     finally:
@@ -145,7 +160,7 @@ def vehicle():
 def test_a_foreign_heartbeat_neither_retargets_nor_fires_a_failsafe(vehicle: MavlinkVehicle) -> None:
     """HEARTBEAT of an autopilot with system id 42 in mode POSCTL, from a foreign address and
     from the autopilot's own address, while flying OFFBOARD: dropped and counted."""
-    sim = vehicle.simulator
+    sim = sim_of(vehicle)
     _fly_a_little(vehicle, 0.5)
     foreign = _frame(_autopilot_heartbeat(custom_mode=3 << 16), system=42, component=1)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
@@ -163,7 +178,7 @@ def test_a_foreign_heartbeat_neither_retargets_nor_fires_a_failsafe(vehicle: Mav
 def test_a_foreign_local_position_does_not_move_the_client(vehicle: MavlinkVehicle) -> None:
     """LOCAL_POSITION_NED (1000, 1000, -50) from system 42 via the autopilot's address: the
     client's position stays the simulated PX4's true one (tolerance 0.05 m)."""
-    sim = vehicle.simulator
+    sim = sim_of(vehicle)
     _fly_a_little(vehicle, 0.5)
     forged = _frame(M.MAVLink_local_position_ned_message(10**6, 1000.0, 1000.0, -50.0, 0, 0, 0),
                     system=42, component=1)

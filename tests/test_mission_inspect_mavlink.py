@@ -51,6 +51,22 @@ def _after_first_photo(monkeypatch, action):
     monkeypatch.setattr(FlightLoop, "take_photo", photo_then_fault)
 
 
+def _started_simulators(monkeypatch):
+    """The simulated PX4s this test's runs start (``start_simulated_px4`` returns the one it
+    starts to the composition root; the test records them on ``SimulatedPx4.start``)."""
+    from insulator_rs.sim.px4 import SimulatedPx4
+
+    sims = []
+    original = SimulatedPx4.start
+
+    def start(self):
+        sims.append(self)
+        return original(self)
+
+    monkeypatch.setattr(SimulatedPx4, "start", start)
+    return sims
+
+
 def _assert_found_so_far_kept(out, s):
     g = json.loads((out / "score.json").read_text())
     assert s["insulators_found"] >= 1 and g["insulators_matched"] >= 1
@@ -89,11 +105,10 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_path, monkeypatch):
-    sims = []
+    sims = _started_simulators(monkeypatch)
 
     def cut_link(run):
-        sims.append(run.vehicle.simulator)
-        run.vehicle.simulator.set_link_lost(True)
+        sims[-1].set_link_lost(True)
 
     _after_first_photo(monkeypatch, cut_link)
     rc, out, s = _inspect(tmp_path, *MAVLINK)
@@ -109,17 +124,18 @@ def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_
 @pytest.mark.slow
 def test_pilot_takeover_aborts_and_nothing_more_is_sent(tmp_path, monkeypatch):
     seen = {}
+    sims = _started_simulators(monkeypatch)
     original = FlightLoop.on_failsafe
 
     def on_failsafe(self, exc):
         original(self, exc)
         time.sleep(0.2)  # let any datagram already on the wire arrive
-        seen["setpoints"] = self.vehicle.simulator.stats.setpoints
-        seen["commands"] = dict(self.vehicle.simulator.stats.commands)
-        seen["sim"] = self.vehicle.simulator
+        seen["setpoints"] = sims[-1].stats.setpoints
+        seen["commands"] = dict(sims[-1].stats.commands)
+        seen["sim"] = sims[-1]
 
     monkeypatch.setattr(FlightLoop, "on_failsafe", on_failsafe)
-    _after_first_photo(monkeypatch, lambda run: run.vehicle.simulator.pilot_mode_change("POSCTL"))
+    _after_first_photo(monkeypatch, lambda run: sims[-1].pilot_mode_change("POSCTL"))
     rc, out, s = _inspect(tmp_path, *MAVLINK)
     assert rc == 1
     assert s["failsafe"]["action"] == "offboard commanding stopped"

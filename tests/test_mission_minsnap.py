@@ -5,6 +5,7 @@ from math import factorial
 import numpy as np
 import pytest
 
+from insulator_rs.exceptions import PlanningError
 from insulator_rs.geodesy import line_frame
 from insulator_rs.planning.minsnap import (
     optimize_segment_times,
@@ -114,7 +115,7 @@ def test_safe_replanning_adds_waypoints_until_clear():
     assert len(tr.waypoints) > len(wp)  # the rounded corners needed extra waypoints
     t = np.linspace(0, tr.total_time, 20000)
     assert vol.points_clear(tr.evaluate(t)).all()
-    with pytest.raises(ValueError, match="straight path"):
+    with pytest.raises(PlanningError, match="straight path"):  # a planning failure, not a bad argument
         plan_min_snap_safe(np.array([[8.0, 0, 5.0], [-8.0, 0, 5.0]]), VM, AM, vol)
 
 

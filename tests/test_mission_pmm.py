@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
@@ -70,6 +70,9 @@ def test_blocked_interval():
 @settings(max_examples=200, deadline=None)
 @given(d=st.floats(-20, 20), v0=st.floats(-V, V), v1=st.floats(-V, V),
        extra=st.floats(0.0, 10.0))
+@example(d=0.0, v0=0.625, v1=0.625, extra=0.0)  # zero length at speed: duration 1.3e-9 s, not 0, once
+@example(d=0.0, v0=0.0, v1=0.0, extra=0.0)
+@example(d=0.0, v0=-V, v1=-V, extra=0.0)
 def test_synchronised_profile_has_the_duration_and_respects_limits(d, v0, v1, extra):
     t_min = float(axis_min_time(d, v0, v1, V, A))
     target = float(axis_earliest_time(d, v0, v1, t_min + extra, V, A))
@@ -80,6 +83,15 @@ def test_synchronised_profile_has_the_duration_and_respects_limits(d, v0, v1, ex
     p, v, a = prof.sample(ts)
     assert p[-1] == pytest.approx(d, abs=1e-6) and v[-1] == pytest.approx(v1, abs=1e-6)
     assert np.all(np.abs(v) <= V + 1e-6) and np.all(np.abs(a) <= A + 1e-9)
+
+
+@pytest.mark.parametrize("v", [0.625, -1.3, V, 0.0])
+def test_zero_length_move_at_constant_speed_takes_zero_time(v):
+    """d = 0 with v0 = v1: 0 s exactly, with three empty phases (the zero-length move; the
+    accelerate-brake roots are a rounded double root there)."""
+    assert axis_min_time(0.0, v, v, V, A) == 0.0
+    prof = axis_profile_for_time(0.0, v, 0.0, v, 0.0, V, A)
+    assert prof.t == (0.0, 0.0, 0.0) and prof.duration == 0.0
 
 
 def test_infeasible_duration_is_refused():

@@ -154,16 +154,15 @@ def test_telemetry_clock_against_the_simulated_px4() -> None:
     """The simulated PX4 on loopback (time_scale 1): now() within 20 ms of its clock."""
     import time as _time
 
-    from insulator_rs.sim.px4 import connect_simulated_px4
+    from insulator_rs.sim.px4 import start_simulated_px4
 
-    vehicle = connect_simulated_px4(time_scale=1.0)
+    sim, vehicle = start_simulated_px4(time_scale=1.0)
     clock = TelemetryClock(lambda: vehicle.state().time).start()
     try:
         deadline = _time.monotonic() + 5.0
         while (not clock.ready() or clock.sync.fit.n < 20) and _time.monotonic() < deadline:
             _time.sleep(0.05)
         _time.sleep(1.0)
-        sim = vehicle.simulator
         errors = []
         for _ in range(5):
             with sim._lock:

@@ -9,7 +9,7 @@ from typing import Any, Final, Literal, final
 import numpy as np
 from numpy.typing import NDArray
 
-from insulator_rs.exceptions import InsulatorError
+from insulator_rs.exceptions import LocalizationError as LocalizationError
 
 # A point cloud: (N, 3) float32 or float64, any strides.
 _Points = NDArray[np.float32] | NDArray[np.float64]
@@ -52,9 +52,6 @@ __all__ = [
 
 NEAR_LIMIT: Final[float]
 NOISE: Final[int]
-
-class LocalizationError(InsulatorError):
-    """The cloud holds no usable insulator."""
 
 @final
 class CameraModel:

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml  # type: ignore[import-untyped]
+import yaml
 
 from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import ConfigError

@@ -1,7 +1,9 @@
 """Every exception the package raises, under one base class (one name per meaning).
 
-The compiled core raises ``LocalizationError`` (and ``ValueError``/``TypeError``
-for bad arguments); the Python layers raise the others.
+Every class is declared here, those the compiled core raises included: its bindings
+look ``LocalizationError`` and ``PacketError`` up in this module when ``_core`` is
+imported (besides ``ValueError``/``TypeError`` for bad arguments); the Python layers
+raise the others.
 """
 
 from __future__ import annotations
@@ -77,16 +79,32 @@ class SensorError(InsulatorError):
     and the address, device or pipeline)."""
 
 
+class PacketError(SensorError):
+    """A Livox datagram or control frame is malformed (raised by the compiled core's Livox
+    bindings): truncated, a length, version, data type or sample count that does not fit, a
+    bad CRC, an unexpected command. The message starts with the packet or frame field at
+    fault (``packet.crc32: ...``, ``command.sof: ...``)."""
+
+
+class LocalizationError(InsulatorError):
+    """The cloud holds no usable insulator.
+
+    Raised by ``localize`` (the compiled core) when no cluster is found, fewer than two
+    usable points remain, or the line fit fails. The message says which.
+    """
+
+
 class TimeSyncError(InsulatorError):
     """A clock map was asked for before any time pair arrived."""
 
 
-class PlanningError(InsulatorError, ValueError):
+class PlanningError(InsulatorError):
     """No trajectory could be planned through valid waypoints: the straight path through them
     enters a safety volume, the vehicle cannot stop before one, or inserting waypoints did not
     keep the curve out of them. The message names the argument and which of those it is.
 
     The flight loop aborts the mission on it (lands, status ``aborted: planning failed: ...``).
+    Not a ``ValueError``: a planning failure in flight is not a bad argument.
     """
 
 

@@ -23,7 +23,7 @@ def _fraction(text: str) -> float:
     return v
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``dataset`` subcommand to the ``insulator-rs`` parser."""
     parser = subparsers.add_parser(
         "dataset", help="render images of simulated towers with YOLO labels and a data.yaml")

@@ -110,7 +110,7 @@ def _report_metrics(args: argparse.Namespace, detector: Detector, metrics: CocoM
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``detect run`` and ``detect eval`` to the ``insulator-rs`` parser."""
     parser = subparsers.add_parser("detect", help="run or evaluate the insulator detector")
     sub = parser.add_subparsers(dest="detect_command", required=True)

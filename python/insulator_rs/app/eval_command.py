@@ -18,7 +18,7 @@ STUDIES: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser("eval", help="run an evaluation study")
     studies = parser.add_subparsers(dest="study", required=True)
     for name, module_name, help_text in STUDIES:

@@ -30,7 +30,7 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -58,6 +58,9 @@ from insulator_rs.sim.sensors import (
 from insulator_rs.sim.towers import load_tower
 from insulator_rs.ports.vehicle import Vehicle
 
+if TYPE_CHECKING:
+    from insulator_rs.sim.px4 import SimulatedPx4
+
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 MAX_MAVLINK_TIME_SCALE = 4.0  # the client's timeouts and the 20 Hz stream hold up to this speed-up
 # The vehicle's own limits get this much headroom over the planning limits so the
@@ -78,27 +81,28 @@ def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
 
 
 def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time_scale: float,
-                    signing_key: Path | None, gcs_port: int | None = None) -> Vehicle:
-    """The MAVLink offboard client: to the simulated PX4 (started here on loopback, flying
-    :func:`kinematic_vehicle`) when ``connection`` is None, else to that autopilot with W's
-    origin put at the tower base."""
+                    signing_key: Path | None, gcs_port: int | None = None) -> tuple[Vehicle, SimulatedPx4 | None]:
+    """The MAVLink offboard client, and the simulated PX4 it flies when this started one: to
+    the simulated PX4 (started here on loopback, flying :func:`kinematic_vehicle`, with PX4's
+    GCS link on ``gcs_port`` when given) when ``connection`` is None, else (simulator None) to
+    that autopilot with W's origin put at the tower base."""
     from insulator_rs.mavlink import connect_vehicle
-    from insulator_rs.sim.px4 import connect_simulated_px4
+    from insulator_rs.sim.px4 import start_simulated_px4
 
     tower = mission.tower
     if connection is None:
         sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt),
                        "gcs_port": gcs_port}
-        vehicle = connect_simulated_px4(time_scale=time_scale, signing_key=signing_key, sim_options=sim_options)
-    else:
-        vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key)
-    if connection is not None:
-        try:
-            vehicle.set_world_origin(tower.lat, tower.lon, tower.alt)
-        except BaseException:
-            vehicle.close()
-            raise
-    return vehicle
+        simulator, client = start_simulated_px4(time_scale=time_scale, signing_key=signing_key,
+                                                sim_options=sim_options)
+        return client, simulator
+    vehicle = connect_vehicle(connection, time_scale=time_scale, signing_key=signing_key)
+    try:
+        vehicle.set_world_origin(tower.lat, tower.lon, tower.alt)
+    except BaseException:
+        vehicle.close()
+        raise
+    return vehicle, None
 
 
 def load_network(model: str | None, *, live_camera: bool = False) -> NetworkDetector | None:
@@ -255,13 +259,12 @@ def run(args: argparse.Namespace) -> int:
     rig = mission.rig if mission.rig is not None else simulator_rig()
     if mavlink:
         try:
-            vehicle = mavlink_vehicle(mission, args.seed, connection=args.connection,
-                                      time_scale=args.time_scale or 1.0, signing_key=args.signing_key,
-                                      gcs_port=args.gcs_port)
+            vehicle, simulator = mavlink_vehicle(mission, args.seed, connection=args.connection,
+                                                 time_scale=args.time_scale or 1.0, signing_key=args.signing_key,
+                                                 gcs_port=args.gcs_port)
         except (VehicleError, ConfigError) as exc:  # no autopilot answering, a bad key file
             print(f"insulator-rs inspect: error: MAVLink vehicle: {exc}", file=sys.stderr)
             return 2
-        simulator = getattr(vehicle, "simulator", None)  # the simulated PX4 this run started
         pose = simulated_px4_true_pose(simulator) if simulator is not None else reported_pose(vehicle)
     else:
         vehicle = kinematic_vehicle(mission, args.seed)

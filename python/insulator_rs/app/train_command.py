@@ -238,7 +238,7 @@ def _resolve_start(value: str | None) -> Path | None:
     return model_path(value)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``train`` to the ``insulator-rs`` parser."""
     p = subparsers.add_parser("train", help="train YOLO11n offline and export ONNX (needs the train extra)")
     p.add_argument("--data", type=Path, required=True, help="VOC folder (with train/valid/test or flat) or data.yaml")

@@ -25,6 +25,7 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -175,7 +176,7 @@ def build_field_dataset(field_root: Path, out: Path, *, export_root: Path | None
     voc_test = out / "field-test"
     voc_test.mkdir(parents=True, exist_ok=True)
 
-    def add(split: str, image: Path, boxes: tuple, stem: str) -> None:
+    def add(split: str, image: Path, boxes: tuple[Any, ...], stem: str) -> None:
         h, w = _image_size(image)
         lines, dropped = yolo_label_lines(boxes, w, h, {"insulator": 0})
         summary.dropped_boxes += dropped

@@ -47,7 +47,7 @@ def motion_or_defocus_blur(img: np.ndarray) -> np.ndarray:
     """A straight motion streak (3-9 px, any direction) or a Gaussian defocus (sigma 0.6-2 px)."""
     if random.random() < 0.5:
         length = random.randrange(3, 10, 2)
-        kernel = np.zeros((length, length), np.float32)
+        kernel: np.ndarray = np.zeros((length, length), np.float32)
         kernel[length // 2, :] = 1.0
         rot = cv2.getRotationMatrix2D(((length - 1) / 2, (length - 1) / 2), random.uniform(0, 180), 1.0)
         kernel = cv2.warpAffine(kernel, rot, (length, length))
@@ -91,7 +91,7 @@ def uav_trainer_class() -> type:
     """Ultralytics' DetectionTrainer with :class:`UavPhotometric` on the training set."""
     from ultralytics.models.yolo.detect import DetectionTrainer
 
-    class UavDetectionTrainer(DetectionTrainer):
+    class UavDetectionTrainer(DetectionTrainer):  # type: ignore[misc]  # ultralytics is untyped
         def build_dataset(self, img_path: str, mode: str = "train", batch: int | None = None) -> Any:
             dataset = super().build_dataset(img_path, mode, batch)
             if mode == "train" and getattr(dataset, "augment", False):

@@ -45,7 +45,7 @@ from insulator_rs._core import (
     livox_parse_discovery_ack,
     livox_work_mode_request,
 )
-from insulator_rs.exceptions import InsulatorError, SensorError
+from insulator_rs.exceptions import InsulatorError, PacketError, SensorError
 from insulator_rs.ports.sensors import LidarScan
 from insulator_rs.timesync import OneWaySync
 
@@ -105,8 +105,8 @@ def discover(*, timeout: float = 1.0, broadcast: str = "255.255.255.255",
             data, _ = sock.recvfrom(MAX_DATAGRAM)
             try:
                 acks.append(livox_parse_discovery_ack(data))
-            except ValueError:
-                continue  # not a discovery ack: ignore
+            except PacketError:
+                continue  # not a discovery ack (the message names the frame field): ignore
     return acks
 
 
@@ -201,8 +201,8 @@ class LivoxMid360:
                 if cmd_id != 0x0100 or ack_seq != seq:
                     continue
                 ret, key = livox_parse_config_ack(data)
-            except ValueError:
-                continue
+            except PacketError:
+                continue  # not a well-formed ack (the message names the frame field): ignore
             if ret != 0:
                 raise SensorError(f"Mid-360 {self.lidar_ip}: {what} refused (ret_code {ret:#04x}, key {key:#06x})")
             return

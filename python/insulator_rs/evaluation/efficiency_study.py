@@ -53,7 +53,7 @@ from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.planning.pmm import rest_to_rest_times
 from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 from insulator_rs.evaluation.single_flight import fly_single_flight
-from insulator_rs.mission.state_machine import InspectionStateMachine
+from insulator_rs.mission.state_machine import InspectionStateMachine, Policy
 from insulator_rs.evaluation.two_flight import two_flight
 from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.poses import pose_from_yaw
@@ -249,7 +249,7 @@ class TowerStudy:
         def cost(a: np.ndarray, b: np.ndarray) -> float:
             return float(rest_to_rest_times(a, b, self.v_max, self.a_max))
 
-        sm = InspectionStateMachine(self.geom.path, reg, make, policy=policy, cost=cost)
+        sm = InspectionStateMachine(self.geom.path, reg, make, policy=Policy(policy), cost=cost)
         sm.start(0.0)
         sensing = PipelineSensing(self.tower, self.mission.inspection.insulator_length)
         res = fly_single_flight(sm, v_max=self.v_max, a_max=self.a_max, sense=sensing.sense,

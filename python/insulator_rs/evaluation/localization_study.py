@@ -45,7 +45,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -54,6 +54,10 @@ from insulator_rs.mission.config import load_mission
 from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.report.folder import parse_out_folder
+
+if TYPE_CHECKING:
+    from insulator_rs.sim.detector_standin import DetectorStandin
+    from insulator_rs.sim.towers import InsulatorTruth, Tower
 
 METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
 METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
@@ -216,7 +220,7 @@ class SensorRig:
         return np.array([x1 + u0, y1 + v0, x2 + u0, y2 + v0], dtype=np.float64)
 
 
-def _event_poses(tower, target, standoff: float, rng: np.random.Generator,
+def _event_poses(tower: Tower, target: InsulatorTruth, standoff: float, rng: np.random.Generator,
                  cfg: StudyConfig) -> tuple[Callable[[float], np.ndarray], list[float]]:
     """The UAV's trajectory (t -> T_w_b) during one event and the times of its images (s).
 
@@ -257,7 +261,7 @@ def _odometry(trajectory: Callable[[float], np.ndarray], t0: float, t1: float, r
     return [PoseStamped(float(t), _noisy(trajectory(float(t)), rng, cfg)) for t in times]
 
 
-def _purity(points_w: np.ndarray, truth) -> float:
+def _purity(points_w: np.ndarray, truth: InsulatorTruth) -> float:
     """Share of ``points_w`` inside the insulator's true envelope (axis, radius, length)."""
     if len(points_w) == 0:
         return math.nan
@@ -268,8 +272,8 @@ def _purity(points_w: np.ndarray, truth) -> float:
     return float(np.mean(inside))
 
 
-def _localize_event(rig: SensorRig, target, trajectory: Callable[[float], np.ndarray], times: Sequence[float],
-                    detector, rng: np.random.Generator, cfg: StudyConfig, insulator_length: float,
+def _localize_event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float], np.ndarray], times: Sequence[float],
+                    detector: DetectorStandin, rng: np.random.Generator, cfg: StudyConfig, insulator_length: float,
                     ) -> dict[str, tuple[LocalizedInsulator | None, str, int, float]] | None:
     """One localization event through the flight's perception pipeline, one pipeline per
     method fed the same data: {method: (localization or None, outcome, accumulated points,
@@ -316,7 +320,7 @@ def _localize_event(rig: SensorRig, target, trajectory: Callable[[float], np.nda
 
 
 def _errors(center_w: np.ndarray, direction_w: np.ndarray,
-            truth) -> tuple[float, float, float, float, float]:
+            truth: InsulatorTruth) -> tuple[float, float, float, float, float]:
     """Centre error (m): total, horizontal, vertical, along the true axis; axis angle (deg)."""
     d = center_w - truth.center
     cos = min(1.0, abs(float(np.dot(direction_w, truth.axis))))

@@ -17,6 +17,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,10 @@ from insulator_rs.evaluation.localization_study import (
     _noisy,
     write_csv,
 )
+
+if TYPE_CHECKING:
+    from insulator_rs.sim.detector_standin import DetectorStandin
+    from insulator_rs.sim.towers import InsulatorTruth
 
 ODOMETRY_RATE = 20.0  # Hz: the pose stream the deskew interpolates
 DEFAULT_SPEEDS = (1.0, 3.0, 6.0)  # m/s along the line
@@ -56,7 +61,8 @@ def _turning(trajectory: Callable[[float], np.ndarray], t_mid: float, yaw_rate: 
     return T
 
 
-def _event(rig: SensorRig, target, trajectory, times, detector, rng, cfg: StudyConfig
+def _event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float], np.ndarray],
+           times: Sequence[float], detector: DetectorStandin, rng: np.random.Generator, cfg: StudyConfig
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(raw points in B, deskewed points in B, odometry T_w_b) of the target's 3 detection events."""
     import insulator_rs as ir

@@ -85,11 +85,11 @@ def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: 
         cam_rec["fx"], cam_rec["fy"], cam_rec["cx"], cam_rec["cy"], cam_rec["width"], cam_rec["height"],
         dist=cam_rec["dist"])
     for p in summary.get("photos", []):
-        center = centers.get(int(p["insulator_id"]))
+        photographed = centers.get(int(p["insulator_id"]))
         row: dict[str, Any] = {"file": p["file"], "insulator_id": p["insulator_id"], "gt_instance_id": None,
                                "insulator_visible": None, "insulator_whole_in_frame": None}
-        if center is not None and truth:
-            gt, _ = _nearest(truth, center)
+        if photographed is not None and truth:
+            gt, _ = _nearest(truth, photographed)
             row["gt_instance_id"] = gt.instance_id
             if photos and camera is not None:
                 row["insulator_visible"], row["insulator_whole_in_frame"] = _photo_visibility(

@@ -39,6 +39,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -106,7 +107,7 @@ class MavlinkVehicle:
         self.failsafes = failsafes or FailsafeSettings()
         self.local_origin_w = as_vector3(local_origin_w, "local_origin_w")
         self.connection = connection
-        self.simulator: Any = None  # set by connect_vehicle when it started the sim
+        self._close_also: list[Callable[[], None]] = []  # what close() stops too (close_with)
 
         self._lock = threading.Condition()
         self._stop = threading.Event()
@@ -170,7 +171,7 @@ class MavlinkVehicle:
         in local coordinates: local_origin_w = ENU(home wrt origin, pymap3d) -
         ENU(home local). Returns the new ``local_origin_w`` (m, W).
         """
-        import pymap3d  # type: ignore[import-untyped]
+        import pymap3d
 
         lat = as_finite(latitude, "latitude")
         lon = as_finite(longitude, "longitude")
@@ -269,9 +270,14 @@ class MavlinkVehicle:
         link = getattr(self, "_link", None)
         if link is not None:
             link.close()
-        if self.simulator is not None:
-            self.simulator.stop()
-            self.simulator = None
+        also = getattr(self, "_close_also", [])
+        while also:
+            also.pop()()
+
+    def close_with(self, stop: Callable[[], None]) -> None:
+        """Have ``close()`` call ``stop`` too, once, after the link is closed (what a caller
+        started for this client, e.g. the simulated PX4 it talks to)."""
+        self._close_also.append(stop)
 
     def __enter__(self) -> MavlinkVehicle:
         return self

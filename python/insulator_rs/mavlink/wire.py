@@ -10,8 +10,8 @@ import os
 
 os.environ["MAVLINK20"] = "1"
 
-from pymavlink import mavutil  # type: ignore[import-untyped]  # noqa: E402
-from pymavlink.dialects.v20 import common as mavlink2  # type: ignore[import-untyped]  # noqa: E402
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
 
 if getattr(mavutil, "mavlink", None) is not mavlink2:
     mavutil.set_dialect("common")

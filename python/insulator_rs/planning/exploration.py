@@ -128,14 +128,14 @@ def _path_at(line: LineFrame, volumes: SafetyVolumes, takeoff: np.ndarray, later
     first = line.side(takeoff)
     a_take = float(takeoff @ line.along)
     start_a = -half_len if a_take <= 0 else half_len  # start the passes at the nearer end
-    path = [PathWaypoint(takeoff, "takeoff", first, facing_yaw(line, first))]
+    path = [PathWaypoint(takeoff, PlanKind.TAKEOFF, first, facing_yaw(line, first))]
 
     def side_passes(side: int, zs: list[float], a0: float) -> float:
         a = a0
         for z in zs:
             for a_end in (a, -a):
                 p = line.to_world(np.array([a_end, side * lateral, z]))
-                path.append(PathWaypoint(p, "scan", side, facing_yaw(line, side)))
+                path.append(PathWaypoint(p, PlanKind.SCAN, side, facing_yaw(line, side)))
             a = -a
         return a  # where the last pass ended
 
@@ -143,17 +143,17 @@ def _path_at(line: LineFrame, volumes: SafetyVolumes, takeoff: np.ndarray, later
     a_last = side_passes(first, heights, start_a)  # the along position the passes ended at
     # up above the safety volumes, across, and down the other side
     path.append(PathWaypoint(line.to_world(np.array([a_last, first * lateral, z_cross])),
-                             "cross", 0, facing_yaw(line, first)))
+                             PlanKind.CROSS, 0, facing_yaw(line, first)))
     path.append(PathWaypoint(line.to_world(np.array([a_last, -first * lateral, z_cross])),
-                             "cross", 0, facing_yaw(line, -first)))
+                             PlanKind.CROSS, 0, facing_yaw(line, -first)))
     a_last = side_passes(-first, heights[::-1], a_last)
     # home: up, over the top, down to the take-off point
     path.append(PathWaypoint(line.to_world(np.array([a_last, -first * lateral, z_cross])),
-                             "cross", 0, facing_yaw(line, -first)))
+                             PlanKind.CROSS, 0, facing_yaw(line, -first)))
     path.append(PathWaypoint(line.to_world(np.array([a_take, first * lateral, z_cross])),
-                             "cross", 0, facing_yaw(line, first)))
-    path.append(PathWaypoint(np.array([takeoff[0], takeoff[1], z_cross]), "cross", 0,
+                             PlanKind.CROSS, 0, facing_yaw(line, first)))
+    path.append(PathWaypoint(np.array([takeoff[0], takeoff[1], z_cross]), PlanKind.CROSS, 0,
                              facing_yaw(line, first)))
-    path.append(PathWaypoint(takeoff, "land", first, facing_yaw(line, first)))
+    path.append(PathWaypoint(takeoff, PlanKind.LAND, first, facing_yaw(line, first)))
     return [w for i, w in enumerate(path)
             if i == 0 or np.linalg.norm(w.position - path[i - 1].position) > 1e-6]

@@ -83,13 +83,18 @@ def _fixed_time_candidates(d: np.ndarray | float, v0: np.ndarray | float, v1: np
     Three families: accelerate-coast-brake with either sign s (the coast
     velocity vp solves vp T - s[(vp-v0)^2 + (vp-v1)^2] / (2a) = d, two roots
     each), and accelerate-coast-accelerate in the direction of v1 - v0 (linear in
-    vp), plus the zero-length move in zero time. Each candidate is (valid, t1,
-    t2, t3, a1, a3).
+    vp), after the zero-length move in zero time (first). Each candidate is (valid,
+    t1, t2, t3, a1, a3); a phase is valid down to ``-tol``.
     """
     d, v0, v1, T, vm, am = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
                                                  for x in (d, v0, v1, duration, v_max, a_max)))
     tol = 1e-9
-    out: list[tuple[np.ndarray, ...]] = []
+    # The zero-length move first: exact. Where it applies (T = 0, d = 0, v1 = v0) the quadratic
+    # below has a double root, which rounding turns into two roots ~sqrt(eps) apart whose phases
+    # are only within ``tol`` of zero.
+    zero = (np.abs(T) <= tol) & (np.abs(d) <= tol) & (np.abs(v1 - v0) <= tol)
+    z = np.zeros(d.shape)
+    out: list[tuple[np.ndarray, ...]] = [(zero, z, z, z, z, z)]
     for s in (1.0, -1.0):
         qa, qb = -s / am, T + s * (v0 + v1) / am
         qc = -s * (v0 * v0 + v1 * v1) / (2 * am) - d
@@ -108,9 +113,6 @@ def _fixed_time_candidates(d: np.ndarray | float, v0: np.ndarray | float, v1: np
     t1, t3 = sigma * (vp - v0) / am, sigma * (v1 - vp) / am
     valid = (t2 > 1e-12) & (t1 >= -tol) & (t3 >= -tol) & (np.abs(vp) <= vm + tol)
     out.append((valid, t1, t2, t3, sigma * am, sigma * am))
-    zero = (np.abs(T) <= tol) & (np.abs(d) <= tol) & (np.abs(v1 - v0) <= tol)
-    z = np.zeros(d.shape)
-    out.append((zero, z, z, z, z, z))
     return out
 
 
@@ -168,6 +170,20 @@ class AxisProfile:
         return p, v, acc
 
 
+def _phases_of_duration(t1: float, t2: float, t3: float, duration: float) -> tuple[float, float, float]:
+    """Phase durations >= 0 that sum to ``duration`` (up to rounding).
+
+    A candidate's phases are accepted down to ``-tol``; clamping a negative one to 0 alone
+    would lengthen the profile by as much (up to 3 tol). The coast phase absorbs the
+    difference, else the longest phase: a change of a few 1e-9 s.
+    """
+    t = [max(t1, 0.0), max(t2, 0.0), max(t3, 0.0)]
+    excess = sum(t) - max(duration, 0.0)
+    k = 1 if t[1] >= excess else max(range(3), key=lambda i: t[i])
+    t[k] = max(t[k] - excess, 0.0)
+    return t[0], t[1], t[2]
+
+
 def axis_profile_for_time(p0: float, v0: float, p1: float, v1: float, duration: float,
                           v_max: float, a_max: float) -> AxisProfile:
     """A profile of exactly ``duration`` s taking one axis from (p0, v0) to (p1, v1).
@@ -178,7 +194,7 @@ def axis_profile_for_time(p0: float, v0: float, p1: float, v1: float, duration: 
     """
     for valid, t1, t2, t3, a1, a3 in _fixed_time_candidates(p1 - p0, v0, v1, duration, v_max, a_max):
         if bool(valid):
-            return AxisProfile(p0, v0, (max(float(t1), 0.0), max(float(t2), 0.0), max(float(t3), 0.0)),
+            return AxisProfile(p0, v0, _phases_of_duration(float(t1), float(t2), float(t3), float(duration)),
                                (float(a1), 0.0, float(a3)))
     raise ValueError(f"duration: {duration} s is infeasible for d={p1 - p0}, v0={v0}, v1={v1}")
 

@@ -107,7 +107,7 @@ class Lighting:
         zenith = tuple(sky * ((1 - grey) * z + grey * 0.7) for z in (0.25, 0.45, 0.85))
         horizon = tuple(sky * ((1 - grey) * h + grey * 0.8) for h in (0.75, 0.8 - 0.1 * warmth, 0.92 - 0.3 * warmth))
         return cls(sun_direction=sun, sun_color=sun_color, ambient=ambient,
-                   sky_zenith=zenith, sky_horizon=horizon,  # type: ignore[arg-type]
+                   sky_zenith=zenith, sky_horizon=horizon,
                    haze_density=haze_density, noise_sigma=noise_sigma)
 
 

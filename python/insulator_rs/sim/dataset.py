@@ -22,10 +22,15 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from insulator_rs.sim.camera_render import Lighting
+
+if TYPE_CHECKING:
+    from insulator_rs._core import CameraModel
+    from insulator_rs.sim.towers import Tower
 
 SPLITS: tuple[str, ...] = ("train", "val", "test")
 CLASS_NAMES: dict[int, str] = {0: "insulator"}
@@ -154,22 +159,22 @@ class DatasetSummary:
     data_yaml: Path
 
 
-def scaled_camera_model(width: int, height: int):
+def scaled_camera_model(width: int | None, height: int | None) -> CameraModel:
     """The default simulated camera's lens at another image size (same field of view across,
-    square pixels, principal point at the centre of the new image)."""
+    square pixels, principal point at the centre of the new image); both None: the default."""
     from insulator_rs._core import CameraModel
     from insulator_rs.sim.camera_render import default_camera_model
 
     base = default_camera_model()
-    if (width, height) == (None, None):
+    if width is None and height is None:
         return base
-    if width < 1 or height < 1:
+    if width is None or height is None or width < 1 or height < 1:
         raise ValueError(f"image_size: width and height must be >= 1, got {width}x{height}")
     f = base.fx * width / base.width
     return CameraModel(f, f, (width - 1) / 2, (height - 1) / 2, width, height, dist=list(base.dist))
 
 
-def _aim_points(tower) -> np.ndarray:
+def _aim_points(tower: Tower) -> np.ndarray:
     """What the dataset camera looks at: every insulator's centre and points up the tower axis."""
     heights = np.linspace(0.3, 1.0, 6) * tower.max_height
     axis_points = np.column_stack([np.zeros_like(heights), np.zeros_like(heights), heights])
@@ -210,7 +215,7 @@ def write_dataset(*, scenes: Sequence[str | Path], out: Path, n_images: int,
     labels_split = split_indices(n_images, split, rng)
     towers = [load_tower(s) for s in scenes]
     width, height = image_size if image_size is not None else (None, None)
-    camera = Camera(scaled_camera_model(width, height))  # type: ignore[arg-type]
+    camera = Camera(scaled_camera_model(width, height))
     size = (int(camera.model.width), int(camera.model.height))
     for sp in SPLITS:
         (out / "images" / sp).mkdir(parents=True, exist_ok=True)

@@ -32,6 +32,7 @@ import struct
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -172,7 +173,7 @@ class LivoxEmitter:
         self._udp_cnt = -1
         self._frame_cnt = 0
         self._frame_index: int | None = None
-        self._held: list[list] = []  # [packets left to wait, overtaken?, datagram]
+        self._held: list[list[Any]] = []  # [packets left to wait, overtaken?, datagram]
         #: Faults are injected only while this is True (keep the stream's ends clean).
         self.faults_enabled = True
         span_s = DOTS_PER_PACKET / self.point_rate * (1.0 + self.clock.drift)
@@ -267,7 +268,7 @@ class LivoxEmitter:
     def _release(self, overtaking: bool) -> list[bytes]:
         """Held datagrams whose delay is over; counts those that were really overtaken."""
         out: list[bytes] = []
-        still: list[list] = []
+        still: list[list[Any]] = []
         for entry in self._held:
             entry[0] -= 1
             entry[1] = entry[1] or overtaking

@@ -76,7 +76,7 @@ def _body_rotation(yaw_enu: float, roll: float, pitch: float, full: bool) -> np.
     return attitude_ned_frd_to_enu_flu(roll, pitch, yaw_enu_to_ned(yaw_enu))
 
 
-def _around(samples: deque, t: float) -> list[Any]:
+def _around(samples: deque[Any], t: float) -> list[Any]:
     """The two samples (time first) around ``t``, or the one to carry: the newest when ``t`` is
     past it, the oldest when before it."""
     if t >= samples[-1][0]:
@@ -95,7 +95,7 @@ class Px4PoseFeed:
     ``origin``: W's origin (lat, lon deg, alt m AMSL): the mission's tower base."""
 
     def __init__(self, connection: str, origin: tuple[float, float, float], *, full_attitude: bool = False) -> None:
-        from pymavlink import mavutil  # type: ignore[import-untyped]
+        from pymavlink import mavutil
 
         self.origin = origin
         self.full_attitude = full_attitude
@@ -147,7 +147,7 @@ class Px4PoseFeed:
                                           -msg.yawspeed))
 
     def _home(self, msg: Any) -> None:
-        import pymap3d  # type: ignore[import-untyped]
+        import pymap3d
 
         home_w = np.array(pymap3d.geodetic2enu(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3,
                                                *self.origin))
@@ -240,7 +240,7 @@ class MjpegServer:
     @property
     def url(self) -> str:
         host, port = self.httpd.server_address[:2]
-        return f"http://{host}:{port}/stream.mjpg"
+        return f"http://{host!s}:{port}/stream.mjpg"  # an IPv4 server: host is a str
 
     def start(self) -> MjpegServer:
         self._thread.start()
