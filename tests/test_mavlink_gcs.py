@@ -25,7 +25,7 @@ from insulator_rs.mavlink.gcs import (
     camera_quaternion,
 )
 from insulator_rs.ports.observer import InsulatorFound, PhaseChange, PhotoTaken
-from insulator_rs.sim.px4 import connect_simulated_px4
+from insulator_rs.sim.px4 import start_simulated_px4
 
 CAMERA = CameraDescription(vendor="insulator_rs", model="zoom 12MP", focal_length_mm=24.0, sensor_width_mm=13.2,
                            sensor_height_mm=8.8, width_px=4000, height_px=3000)
@@ -128,9 +128,8 @@ def test_a_failing_link_never_raises():
 def test_through_the_simulated_px4s_gcs_link():
     """PX4's forwarding, mirrored: the observer sends on the offboard client's own link; the
     GCS on the simulated PX4's GCS port gets it all, and its request reaches our camera."""
-    vehicle = connect_simulated_px4(sim_options={"gcs_port": 0})
+    sim, vehicle = start_simulated_px4(sim_options={"gcs_port": 0})
     try:
-        sim = vehicle.simulator
         with GcsListener(sim.gcs.address) as gcs:
             assert gcs.wait_for(lambda: gcs.of("HEARTBEAT", 1), 5.0)  # PX4's own heartbeat on the GCS link
             obs = MavlinkGcsObserver.on_vehicle(vehicle, camera=CAMERA)
@@ -157,9 +156,8 @@ def test_through_the_simulated_px4s_gcs_link():
 def test_the_simulated_px4_drops_a_burst_of_large_frames_as_px4_does():
     """PX4 SITL forwarded 2 of 10 CAMERA_IMAGE_CAPTURED sent back to back (tests/test_px4_sitl_gcs.py);
     the simulated PX4 models its forwarding buffer the same way."""
-    vehicle = connect_simulated_px4(sim_options={"gcs_port": 0})
+    sim, vehicle = start_simulated_px4(sim_options={"gcs_port": 0})
     try:
-        sim = vehicle.simulator
         with GcsListener(sim.gcs.address, ask_camera=False) as gcs:
             assert gcs.wait_for(lambda: gcs.of("HEARTBEAT", 1), 5.0)
             mav = M.MAVLink(None, srcSystem=sim.system_id, srcComponent=CAMERA_COMPONENT)

@@ -26,6 +26,7 @@ from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.ports.vehicle import FlightMode
 from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
 from insulator_rs.sim.px4.telemetry import DEFAULT_RATES_HZ, Px4Telemetry
+from insulator_rs.sim.px4_gcs import GcsLink
 from insulator_rs.sim.px4.transport import (LOOP_PERIOD_S, MAX_STEP_VEHICLE_S, UNSIGNED_ALLOWED, LinkFaults,
                                             Px4Transport, SimStats)
 
