@@ -121,7 +121,7 @@ def load_network(model: str | None, *, live_camera: bool = False) -> NetworkDete
         raise ValueError(f"--detector: {exc}") from exc
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("inspect", help="fly a whole single-flight inspection (simulator or PX4)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scene", default="tower_a",

@@ -30,7 +30,7 @@ from insulator_rs.recording.types import Topics
 from insulator_rs.replay.batch import DEFAULT_DETECTOR, ReplayOptions, find_flights, replay_one
 from insulator_rs.report.jsonfile import write_json
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("replay", help="re-process recorded flights (MCAP, rosbag2, ROS 1 bag) offline",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("flights", nargs="+", type=Path, help="recordings, or folders of recordings")

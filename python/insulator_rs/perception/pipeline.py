@@ -83,11 +83,12 @@ class Track:
     """The recent detection events of one (putative) insulator: culled points in W."""
 
     anchor: np.ndarray
-    events: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
+    events: deque[np.ndarray] = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
     # (box, T_w_c, camera) of each event in ``events``: the bounded method's image bounds.
-    views: deque = field(default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
+    views: deque[tuple[np.ndarray, np.ndarray, ir.CameraModel]] = field(
+        default_factory=lambda: deque(maxlen=EVENTS_PER_LOCALIZATION))
     # Shed relief (m) of each shape-checked localization of this track (insulator_shape).
-    reliefs: list = field(default_factory=list)
+    reliefs: list[float] = field(default_factory=list)
     # The best detection score among this track's boxes (birth rule, BIRTH_SCORE).
     best_score: float = 0.0
 

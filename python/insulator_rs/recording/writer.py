@@ -143,7 +143,7 @@ class McapRecorder:
             return
         self.closed = True
         try:
-            self._writer.finish()
+            self._writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer is untyped
         finally:
             self._file.close()
 

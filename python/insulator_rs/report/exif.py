@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import math
+from typing import Any
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -92,7 +93,7 @@ def photo_exif(*, geo: GeoPoint, heading_deg: float, time_utc: datetime, descrip
         piexif.GPSIFD.GPSDateStamp: t.strftime("%Y:%m:%d").encode(),
         piexif.GPSIFD.GPSMapDatum: b"WGS-84",
     }
-    exif = {
+    exif: dict[int, Any] = {
         piexif.ExifIFD.DateTimeOriginal: stamp.encode(),
         piexif.ExifIFD.SubSecTimeOriginal: f"{ms:03d}".encode(),
         piexif.ExifIFD.OffsetTimeOriginal: b"+00:00",
