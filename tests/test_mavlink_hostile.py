@@ -13,14 +13,14 @@ from __future__ import annotations
 import math
 import socket
 import time
-from typing import Any
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from insulator_rs.sim.px4 import start_simulated_px4
+from test_mavlink_flight import _connect, sim_of
+
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.link import AutopilotLink
 from insulator_rs.sim.px4 import SimulatedPx4
@@ -70,18 +70,6 @@ def _fly_a_little(vehicle: MavlinkVehicle, seconds: float) -> None:
         vehicle.advance(0.05)
 
 
-_SIMULATORS: dict[int, SimulatedPx4] = {}
-
-
-def _connect(**options: Any) -> MavlinkVehicle:
-    """A client of a freshly started simulated PX4 (``start_simulated_px4``); ``sim_of`` finds it."""
-    sim, client = start_simulated_px4(**options)
-    _SIMULATORS[id(client)] = sim
-    return client
-
-
-def sim_of(client: MavlinkVehicle) -> SimulatedPx4:
-    return _SIMULATORS[id(client)]
 
 
 @pytest.fixture
