@@ -6,6 +6,13 @@ Two formats are read:
   calibration sample): ``camera_matrix`` and ``distortion_coefficients`` as
   ``!!opencv-matrix`` nodes, ``image_width`` / ``image_height`` integers.
   Parsed with ``cv2.FileStorage`` itself, so whatever OpenCV writes, we read.
+* livox_camera_calib's / Autoware's camera-LiDAR OpenCV YAML: ``CameraMat``, ``DistCoeffs``
+  (or ``DistCoeff``), ``Camera.width`` / ``Camera.height`` (or ``ImageSize``), and the
+  LiDAR-to-camera extrinsic ``ExtrinsicMat`` (``p_c = T_c_l p_l``; Autoware's
+  ``CameraExtrinsicMat`` is the camera's pose in the LiDAR frame, inverted here).
+* Kalibr's ``camchain.yaml``: ``cam0`` with ``camera_model: pinhole``, ``intrinsics``
+  (fu, fv, pu, pv), ``distortion_model: radtan``, ``distortion_coeffs`` (k1, k2, r1, r2),
+  ``resolution`` and ``T_cam_imu``.
 * ROS ``sensor_msgs/CameraInfo`` YAML, either the message form (``width``,
   ``height``, ``distortion_model``, ``D``, ``K``; ROS 2's lowercase ``d``/``k``
   too) or the ``camera_calibration_parsers`` form (``image_width``,
@@ -14,8 +21,9 @@ Two formats are read:
 
 The camera model is OpenCV's pinhole with radial-tangential distortion
 (k1, k2, p1, p2, k3). A file whose lens model needs more than that (non-zero
-k4..k6 of the rational model, a thin-prism or tilt term, a skewed camera
-matrix) is refused rather than silently approximated. Every error is a
+k4..k6 of the rational model, a thin-prism or tilt term, a skew of 1e-3 fx or more, a
+fisheye model) is refused rather than silently approximated; a smaller skew (real
+calibrations carry ~0.1 px) is folded in with a warning. Every error is a
 :class:`insulator_rs.exceptions.ConfigError` whose message names the file and
 the field.
 """
@@ -23,6 +31,8 @@ the field.
 from __future__ import annotations
 
 import math
+import warnings
+from dataclasses import dataclass
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,9 +42,15 @@ import yaml
 
 from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import ConfigError
+from insulator_rs.poses import check_pose
 from insulator_rs.textfile import read_config_text
 
-__all__ = ["load_camera_model", "load_opencv_yaml", "load_ros_camera_info"]
+__all__ = ["Calibration", "load_calibration", "load_camera_model", "load_kalibr_camchain", "load_opencv_yaml",
+           "load_ros_camera_info"]
+
+# A skew below this fraction of fx is a calibration's numerical residue (~0.1 px), folded in
+# with a warning: the model has none (it moves a point by under 1 px across 1000 px of height).
+SKEW_FOLD_FRACTION = 1e-3
 
 # Distortion models of ROS camera_info whose first five coefficients are OpenCV's
 # (k1, k2, p1, p2, k3); "rational_polynomial" appends k4, k5, k6 (denominator terms).
@@ -47,18 +63,36 @@ _Dist = tuple[float, float, float, float, float]  # (k1, k2, p1, p2, k3)
 _MAX_MATRIX_SIDE = 14
 
 
+@dataclass(frozen=True)
+class Calibration:
+    """What a calibration file holds: the ``camera`` and, where the file has one, the
+    LiDAR-to-camera extrinsic ``T_c_l`` (4x4, ``p_c = T_c_l @ p_l``) or Kalibr's ``T_cam_imu``."""
+
+    camera: CameraModel
+    T_c_l: np.ndarray | None = None
+    T_cam_imu: np.ndarray | None = None
+
+
 def load_camera_model(path: str | Path) -> CameraModel:
-    """Load a camera model from an OpenCV FileStorage or a ROS camera_info YAML file.
+    """Load a camera model from any calibration file :func:`load_calibration` reads."""
+    return load_calibration(path).camera
+
+
+def load_calibration(path: str | Path) -> Calibration:
+    """Load a calibration file: OpenCV FileStorage (plain, or livox_camera_calib's / Autoware's
+    camera-LiDAR layout), Kalibr camchain or ROS camera_info (see the module docstring).
 
     OpenCV files are told by their ``%YAML:1.0`` header (older OpenCV), an
-    ``!!opencv-matrix`` node (OpenCV 4/5 write ``%YAML 1.2``) or an
-    ``<opencv_storage>`` XML root; anything else is read as ROS camera_info.
+    ``!!opencv-matrix`` node (OpenCV 4/5 write ``%YAML 1.2``) or an ``<opencv_storage>``
+    XML root; Kalibr's by a ``cam0`` with ``intrinsics``; anything else is ROS camera_info.
     """
     path = Path(path)
     text = _read_text(path)
     if text.lstrip().startswith("%YAML:") or "!!opencv-matrix" in text or "<opencv_storage>" in text:
-        return load_opencv_yaml(path)
-    return load_ros_camera_info(path)
+        return _load_opencv_calibration(path)
+    if "cam0:" in text and "intrinsics" in text:
+        return load_kalibr_camchain(path)
+    return Calibration(load_ros_camera_info(path))
 
 
 def load_opencv_yaml(
@@ -103,20 +137,84 @@ def load_opencv_yaml(
     )
 
 
+def _load_opencv_calibration(path: Path) -> Calibration:
+    """An OpenCV FileStorage file: the plain calibration layout, or the camera-LiDAR one."""
+    import cv2
+
+    storage = _open_storage(path)
+    try:
+        if storage.getNode("CameraMat").empty():
+            return Calibration(load_opencv_yaml(path))
+        k = _opencv_matrix(storage, path, "CameraMat")
+        d_field = "DistCoeffs" if not storage.getNode("DistCoeffs").empty() else "DistCoeff"
+        dist = _opencv_matrix(storage, path, d_field)
+        if not storage.getNode("Camera.width").empty():
+            width, height = _opencv_int(storage, path, "Camera.width"), _opencv_int(storage, path, "Camera.height")
+        else:
+            size = storage.getNode("ImageSize")
+            if size.empty() or size.size() != 2:
+                raise ConfigError(f"{path}: missing field 'Camera.width'/'Camera.height' (or 'ImageSize')")
+            width, height = int(size.at(0).real()), int(size.at(1).real())
+        e_field = next((f for f in ("ExtrinsicMat", "CameraExtrinsicMat") if not storage.getNode(f).empty()), None)
+        T_c_l = None
+        if e_field is not None:
+            T = _opencv_matrix(storage, path, e_field)
+            if T.shape != (4, 4):
+                raise ConfigError(f"{path}: field '{e_field}' must be 4x4, got shape {T.shape}")
+            T_c_l = _rigid(path, e_field, T)
+            if e_field == "CameraExtrinsicMat":  # Autoware writes the camera's pose in the LiDAR frame
+                T_c_l = np.linalg.inv(T_c_l)
+    except cv2.error as exc:
+        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file ({exc})") from exc
+    finally:
+        storage.release()
+    camera = _camera_from_arrays(path, k, "CameraMat", _opencv_distortion(path, dist), width, height)
+    return Calibration(camera, T_c_l=T_c_l)
+
+
+def load_kalibr_camchain(path: str | Path, camera: str = "cam0") -> Calibration:
+    """Read ``camera`` (default ``cam0``) of a Kalibr ``camchain.yaml`` (pinhole, radtan)."""
+    path = Path(path)
+    doc = _yaml_mapping(path)
+    cam = doc.get(camera)
+    if not isinstance(cam, Mapping):
+        raise ConfigError(f"{path}: missing field '{camera}' (a Kalibr camera chain's camera)")
+    model = cam.get("camera_model", "pinhole")
+    if model != "pinhole":
+        raise ConfigError(f"{path}: field '{camera}.camera_model' is {model!r}; supported: 'pinhole'")
+    dmodel = cam.get("distortion_model", "radtan")
+    if dmodel not in ("radtan", "none"):
+        raise ConfigError(f"{path}: field '{camera}.distortion_model' is {dmodel!r}; supported: 'radtan' "
+                          f"(OpenCV's radial-tangential)")
+    intr = _float_array(path, f"{camera}.intrinsics", cam.get("intrinsics")).ravel()
+    if intr.size != 4:
+        raise ConfigError(f"{path}: field '{camera}.intrinsics' must hold fu, fv, pu, pv, got {intr.size} numbers")
+    coeffs = _float_array(path, f"{camera}.distortion_coeffs", cam.get("distortion_coeffs", [])).ravel()
+    if dmodel == "radtan" and coeffs.size != 4:
+        raise ConfigError(f"{path}: field '{camera}.distortion_coeffs' must hold k1, k2, r1, r2, got {coeffs.size}")
+    res = _float_array(path, f"{camera}.resolution", cam.get("resolution")).ravel()
+    if res.size != 2 or not np.all(res == np.round(res)) or np.any(res <= 0):
+        raise ConfigError(f"{path}: field '{camera}.resolution' must be [width, height] in pixels")
+    k = np.array([[intr[0], 0.0, intr[2]], [0.0, intr[1], intr[3]], [0.0, 0.0, 1.0]])
+    dist = _five_coefficients(path, f"{camera}.distortion_coeffs", coeffs)
+    cam_model = _camera_from_arrays(path, k, f"{camera}.intrinsics", dist, int(res[0]), int(res[1]))
+    T_cam_imu = None
+    if "T_cam_imu" in cam:
+        rows = cam["T_cam_imu"]
+        if not isinstance(rows, Sequence) or isinstance(rows, (str, bytes)) or len(rows) != 4:
+            raise ConfigError(f"{path}: field '{camera}.T_cam_imu' must be 4 rows of 4 numbers")
+        T = np.stack([_float_array(path, f"{camera}.T_cam_imu[{i}]", r) for i, r in enumerate(rows)]) \
+            if all(isinstance(r, Sequence) and len(r) == 4 for r in rows) else np.zeros((0,))
+        if T.shape != (4, 4):
+            raise ConfigError(f"{path}: field '{camera}.T_cam_imu' must be 4x4, got shape {T.shape}")
+        T_cam_imu = _rigid(path, f"{camera}.T_cam_imu", T)
+    return Calibration(cam_model, T_cam_imu=T_cam_imu)
+
+
 def load_ros_camera_info(path: str | Path) -> CameraModel:
     """Read a ROS camera_info YAML file (message or camera_calibration_parsers form)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(_read_text(path))
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-    except (ValueError, OverflowError, RecursionError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        # PyYAML's constructors: a date such as 2001-02-30, a too deeply nested document.
-        raise ConfigError(f"{path}: not valid YAML ({type(exc).__name__}: {exc})") from exc
-    if not isinstance(doc, Mapping):
-        raise ConfigError(f"{path}: expected a YAML mapping at the top level")
+    doc = _yaml_mapping(path)
 
     if "camera_matrix" in doc:  # camera_calibration_parsers layout
         k_field, d_field, w_field, h_field = (
@@ -161,6 +259,22 @@ def load_ros_camera_info(path: str | Path) -> CameraModel:
 
 
 # --- helpers ------------------------------------------------------------------------
+
+
+def _yaml_mapping(path: Path) -> Mapping[str, Any]:
+    """The YAML document at ``path``, a mapping; every failure a ConfigError naming the file."""
+    try:
+        doc = yaml.safe_load(_read_text(path))
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    except (ValueError, OverflowError, RecursionError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        # PyYAML's constructors: a date such as 2001-02-30, a too deeply nested document.
+        raise ConfigError(f"{path}: not valid YAML ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"{path}: expected a YAML mapping at the top level")
+    return doc
 
 
 def _read_text(path: Path) -> str:
@@ -246,7 +360,13 @@ def _camera_from_arrays(
     if not np.all(np.isfinite(k)):
         raise ConfigError(f"{path}: field '{k_field}' holds a non-finite number")
     if k[0, 1] != 0.0:
-        raise ConfigError(f"{path}: field '{k_field}' has a non-zero skew; not supported")
+        if not abs(k[0, 1]) < SKEW_FOLD_FRACTION * abs(k[0, 0]):
+            raise ConfigError(f"{path}: field '{k_field}' has a non-zero skew of {k[0, 1]:g} px (>= {SKEW_FOLD_FRACTION:g} fx); "
+                              f"the camera model has none")
+        warnings.warn(f"{path}: field '{k_field}': skew {k[0, 1]:g} px (< {SKEW_FOLD_FRACTION:g} fx) folded in "
+                      f"(the camera model has none)", stacklevel=3)
+        k = k.copy()
+        k[0, 1] = 0.0
     if k[1, 0] != 0.0 or not np.array_equal(k[2], [0.0, 0.0, 1.0]):
         raise ConfigError(
             f"{path}: field '{k_field}' is not a camera matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]"
@@ -302,3 +422,25 @@ def _int_field(path: Path, doc: Mapping[str, Any], field: str) -> int:
     if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
         raise ConfigError(f"{path}: field '{field}' must be an integer, got {value!r}")
     return int(value)
+
+
+def _rigid(path: Path, field: str, T: np.ndarray) -> np.ndarray:
+    """``T`` checked as a rigid transform (rotation and translation), named on error."""
+    try:
+        return check_pose(f"{path}: field '{field}'", T)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+
+
+def _open_storage(path: Path) -> Any:
+    import cv2
+
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a directory, not a file")
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:  # OpenCV raises SystemError on parse failures
+        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file ({exc})") from exc
+    if not storage.isOpened():
+        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file")
+    return storage

@@ -5,8 +5,10 @@ it with ``[vehicle] rig = "<file>"`` (a path relative to the mission file, or th
 shipped rig such as ``"simulator"``). The form (see ``rigs/simulator.toml``)::
 
     [camera]
-    calibration = "camera.yaml"   # OpenCV FileStorage or ROS camera_info YAML, relative to this file
-    T_b_c = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_c @ p_c
+    calibration = "camera.yaml"   # OpenCV FileStorage, livox_camera_calib / Autoware camera-LiDAR,
+                                  # Kalibr camchain or ROS camera_info YAML, relative to this file
+    T_b_c = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_c @ p_c; may be left out when
+                                                  # the calibration holds the LiDAR-camera extrinsic
 
     [lidar]
     T_b_l = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_l @ p_l
@@ -28,7 +30,7 @@ import numpy as np
 
 from insulator_rs._core import CameraModel
 from insulator_rs._toml import tomllib
-from insulator_rs.calibration import load_camera_model
+from insulator_rs.calibration import load_calibration
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.poses import check_pose
 from insulator_rs.textfile import read_config_text
@@ -132,11 +134,15 @@ def load_rig(path: str | Path) -> SensorRig:
     if not cal_path.is_absolute():
         cal_path = p.resolve().parent / cal_path
     try:
-        camera = load_camera_model(cal_path)
+        cal = load_calibration(cal_path)
     except (ConfigError, OSError) as exc:  # a bad calibration, or none at that path
         raise ConfigError(f"{source}: camera.calibration: {exc}") from exc
-    return SensorRig(source, camera, _matrix(source, cam_t, "camera", "T_b_c"),
-                     _matrix(source, lidar_t, "lidar", "T_b_l"), _lens(source, cam_t))
+    T_b_l = _matrix(source, lidar_t, "lidar", "T_b_l")
+    if "T_b_c" in cam_t or cal.T_c_l is None:
+        T_b_c = _matrix(source, cam_t, "camera", "T_b_c")
+    else:  # the camera-LiDAR calibration's extrinsic places the camera on the body through the LiDAR
+        T_b_c = T_b_l @ np.linalg.inv(cal.T_c_l)
+    return SensorRig(source, cal.camera, T_b_c, T_b_l, _lens(source, cam_t))
 
 
 def _lens(source: str, cam_t: dict[str, Any]) -> CameraLens:
