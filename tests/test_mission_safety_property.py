@@ -8,6 +8,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from insulator_rs.exceptions import PlanningError
 from insulator_rs.planning.exploration import crossing_route, exploration_path
 from insulator_rs.geodesy import line_frame
 from insulator_rs.planning.minsnap import plan_min_snap_safe
@@ -16,6 +17,7 @@ from insulator_rs.planning.safety import safety_volumes
 from insulator_rs.planning.waypoints import inspection_waypoints
 
 DT = 0.02
+GRAZING = 0.1  # m: a route passing this close to a safety box grazes it
 
 
 @st.composite
@@ -77,5 +79,13 @@ def test_planned_trajectories_stay_out_of_the_safety_volumes(tower):
         route = np.array([a.position, *crossing_route(line, vol, a.position, b.position, 3.0),
                           b.position])
         assert vol.polyline_clear(route)
-        _, pos, _, _ = plan_pmm_safe(route, vm, am, vol, dt=DT).sample(DT)
+        try:
+            traj = plan_pmm_safe(route, vm, am, vol, dt=DT)
+        except PlanningError:
+            # Refused, never flown unsafe. Known limit (found by the derandomized CI profile): a
+            # direct route that clears a box corner by centimetres (3 cm in the case found) has
+            # no PMM curve inside that gap. Only such a grazing route may be refused.
+            assert not vol.polyline_clear(route, inflate=GRAZING), "a route with room was refused"
+            continue
+        _, pos, _, _ = traj.sample(DT)
         assert samples_clear(vol, pos, vmax_norm)

@@ -89,6 +89,15 @@ def _around(samples: deque[Any], t: float) -> list[Any]:
     return [samples[i], samples[i + 1]]
 
 
+def _between(ta: float, tb: float, pa: np.ndarray, pb: np.ndarray, Ra: np.ndarray, Rb: np.ndarray,
+             t: float) -> np.ndarray:
+    """The pose at ``t`` between two samples, as poses.py interpolates every pose."""
+    Ta, Tb = np.eye(4), np.eye(4)
+    Ta[:3, :3], Ta[:3, 3] = Ra, pa
+    Tb[:3, :3], Tb[:3, 3] = Rb, pb
+    return interpolate_poses(np.array([ta, tb]), np.stack([Ta, Tb]), np.array([t]))[0]
+
+
 class Px4PoseFeed:
     """PX4's pose estimate in W from its GCS link (see the module docstring).
 
@@ -432,12 +441,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
-
-
-def _between(ta: float, tb: float, pa: np.ndarray, pb: np.ndarray, Ra: np.ndarray, Rb: np.ndarray,
-             t: float) -> np.ndarray:
-    """The pose at ``t`` between two samples, as poses.py interpolates every pose."""
-    Ta, Tb = np.eye(4), np.eye(4)
-    Ta[:3, :3], Ta[:3, 3] = Ra, pa
-    Tb[:3, :3], Tb[:3, 3] = Rb, pb
-    return interpolate_poses(np.array([ta, tb]), np.stack([Ta, Tb]), np.array([t]))[0]
