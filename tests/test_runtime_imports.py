@@ -54,6 +54,11 @@ OPTIONAL = {
 }
 
 
+# The standard library of every supported Python: tomllib is stdlib from 3.11 on (_toml.py
+# imports it there, and the declared tomli backport below).
+STDLIB = frozenset(sys.stdlib_module_names) | {"tomllib"}
+
+
 def _norm(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
@@ -112,7 +117,7 @@ def third_party_imports(path: Path) -> dict[str, int]:
             names = [node.module]
         for name in names:
             top = name.split(".")[0]
-            if top not in sys.stdlib_module_names and top not in ("insulator_rs", "__future__"):
+            if top not in STDLIB and top not in ("insulator_rs", "__future__"):
                 found.setdefault(top, node.lineno)  # type: ignore[attr-defined]
         for child in ast.iter_child_nodes(node):
             visit(child)
