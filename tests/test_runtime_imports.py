@@ -70,10 +70,8 @@ def _requirement_name(req: str) -> str:
 
 
 def _pyproject() -> dict:
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:
-        import tomli as tomllib
+    from insulator_rs._toml import tomllib
+
     return tomllib.loads((ROOT / "pyproject.toml").read_text())
 
 
