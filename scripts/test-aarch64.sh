@@ -106,7 +106,18 @@ bind /sys /sys
 bind "$REPO" /src/repo
 if [ -d "$REPO/../shared" ]; then bind "$(cd "$REPO/../shared" && pwd)" /src/shared; fi
 cp -L /etc/resolv.conf "$ROOTFS/etc/resolv.conf" 2>/dev/null || true
-in_root() { chroot "$ROOTFS" /usr/bin/env -i HOME=/root PATH=/usr/local/bin:/usr/bin:/bin LANG=C.UTF-8 "$@"; }
+# The host's trust store (it may hold a proxy's CA that pip must accept) and pip's
+# index settings travel into the root; nothing else of the host's environment does.
+root_env=(HOME=/root PATH=/usr/local/bin:/usr/bin:/bin LANG=C.UTF-8 PIP_DISABLE_PIP_VERSION_CHECK=1)
+if [ -s /etc/ssl/certs/ca-certificates.crt ]; then
+  cp -L /etc/ssl/certs/ca-certificates.crt "$ROOTFS/etc/ssl/host-ca-bundle.crt"
+  root_env+=(PIP_CERT=/etc/ssl/host-ca-bundle.crt SSL_CERT_FILE=/etc/ssl/host-ca-bundle.crt)
+fi
+for var in PIP_INDEX_URL PIP_EXTRA_INDEX_URL PIP_TRUSTED_HOST PIP_DEFAULT_TIMEOUT http_proxy https_proxy no_proxy \
+           HTTP_PROXY HTTPS_PROXY NO_PROXY; do
+  if [ -n "${!var:-}" ]; then root_env+=("$var=${!var}"); fi
+done
+in_root() { chroot "$ROOTFS" /usr/bin/env -i "${root_env[@]}" "$@"; }
 step "emulated: $(in_root uname -m), $(in_root python3 --version)"
 
 # ---- 4. the wheel alone, then the tests -----------------------------------------------
@@ -118,6 +129,8 @@ in_root /opt/venv/bin/python -m pip install -q --prefer-binary -c /src/repo/scri
   "/src/repo/$wheel"
 in_root /opt/venv/bin/python -m pip check
 in_root /opt/venv/bin/python -c "import onnxruntime as o, cv2, numpy; print('onnxruntime', o.__version__, o.get_available_providers(), 'cv2', cv2.__version__, 'numpy', numpy.__version__)"
+step "every onboard module imports from the bare venv"
+in_root sh -c 'cd /src/repo && /opt/venv/bin/python tests/test_runtime_imports.py'
 if [ "${AARCH64_SKIP_INSPECT:-0}" != 1 ]; then
   step "the main job from the bare venv: insulator-rs inspect --scene tower_b"
   in_root sh -c 'cd /tmp && rm -rf inspect_tower_b && /opt/venv/bin/insulator-rs inspect --scene tower_b --out /tmp/inspect_tower_b' \
@@ -128,7 +141,7 @@ fi
 
 step "test packages"
 in_root /opt/venv/bin/python -m pip install -q --prefer-binary -c /src/repo/scripts/aarch64-constraints.txt \
-  "pytest>=8" "hypothesis>=6.100" "pytest-benchmark>=4" "scikit-learn>=1.4" "onnx>=1.16"
+  "pytest>=8" "hypothesis>=6.100" "pytest-benchmark>=4" "scikit-learn>=1.4" "onnx>=1.16" "pycocotools>=2.0.7"
 
 # The test files that exercise what runs on the Jetson. Left out: the training side
 # (test_detection_train.py and test_detection_warm_start.py need Ultralytics and PyTorch;
