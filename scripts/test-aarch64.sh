@@ -95,6 +95,7 @@ cleanup() {
   for ((i = ${#mounts[@]} - 1; i >= 0; i--)); do umount -l "${mounts[$i]}" 2>/dev/null || true; done
 }
 trap cleanup EXIT
+trap 'exit 143' TERM INT  # so that the mounts are undone when CI stops this script
 bind() {  # bind SRC DEST (DEST inside the root)
   mkdir -p "$ROOTFS$2"
   mount --bind "$1" "$ROOTFS$2"
