@@ -9,8 +9,10 @@ References:
   everywhere (x86-64 and, under scripts/test-aarch64.sh, aarch64).
 * ``cv2.resize(INTER_LINEAR)``: on x86-64 (OpenCV's wheels run that generic path;
   Ultralytics' letterbox, hence the detector's fixture, used it) exactly equal.
-  Elsewhere OpenCV takes another path (its aarch64 wheels: +-1 in about a fifth
-  of the values), so there the test asserts the +-1 bound only and reports it.
+  Elsewhere OpenCV takes another path with its own rounding; measured for
+  opencv-python-headless 5.0.0 on aarch64 (qemu): up to 2 on uniformly random images
+  (25 % of the values differ), up to 1 on the committed photos (17-22 %). There the
+  test asserts that bound (CV2_OTHER_CPU_MAX_DIFF) and reports the fraction.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from insulator_rs._core import resize_linear
 from insulator_rs.detection.letterbox import PAD_VALUE, letterbox
 
 X86 = platform.machine().lower() in ("x86_64", "amd64")
+CV2_OTHER_CPU_MAX_DIFF = 2  # cv2.resize off x86-64 vs this kernel (measured, see above)
 
 
 def _taps(src: int, dst: int) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +71,7 @@ def _check_against_cv2(image: np.ndarray, new_w: int, new_h: int) -> float:
     if X86:
         np.testing.assert_array_equal(ours, ref, err_msg=f"{image.shape} -> {new_w}x{new_h}")
     else:
-        assert diff.max() <= 1, f"{image.shape} -> {new_w}x{new_h}: cv2 differs by {diff.max()}"
+        assert diff.max() <= CV2_OTHER_CPU_MAX_DIFF, f"{image.shape} -> {new_w}x{new_h}: cv2 differs by {diff.max()}"
     return float((diff != 0).mean())
 
 
