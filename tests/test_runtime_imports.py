@@ -1,7 +1,7 @@
 """Every import of the package is declared in pyproject.toml, where a user will find it.
 
 A plain ``pip install insulator_rs`` (no extras), as on a Jetson, must run the main job:
-CI's mission/pmm.py once imported scipy, declared only by the test extra, and nobody
+CI's pmm.py (now planning/pmm.py) once imported scipy, declared only by the test extra, and nobody
 noticed because every CI venv held ``[test]``. Two checks:
 
 * ``test_every_import_is_declared`` (static, any venv): every import statement in
@@ -43,9 +43,11 @@ DISTRIBUTION = {
 # Module (relative to the package, "/"-separated prefix) -> the extra that provides its
 # third-party imports. Everything else is onboard and may use [project] dependencies only.
 OPTIONAL = {
-    "recording/": "bags",  # record / replay flights, fleet re-processing (Ray), Rerun logs
+    "recording/": "bags",  # record flights, read bags (rosbags, mcap)
+    "replay/": "bags",  # replay flights, fleet re-processing (Ray), progress bars, Rerun logs
+    "app/replay_command.py": "bags",
     "detection/train.py": "train",  # the offline training tools (Ultralytics + PyTorch)
-    "detection/train_command.py": "train",
+    "app/train_command.py": "train",
     "detection/warm_start.py": "train",
     "detection/uav_augment.py": "train",
     # `insulator-rs detect eval`: COCO scores on a labelled split, a workstation tool;
@@ -139,6 +141,8 @@ def onboard_modules() -> list[str]:
     """Dotted names of the package's modules outside ``OPTIONAL``."""
     out = []
     for path in sorted(PACKAGE.rglob("*.py")):
+        if path.name == "__main__.py":  # a package's command line (python -m): running it is not importing it
+            continue
         if _extra_of(_relative(path)) is None:
             parts = ("insulator_rs", *path.relative_to(PACKAGE).with_suffix("").parts)
             out.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
@@ -169,7 +173,7 @@ def test_optional_table_names_real_files_and_extras() -> None:
 
 def test_the_scan_sees_function_level_imports() -> None:
     """pmm's scipy and geoexport's simplekml are the kind of import this must catch."""
-    assert "scipy" in third_party_imports(PACKAGE / "mission" / "pmm.py")
+    assert "scipy" in third_party_imports(PACKAGE / "planning" / "pmm.py")
     assert "simplekml" in third_party_imports(PACKAGE / "report" / "geoexport.py")
 
 
