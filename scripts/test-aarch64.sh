@@ -12,8 +12,8 @@
 #     runs (ignored by git; delete it to start over). Its Python is 3.11: Debian 12 has
 #     no 3.10 for arm64, so the abi3 wheel's 3.10 floor is tested on x86-64 only (.ci/run).
 #  4. In that root, under qemu-aarch64: a fresh venv holding the wheel alone (its declared
-#     dependencies, no extras) runs the main job, `insulator-rs inspect --scene tower_b`,
-#     to the end; then pytest and the test-only packages are added and the core, raycast,
+#     dependencies, no extras) imports every onboard module (and, with AARCH64_INSPECT=1,
+#     runs the main job); then pytest and the test-only packages are added and the core, raycast,
 #     Livox, perception and detection test files run. pytest's summary line is printed.
 #
 # onnxruntime is held below 1.28 in the emulated root (scripts/aarch64-constraints.txt):
@@ -22,7 +22,8 @@
 # onnxruntime-gpu from NVIDIA's index (README, "Install on a Jetson").
 #
 # Environment: AARCH64_CACHE (default .aarch64), DEBIAN_MIRROR (default: deb.debian.org),
-# AARCH64_SKIP_INSPECT=1 skips the main-job run (the tests still run).
+# AARCH64_INSPECT=1 also runs the main job under qemu (see below), AARCH64_QEMU_CPU
+# (default neoverse-n1) the emulated CPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 REPO=$PWD
@@ -109,7 +110,11 @@ if [ -d "$REPO/../shared" ]; then bind "$(cd "$REPO/../shared" && pwd)" /src/sha
 cp -L /etc/resolv.conf "$ROOTFS/etc/resolv.conf" 2>/dev/null || true
 # The host's trust store (it may hold a proxy's CA that pip must accept) and pip's
 # index settings travel into the root; nothing else of the host's environment does.
-root_env=(HOME=/root PATH=/usr/local/bin:/usr/bin:/bin LANG=C.UTF-8 PIP_DISABLE_PIP_VERSION_CHECK=1)
+# QEMU_CPU: qemu-user's default "max" CPU advertises SVE, and onnxruntime's SVE kernels run
+# ~10x slower under emulation (one insulator-real frame: 110-180 s, against 16 s); neoverse-n1
+# (Armv8.2-A with dot product, no SVE) is also the nearest model to the Orin's Cortex-A78AE.
+root_env=(HOME=/root PATH=/usr/local/bin:/usr/bin:/bin LANG=C.UTF-8 PIP_DISABLE_PIP_VERSION_CHECK=1
+          "QEMU_CPU=${AARCH64_QEMU_CPU:-neoverse-n1}")
 if [ -s /etc/ssl/certs/ca-certificates.crt ]; then
   cp -L /etc/ssl/certs/ca-certificates.crt "$ROOTFS/etc/ssl/host-ca-bundle.crt"
   root_env+=(PIP_CERT=/etc/ssl/host-ca-bundle.crt SSL_CERT_FILE=/etc/ssl/host-ca-bundle.crt)
@@ -132,9 +137,13 @@ in_root /opt/venv/bin/python -m pip check
 in_root /opt/venv/bin/python -c "import onnxruntime as o, cv2, numpy; print('onnxruntime', o.__version__, o.get_available_providers(), 'cv2', cv2.__version__, 'numpy', numpy.__version__)"
 step "every onboard module imports from the bare venv"
 in_root sh -c 'cd /src/repo && /opt/venv/bin/python tests/test_runtime_imports.py'
-if [ "${AARCH64_SKIP_INSPECT:-0}" != 1 ]; then
-  step "the main job from the bare venv: insulator-rs inspect --scene tower_b"
-  in_root sh -c 'cd /tmp && rm -rf inspect_tower_b && /opt/venv/bin/insulator-rs inspect --scene tower_b --out /tmp/inspect_tower_b' \
+if [ "${AARCH64_INSPECT:-0}" = 1 ]; then
+  # Opt-in: under emulation one network frame costs ~16 s and the flight detects every
+  # second (~670 frames), so the flight runs with the simulator's ground-truth stand-in
+  # detector; even so it is not part of the default run (not yet measured under qemu).
+  # .ci/run runs the full main job from the wheel alone on x86-64 Python 3.10.
+  step "the main job from the bare venv: insulator-rs inspect --scene tower_b --detector standin"
+  in_root sh -c 'cd /tmp && rm -rf inspect_tower_b && /opt/venv/bin/insulator-rs inspect --scene tower_b --detector standin --quiet --out /tmp/inspect_tower_b' \
     >"$CACHE/inspect.log" 2>&1 || { tail -30 "$CACHE/inspect.log" >&2; echo "test-aarch64: inspect failed" >&2; exit 1; }
   tail -3 "$CACHE/inspect.log"
   in_root test -s /tmp/inspect_tower_b/summary.json

@@ -11,8 +11,9 @@ References:
   Ultralytics' letterbox, hence the detector's fixture, used it) exactly equal.
   Elsewhere OpenCV takes another path with its own rounding; measured for
   opencv-python-headless 5.0.0 on aarch64 (qemu): up to 2 on uniformly random images
-  (25 % of the values differ), up to 1 on the committed photos (17-22 %). There the
-  test asserts that bound (CV2_OTHER_CPU_MAX_DIFF) and reports the fraction.
+  (25 % of the values differ), up to 1 on the committed photos (17-22 %), and 3 for
+  an extreme size (3x97 -> 10x42). There the test asserts that bound
+  (CV2_OTHER_CPU_MAX_DIFF) on the detector's sizes only, and the formula everywhere.
 """
 
 from __future__ import annotations
@@ -64,13 +65,16 @@ def reference_resize(image: np.ndarray, new_w: int, new_h: int) -> np.ndarray:
     return out if image.ndim == 3 else out[:, :, 0]
 
 
-def _check_against_cv2(image: np.ndarray, new_w: int, new_h: int) -> float:
+def _check_against_cv2(image: np.ndarray, new_w: int, new_h: int, *, bound_elsewhere: bool = True) -> float:
+    """Exact on x86-64; elsewhere within CV2_OTHER_CPU_MAX_DIFF where ``bound_elsewhere``
+    (the detector's sizes: measured there; for arbitrary sizes OpenCV's aarch64 path has
+    been seen 3 off, e.g. 3x97 -> 10x42, so only the formula is asserted off x86-64)."""
     ours = resize_linear(image, new_w, new_h)
     ref = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_LINEAR).reshape(ours.shape)
     diff = np.abs(ours.astype(np.int16) - ref.astype(np.int16))
     if X86:
         np.testing.assert_array_equal(ours, ref, err_msg=f"{image.shape} -> {new_w}x{new_h}")
-    else:
+    elif bound_elsewhere:
         assert diff.max() <= CV2_OTHER_CPU_MAX_DIFF, f"{image.shape} -> {new_w}x{new_h}: cv2 differs by {diff.max()}"
     return float((diff != 0).mean())
 
@@ -106,7 +110,7 @@ def test_matches_the_formula_and_cv2_on_any_size(h: int, w: int, new_h: int, new
     assert ours.shape == ((new_h, new_w) if channels == 0 else (new_h, new_w, channels))
     assert ours.dtype == np.uint8 and ours.flags.c_contiguous
     np.testing.assert_array_equal(ours, reference_resize(image, new_w, new_h))
-    _check_against_cv2(image, new_w, new_h)
+    _check_against_cv2(image, new_w, new_h, bound_elsewhere=False)
 
 
 def test_strided_and_read_only_inputs() -> None:
