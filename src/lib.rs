@@ -18,6 +18,7 @@ mod projection;
 mod pyutils;
 mod raycast;
 mod ransac;
+mod resize;
 mod transform;
 
 #[pymodule]
@@ -35,5 +36,6 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     bounded::register(py, m)?;
     raycast::register(m)?;
     livox::register(m)?;
+    resize::register(m)?;
     Ok(())
 }

@@ -48,6 +48,7 @@ __all__ = [
     "points_in_boxes",
     "project_points",
     "ransac_line",
+    "resize_linear",
 ]
 
 NEAR_LIMIT: Final[float]
@@ -159,6 +160,7 @@ def ransac_line(
     seed: int = ...,
 ) -> LineFit: ...
 def pca(points: _Points) -> Pca: ...
+def resize_linear(image: NDArray[np.uint8], width: int, height: int) -> NDArray[np.uint8]: ...
 def localize(
     points_b: _Points,
     method: _LocalizeMethod = "dbscan+ransac",

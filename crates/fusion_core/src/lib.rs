@@ -12,6 +12,7 @@ pub mod dbscan;
 pub mod error;
 pub mod points;
 pub mod projection;
+pub mod resize;
 pub mod transform;
 
 pub use bounded::{localize_bounded, BoundedLocalization, BoundedParams, BoxView};
@@ -22,6 +23,7 @@ pub use deskew::{deskew, deskew_points_in_boxes, PoseStream};
 pub use error::{FusionError, Result};
 pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
 pub use projection::{project_points, Projection};
+pub use resize::resize_linear;
 pub use transform::{chain, rigid_from_matrix};
 pub mod localize;
 pub mod pca;

@@ -25,6 +25,11 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("report", "insulator_rs.app.report_command"),
 )
 
+# Subcommands of an optional part -> the extra that provides their dependencies. Without
+# it (a plain ``pip install``, as on a Jetson) the subcommand is still listed, and running
+# it says what to install instead of every command failing on the missing import.
+EXTRAS: dict[str, str] = {"replay": "bags"}
+
 
 def import_optional(module_name: str) -> ModuleType | None:
     """Import a subcommand module; None only if that module itself is absent (an
@@ -43,11 +48,30 @@ def build_parser() -> argparse.ArgumentParser:
         description="Insulator detection, localization and single-flight inspection for UAVs.",
     )
     subparsers = parser.add_subparsers(dest="command", required=True)
-    for _name, module_name in SUBCOMMANDS:
-        module = import_optional(module_name)
+    for name, module_name in SUBCOMMANDS:
+        try:
+            module = import_optional(module_name)
+        except ModuleNotFoundError as exc:
+            if name not in EXTRAS:
+                raise
+            _register_missing_extra(subparsers, name, EXTRAS[name], exc)
+            continue
         if module is not None:
             module.register(subparsers)
     return parser
+
+
+def _register_missing_extra(subparsers: argparse._SubParsersAction, name: str, extra: str,  # type: ignore[type-arg]
+                            exc: ModuleNotFoundError) -> None:
+    message = f"error: {name} needs the {extra} extra (pip install 'insulator_rs[{extra}]'): {exc}"
+    parser = subparsers.add_parser(name, help=f"(not installed: needs the {extra} extra)", add_help=False)
+    parser.add_argument("rest", nargs=argparse.REMAINDER)
+
+    def run(_args: argparse.Namespace) -> int:
+        print(message, file=sys.stderr)
+        return 2
+
+    parser.set_defaults(func=run)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

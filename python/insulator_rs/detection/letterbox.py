@@ -13,6 +13,11 @@ Boxes are mapped back with the letterbox actually applied; Ultralytics'
 ``scale_boxes`` re-derives the gain from the padded input, which in rect mode
 differs (by up to ~0.3 %) for rare sizes such as 251x501 into 320.
 
+The resize is ``insulator_rs._core.resize_linear`` (Rust): the bytes of OpenCV's
+``cv2.resize(INTER_LINEAR)`` on x86-64, in integer arithmetic, so the network
+sees the same input on the x86 workstation and on the Jetson's aarch64 CPU
+(OpenCV's own aarch64 build differs by +-1 in about a fifth of the values).
+
 All coordinates are pixels, x right and y down, origin at the top-left corner
 of the top-left pixel.
 """
@@ -23,6 +28,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from insulator_rs._core import resize_linear
 
 PAD_VALUE = 114
 
@@ -112,7 +119,7 @@ def letterbox(
     """Letterbox an (H, W, 3) uint8 image into ``input_hw``; returns (padded image, geometry)."""
     geo = letterbox_geometry(image.shape[:2], input_hw, auto=auto, stride=stride)
     if (image.shape[1], image.shape[0]) != geo.resized_wh:
-        image = cv2.resize(image, geo.resized_wh, interpolation=cv2.INTER_LINEAR)
+        image = resize_linear(image, *geo.resized_wh)
     padded = cv2.copyMakeBorder(
         image, geo.pad_top, geo.pad_bottom, geo.pad_left, geo.pad_right,
         cv2.BORDER_CONSTANT, value=(PAD_VALUE, PAD_VALUE, PAD_VALUE),
