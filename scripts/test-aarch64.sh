@@ -157,7 +157,7 @@ in_root /opt/venv/bin/python -m pip install -q --prefer-binary -c /src/repo/scri
 # (test_detection_train.py and test_detection_warm_start.py need Ultralytics and PyTorch;
 # training happens on the workstation), which the x86-64 suites run.
 tests=(tests/test_core_*.py tests/test_raycast.py tests/test_livox_protocol.py tests/test_livox_driver.py
-       tests/test_mission_perception.py tests/test_runtime_imports.py)
+       tests/test_mission_perception.py tests/test_perception_pairing.py tests/test_runtime_imports.py)
 for f in tests/test_detection_*.py; do
   case "$f" in tests/test_detection_train.py | tests/test_detection_warm_start.py) ;; *) tests+=("$f") ;; esac
 done
