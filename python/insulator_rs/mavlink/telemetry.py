@@ -112,8 +112,6 @@ class TelemetryStore:
             battery_fraction=self.battery,
             healthy=fault is None,
             fault=fault,
-            attitude=(None if attitude is None
-                      else attitude_ned_frd_to_enu_flu(attitude.roll, attitude.pitch, attitude.yaw)),
         )
 
     def snapshot(self, local_origin_w: np.ndarray, fault: str | None, link: dict[str, int]) -> Telemetry:

@@ -47,9 +47,6 @@ class VehicleState:
     ``position``/``velocity`` are (3,) float64 in W (ENU, m and m/s); ``yaw`` is
     the heading of the body x axis from W's x (east) axis, counter-clockwise, rad.
     ``time`` is the vehicle clock in seconds (simulated time in the simulator).
-    ``attitude``: R_w_b (3x3, body FLU -> W), the whole estimated attitude where the vehicle
-    reports one (PX4's ATTITUDE: a multirotor leans atan(a/g) when it brakes and into the
-    wind); None: a level body at ``yaw`` (a vehicle model that does not tilt).
     """
 
     time: float
@@ -62,15 +59,12 @@ class VehicleState:
     battery_fraction: float = 1.0
     healthy: bool = True
     fault: str | None = field(default=None)
-    attitude: np.ndarray | None = field(default=None)
 
     @property
     def T_w_b(self) -> np.ndarray:
-        """The body pose in W (4x4): the reported attitude, or a level body at ``yaw``."""
-        T = pose_from_yaw(self.position, self.yaw)
-        if self.attitude is not None:
-            T[:3, :3] = self.attitude
-        return T
+        """The body pose in W (4x4) as the port reports it: a level body at ``yaw`` (the
+        airframe's roll and pitch are not in the port yet: the airframe issue)."""
+        return pose_from_yaw(self.position, self.yaw)
 
 
 @runtime_checkable

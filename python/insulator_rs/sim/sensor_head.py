@@ -21,9 +21,9 @@ read real sensors, and it reads nothing of the client:
   published (the render time is predicted), JPEG-encoded and served as an MJPEG stream
   (``multipart/x-mixed-replace``, what IP cameras serve and OpenCV's FFmpeg backend reads).
 
-``--attitude full`` (default) renders with PX4's roll, pitch and heading: what rigidly mounted
-sensors see, and what the flight loop's pose model has (``VehicleState.attitude``, from the
-same ATTITUDE stream); ``yaw`` renders the body level at PX4's heading (the old pose model).
+``--attitude yaw`` (default) renders with the body level at PX4's heading, as the flight
+loop's pose model has it (position and yaw); ``full`` adds PX4's roll and pitch (what a
+rigidly mounted sensor would see: the loop does not yet correct for tilt).
 
 Not part of the onboard package's dependency graph: nothing onboard imports this.
 """
@@ -397,8 +397,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=3.0, help="camera frames per second")
     parser.add_argument("--clock-offset", type=float, default=1234.5, help="LiDAR clock offset (s)")
     parser.add_argument("--clock-drift-ppm", type=float, default=25.0, help="LiDAR clock drift (ppm)")
-    parser.add_argument("--attitude", choices=("yaw", "full"), default="full",
-                        help="render with PX4's roll, pitch and heading (default), or level at its heading")
+    parser.add_argument("--attitude", choices=("yaw", "full"), default="yaw",
+                        help="render level at PX4's heading (the loop's pose model) or with its roll and pitch")
     parser.add_argument("--log", type=Path, default=None, help="timing log (JSON lines) of every image and send")
     parser.add_argument("--ready-timeout", type=float, default=60.0, help="s to wait for PX4's pose")
     args = parser.parse_args(argv)
