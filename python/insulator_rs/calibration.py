@@ -103,19 +103,10 @@ def load_opencv_yaml(
     ``width``/``height`` (pixels) override or stand in for ``image_width`` /
     ``image_height`` when the file lacks them.
     """
-    import cv2  # local: cv2 is heavy and only this loader needs it
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: calibration file not found")
-    if path.is_dir():
-        raise ConfigError(f"{path}: is a directory, not a file")
-    try:
-        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError) as exc:  # OpenCV raises SystemError on parse failures
-        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file ({exc})") from exc
-    if not storage.isOpened():
-        raise ConfigError(f"{path}: not a readable OpenCV FileStorage file")
+    storage = _open_storage(path)
     try:
         k = _opencv_matrix(storage, path, "camera_matrix")
         dist = _opencv_matrix(storage, path, "distortion_coefficients")
@@ -433,7 +424,7 @@ def _rigid(path: Path, field: str, T: np.ndarray) -> np.ndarray:
 
 
 def _open_storage(path: Path) -> Any:
-    import cv2
+    import cv2  # local: cv2 is heavy and only the OpenCV loaders need it
 
     if path.is_dir():
         raise ConfigError(f"{path}: is a directory, not a file")

@@ -189,8 +189,8 @@ class RecordingSensors:
 
 class RecordingVehicle:
     """A :class:`~insulator_rs.ports.vehicle.Vehicle` decorator that records the pose stream
-    ``inner`` reports (``VehicleState.T_w_b``: the reported attitude, or a level body at the
-    reported yaw; what the flight's perception is fed), wired by the composition root."""
+    ``inner`` reports (``VehicleState.T_w_b``, what the flight's perception is fed), wired by
+    the composition root."""
 
     def __init__(self, inner: Vehicle, recorder: McapRecorder) -> None:
         self.inner = inner
