@@ -61,7 +61,10 @@ def fly_with_wire_lidar(tmp_path: Path, px4: bool) -> tuple[dict, dict, dict]:
                      seed=7)
     sensors = SplitSensors(cameras, wire)
     loop = FlightLoop(mission, vehicle, sensors, GroundTruthDetector(cameras, seed=0), tmp_path / "report", rig=rig,
-                      settings=FlightSettings(detect_period=1.0, quiet=True))
+                      # dbscan+ransac, as this flight has always flown: at the product's default
+                      # (bounded) this wire-LiDAR flight finds 1 of 2 (measured when FlightSettings'
+                      # default became bounded; an airframe-issue finding, kept visible there)
+                      settings=FlightSettings(method="dbscan+ransac", detect_period=1.0, quiet=True))
     try:
         loop.fly()
         health = sensors.health()
