@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _register_missing_extra(subparsers: argparse._SubParsersAction, name: str, extra: str,  # type: ignore[type-arg]
+def _register_missing_extra(subparsers: argparse._SubParsersAction[argparse.ArgumentParser], name: str, extra: str,
                             exc: ModuleNotFoundError) -> None:
     message = f"error: {name} needs the {extra} extra (pip install 'insulator_rs[{extra}]'): {exc}"
     parser = subparsers.add_parser(name, help=f"(not installed: needs the {extra} extra)", add_help=False)
