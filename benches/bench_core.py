@@ -11,6 +11,11 @@ Groups (each asserts once that the implementations agree before timing):
 * DBSCAN, 3,000 points (insulator-like rods + 20 % noise, eps 0.3 m,
   min_points 5): ``ir.dbscan`` vs ``sklearn.cluster.DBSCAN`` (target >= 10x).
 * DBSCAN scaling 1k..100k points at constant density.
+* DBSCAN on sparse tower-scale clouds (issue 23): ``synthetic.tower_cloud`` at 10k, 30k
+  and 65k points over 60 m, and 65k accumulated simulated Mid-360 returns of towers A and B
+  (tests/tower_scans.py), eps 0.3 m, min_points 5: ``ir.dbscan`` vs scikit-learn (target
+  >= 30x) and Open3D's ``cluster_dbscan`` (target >= 5x; the row is left out when
+  ``open3d`` does not import; it runs on all cores, the others on one).
 * ``ir.localize(method="dbscan+ransac")`` on a 2,000-point insulator cloud vs the
   numpy/sklearn reference of Algorithm 1 (tests/reference_algorithms.py).
 * Python call overhead on a 10-point input.
@@ -26,8 +31,10 @@ import pytest
 import reference_algorithms as ref
 from sklearn.cluster import DBSCAN  # type: ignore[import-untyped]
 
+from tower_scans import tower_scan
+
 import insulator_rs as ir
-from insulator_rs.synthetic import insulator_cloud, lidar_frame, line_clusters
+from insulator_rs.synthetic import insulator_cloud, lidar_frame, line_clusters, tower_cloud
 
 CAM = ir.CameraModel(1200.0, 1200.0, 800.0, 600.0, 1600, 1200, dist=(-0.12, 0.05, 0.0005, -0.0003, -0.01))
 # LiDAR (FLU) to camera optical frame, camera 10 cm below and 5 cm ahead of the LiDAR.
@@ -151,6 +158,61 @@ def test_dbscan_scaling(benchmark: Any, n: int) -> None:
     benchmark.extra_info.update(impl="insulator_rs", n_points=n)
     points = line_clusters(n, seed=2)
     benchmark(ir.dbscan, points, EPS, MIN_POINTS)
+
+
+# --- DBSCAN on sparse tower-scale clouds ----------------------------------------------
+
+TOWER_SIZES = (10_000, 30_000, 65_000)
+TOWER_SCAN_POINTS = 65_000
+
+
+def tower_workload(kind: str) -> np.ndarray:
+    """"synthetic-N" (the generator's tower at N points) or "tower_a"/"tower_b" (scans)."""
+    if kind.startswith("synthetic-"):
+        return tower_cloud(int(kind.split("-")[1]), seed=7)
+    return tower_scan(kind, TOWER_SCAN_POINTS)
+
+
+TOWER_KINDS = [f"synthetic-{n}" for n in TOWER_SIZES] + ["tower_a", "tower_b"]
+
+
+def open3d_dbscan(points: np.ndarray) -> np.ndarray:
+    import open3d as o3d  # type: ignore[import-not-found, import-untyped]  # noqa: PLC0415
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    return np.asarray(cloud.cluster_dbscan(EPS, MIN_POINTS, print_progress=False))
+
+
+def same_clustering(a: np.ndarray, b: np.ndarray) -> bool:
+    """Same noise set and as many clusters (the border points may go either way)."""
+    return bool(np.array_equal(a == -1, b == -1) and a.max() == b.max())
+
+
+@pytest.mark.parametrize("kind", TOWER_KINDS)
+def test_dbscan_tower_insulator_rs(benchmark: Any, kind: str) -> None:
+    points = tower_workload(kind)
+    benchmark.group = f"dbscan, sparse tower {kind}"
+    benchmark.extra_info.update(impl="insulator_rs", n_points=len(points))
+    labels = benchmark(ir.dbscan, points, EPS, MIN_POINTS)
+    assert same_clustering(labels, sklearn_dbscan(points))
+
+
+@pytest.mark.parametrize("kind", TOWER_KINDS)
+def test_dbscan_tower_sklearn(benchmark: Any, kind: str) -> None:
+    points = tower_workload(kind)
+    benchmark.group = f"dbscan, sparse tower {kind}"
+    benchmark.extra_info.update(impl="sklearn.cluster.DBSCAN", n_points=len(points), target_ratio=30)
+    benchmark.pedantic(sklearn_dbscan, (points,), rounds=3, iterations=1)
+
+
+@pytest.mark.parametrize("kind", TOWER_KINDS)
+def test_dbscan_tower_open3d(benchmark: Any, kind: str) -> None:
+    pytest.importorskip("open3d")
+    points = tower_workload(kind)
+    benchmark.group = f"dbscan, sparse tower {kind}"
+    benchmark.extra_info.update(impl="open3d cluster_dbscan", n_points=len(points), target_ratio=5)
+    labels = benchmark.pedantic(open3d_dbscan, (points,), rounds=3, iterations=1)
+    assert same_clustering(labels, ir.dbscan(points, EPS, MIN_POINTS))
 
 
 # --- localize -------------------------------------------------------------------------

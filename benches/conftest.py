@@ -5,7 +5,8 @@
   ``insulator_rs`` row (``benchmark.extra_info["impl"]``), how many times slower each
   other implementation is, against the target where one is set; the real-time factor of
   rows that carry ``extra_info["flight_s"]`` (a replay); and for groups whose
-  rows carry ``extra_info["n_points"]``, the scaling of time per point with N.
+  rows carry ``extra_info["n_points"]``, the scaling of time per point with N (in a group
+  that also holds other implementations, insulator_rs's time per point).
 """
 
 from __future__ import annotations
@@ -79,8 +80,10 @@ def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> Non
             continue
         base_min, base_med = _pair(ours[0])
         target = ours[0].extra_info.get("target")
+        n_points = ours[0].extra_info.get("n_points")
         write(
             f"  {group}: insulator_rs {_fmt(base_min)} / {_fmt(base_med)}"
+            + (f"   ({base_min / n_points * 1e9:.0f} ns/point on min)" if n_points else "")
             + (f"   (absolute target {target})" if target else "")
         )
         flight_s = ours[0].extra_info.get("flight_s")

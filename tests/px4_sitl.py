@@ -5,6 +5,9 @@
 * ``Px4Sitl``: starts one PX4 instance with ``run.sh -i N -d DIR -s SPEED`` on a free
   instance number (its offboard port 14540+N must be free), waits for "Ready for takeoff!"
   in ``px4.log`` and kills the whole process group on ``stop()``, always.
+* The SIH battery is a flight's pack (``SITL_BATTERY``, PX4's ``PX4_PARAM_<name>`` start-up
+  overrides): SIH's own default drains to 50 % in 60 s, which the battery reserve rightly reads
+  as a plan that cannot be flown (every SITL flight returned at 52-55 %).
 * ``mission_at_home()``: a mission file whose take-off point is PX4's home: the tower (and
   its neighbours) are moved so the mission's own take-off point (the file's ``[takeoff]`` or
   its default on the "+" side at the standoff) lands on home, keeping the geometry in the
@@ -18,6 +21,7 @@ Run by hand::
 from __future__ import annotations
 
 import argparse
+import fcntl
 import os
 import signal
 import socket
@@ -25,7 +29,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 ENV_VAR = "INSULATOR_RS_PX4_SITL"
@@ -68,11 +75,39 @@ def _port_free(port: int) -> bool:
     return True
 
 
+def _lock_free(instance: int) -> bool:
+    """Whether PX4's per-instance lock (``/tmp/px4_lock-N``, a POSIX lockf its server holds) is free."""
+    path = f"/tmp/px4_lock-{instance}"
+    if not os.path.exists(path):
+        return True
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.lockf(fd, fcntl.LOCK_UN)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
 def _instance_free(instance: int) -> bool:
-    # The ports PX4 binds (its UDP links, see px4.log "udp port ...") and the one we listen on.
+    # The ports PX4 binds (its UDP links, see px4.log "udp port ...") and the one we listen on,
+    # and PX4's own lock: a server starting beside us holds it before it binds the ports.
     ports = (OFFBOARD_PORT + instance, 14580 + instance, 18570 + instance, 14280 + instance,
              13030 + instance, 19450 + instance)
-    return all(_port_free(p) for p in ports)
+    return _lock_free(instance) and all(_port_free(p) for p in ports)
+
+
+ALREADY_RUNNING = "PX4 server already running for instance"
+
+
+#: SIH's battery as a 25-minute pack: 95 % in 1500 s (SIM_BAT_DRAIN: the time to drain from
+#: full to SIM_BAT_MIN_PCT). A test of the reserve sets its own over PARAM_SET.
+SITL_BATTERY = {"SIM_BAT_DRAIN": "1500", "SIM_BAT_MIN_PCT": "5"}
 
 
 class Px4Sitl:
@@ -102,18 +137,41 @@ class Px4Sitl:
         except OSError:
             return ""
 
-    def start(self, ready_timeout: float = 90.0) -> Px4Sitl:
+    def start(self, ready_timeout: float = 90.0, tries: int = 5) -> Px4Sitl:
+        """Start PX4 and wait for its ready line; an instance another PX4 took between our check
+        and its start (two test runs side by side) is given up for the next free one."""
+        for _ in range(tries - 1):
+            self._start_once(ready_timeout)
+            if self.pid is not None:
+                return self
+            taken = self.instance
+            self.instance = next((i for i in range(taken + 1, taken + 40) if _instance_free(i)), None)
+            if self.instance is None:
+                raise RuntimeError("no free PX4 SITL instance (UDP ports 14540+N all taken)")
+        self._start_once(ready_timeout)
+        if self.pid is None:
+            raise RuntimeError(f"PX4 SITL: instance {self.instance} taken by another PX4 each of {tries} tries")
+        return self
+
+    def _start_once(self, ready_timeout: float) -> None:
+        """One start; ``pid`` None if the instance turned out to be another PX4's."""
+        env = {**os.environ, **{f"PX4_PARAM_{k}": v for k, v in SITL_BATTERY.items()}}
         out = subprocess.run([str(self.folder / "run.sh"), "-i", str(self.instance), "-d", str(self.workdir),
-                              "-s", f"{self.speed:g}"], capture_output=True, text=True, timeout=60, check=True)
+                              "-s", f"{self.speed:g}"], capture_output=True, text=True, timeout=60, check=True,
+                             env=env)
         self.pid = int(out.stdout.strip().splitlines()[-1])
         deadline = time.monotonic() + ready_timeout
         while READY_LINE not in self.log():
+            if ALREADY_RUNNING in self.log():
+                self.stop()
+                self.pid = None
+                self.log_path.unlink(missing_ok=True)
+                return
             if time.monotonic() > deadline or not self._alive():
                 tail = "\n".join(self.log().splitlines()[-20:])
                 self.stop()
                 raise RuntimeError(f"PX4 SITL not ready within {ready_timeout:g} s; px4.log ends:\n{tail}")
             time.sleep(0.2)
-        return self
 
     def _alive(self) -> bool:
         if self.pid is None:
@@ -147,6 +205,24 @@ class Px4Sitl:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+@contextmanager
+def companion_link(connection: str) -> Iterator[tuple[Any, tuple[int, int]]]:
+    """A bare pymavlink link to an autopilot as the companion computer (system 1, component
+    191), once the autopilot's HEARTBEAT came: (the link, the autopilot's (system, 1)). Closed
+    on exit."""
+    from insulator_rs.mavlink.wire import mavlink2 as M
+    from insulator_rs.mavlink.wire import mavutil
+
+    link = mavutil.mavlink_connection(connection, source_system=1, source_component=191)
+    try:
+        link.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+        heartbeat = link.recv_match(type="HEARTBEAT", blocking=True, timeout=30)
+        assert heartbeat is not None, f"no HEARTBEAT on {connection}"
+        yield link, (heartbeat.get_srcSystem(), 1)
+    finally:
+        link.close()
 
 
 def mission_at_home(mission_file: Path, out_file: Path, home: tuple[float, float, float] = PX4_HOME) -> Path:

@@ -29,6 +29,8 @@ def test_the_simulator_rig_names_its_camera():
 
 def _rig(tmp_path: Path, extra: str) -> Path:
     text = (RIGS_DIR / "simulator.toml").read_text()
+    # the detection camera's lens only: the rig without its [inspection_camera] table
+    text = text[:text.index("[inspection_camera]")] + text[text.index("[lidar]"):]
     text = text.replace('make = "insulator_rs"', "").replace('model = "simulated camera"', "")
     text = text.replace("pixel_pitch_um = 3.45", "").replace('calibration = "simulator_camera.yaml"',
                                                              'calibration = "simulator_camera.yaml"\n' + extra)

@@ -31,13 +31,14 @@ def body_pose(position, yaw: float) -> np.ndarray:
     return T
 
 
-def test_pixel_rays_project_back_onto_pixel_centres() -> None:
-    rays = pixel_rays(SMALL)
-    assert rays.shape == (640 * 480, 3)
+@pytest.mark.parametrize("model", [SMALL, PINHOLE], ids=["distorted", "pinhole (closed form)"])
+def test_pixel_rays_project_back_onto_pixel_centres(model: CameraModel) -> None:
+    rays = pixel_rays(model)
+    assert rays.shape == (model.width * model.height, 3)
     np.testing.assert_allclose(np.linalg.norm(rays, axis=1), 1.0, atol=1e-12)
-    uv, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), SMALL.camera_matrix(),
-                              np.array(SMALL.dist))
-    u, v = np.meshgrid(np.arange(640.0), np.arange(480.0))
+    uv, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), model.camera_matrix(),
+                              np.array(model.dist))
+    u, v = np.meshgrid(np.arange(float(model.width)), np.arange(float(model.height)))
     np.testing.assert_allclose(uv.reshape(-1, 2), np.column_stack([u.ravel(), v.ravel()]), atol=1e-6)
 
 

@@ -65,3 +65,21 @@ def test_lidar_frame_covers_the_mid360_field_of_view() -> None:
     elevation = np.degrees(np.arcsin(points[:, 2] / r))
     assert elevation.min() >= -7.0 - 1e-9 and elevation.max() <= 52.0 + 1e-9
     assert 0.2 < np.mean(points[:, 0] > np.abs(points[:, 1])) < 0.3  # ~a quarter ahead
+
+
+@pytest.mark.parametrize("n", [0, 1, 10_000, 65_000])
+def test_tower_cloud_size_extent_and_sparsity(n: int) -> None:
+    """tower_cloud's docstring: n points, ~60 m along y, deterministic in the seed, and
+    (the point of it) most eps/sqrt(3) grid cells at eps 0.3 m hold fewer than 5 points."""
+    points = syn.tower_cloud(n, seed=3)
+    assert points.shape == (n, 3) and np.isfinite(points).all()
+    np.testing.assert_array_equal(points, syn.tower_cloud(n, seed=3))
+    if n < 10_000:
+        return
+    assert not np.array_equal(points, syn.tower_cloud(n, seed=4))
+    span = points.max(axis=0) - points.min(axis=0)
+    assert 59.0 < span[1] < 61.0 and 20.0 < span[0] < 25.0 and 50.0 < span[2] < 52.0
+    _, per_cell = np.unique(np.floor(points / (0.3 / np.sqrt(3))).astype(np.int64), axis=0, return_counts=True)
+    assert np.median(per_cell) <= 3 and np.mean(per_cell < 5) > 0.6
+    with pytest.raises(ValueError, match="n_points"):
+        syn.tower_cloud(-1)

@@ -61,10 +61,13 @@ def fly_with_wire_lidar(tmp_path: Path, px4: bool) -> tuple[dict, dict, dict]:
                      seed=7)
     sensors = SplitSensors(cameras, wire)
     loop = FlightLoop(mission, vehicle, sensors, GroundTruthDetector(cameras, seed=0), tmp_path / "report", rig=rig,
-                      # dbscan+ransac, as this flight has always flown: at the product's default
-                      # (bounded) this wire-LiDAR flight finds 1 of 2 (measured when FlightSettings'
-                      # default became bounded; an airframe-issue finding, kept visible there)
-                      settings=FlightSettings(method="dbscan+ransac", detect_period=1.0, quiet=True))
+                      # The product's method (bounded), detection at 2 Hz as every other small-scene
+                      # flight (test_mission_inspect: "at 3 m/s a 1 Hz pass saw the far string only
+                      # three times"). At 1 Hz this flight found the far-side string in some runs
+                      # only, with either method: its side's one pass is at the crossing height,
+                      # 30 degrees below the Mid-360's field of view, so the string is localized from
+                      # the near side through the tower alone (README, "What is not done yet").
+                      settings=FlightSettings(method="bounded", detect_period=0.5, quiet=True))
     try:
         loop.fly()
         health = sensors.health()

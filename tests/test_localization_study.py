@@ -79,8 +79,9 @@ def test_the_flying_pipeline_puts_the_accumulated_points_on_the_target_insulator
         got = study._localize_event(rig, target, trajectory, times, det, rng, cfg, insulator_length=2.2)
         if got is None:
             continue
-        assert set(got) == {"dbscan+ransac", "bounded"}  # the fifth method through the same pipeline
-        loc, outcome, n_input, purity = got["dbscan+ransac"]
+        # the fifth method through the same pipeline; one pose stream ("full": the level study's)
+        assert set(got) == {("dbscan+ransac", "full"), ("bounded", "full")}
+        loc, outcome, n_input, purity = got[("dbscan+ransac", "full")]
         assert n_input >= 10 and purity > 0.2, (n_input, purity)
         if loc is not None:
             assert outcome == "ok" and np.linalg.norm(loc.center - target.center) < 0.5

@@ -138,7 +138,7 @@ def test_a_scan_taken_while_moving_is_deskewed_with_the_pose_history():
     scan = per.scans[-1]
     T_frame = pose_from_yaw([0.0, 1.0, 10.0], 0.0)
     naive_w = scan.points_l @ T_frame[:3, :3].T + T_frame[:3, 3]
-    assert np.median(np.linalg.norm(per._paired_points_w(3.0) - naive_w, axis=1)) > 0.5
+    assert np.median(np.linalg.norm(per.paired_points_w(3.0) - naive_w, axis=1)) > 0.5
 
 
 def test_a_frame_without_a_scan_or_a_pose_is_counted_not_localized():
@@ -216,7 +216,7 @@ def test_paired_points_match_the_numpy_pose_track_reference():
     times = np.sort(rng.uniform(0.95, 1.25, 5000))  # the newest pose is at 1.18 s
     pts = rng.uniform(-20, 20, (5000, 3)).astype(np.float32)
     per.add_scan(LidarScan(pts, times, T_b_l))
-    got = per._paired_points_w(1.1)
+    got = per.paired_points_w(1.1)
     near = np.abs(times - 1.1) <= per.pairing_window
     track = per.poses.track()
     pts_b = pts[near].astype(np.float64) @ T_b_l[:3, :3].T + T_b_l[:3, 3]

@@ -97,17 +97,24 @@ def test_a_frame_waits_for_the_scan_that_covers_its_window(tmp_path) -> None:
     assert times.min() <= t_frame - 0.1 + 0.03 and times.max() >= t_frame + 0.1  # the whole window
     # asked every tick from the window's end until the covering scan came
     assert [round(c, 2) for c in sensors.calls] == [10.03, 10.13, 10.18, 10.23]
+    # the figures the summary reports: it waited 0.20 s past its exposure, and was not short
+    timing = runner.pairing.timing()
+    assert timing["waited_s_max"] == 0.2 and timing["short_by_s_max"] == 0.0
 
 
 def test_a_lidar_that_stops_costs_the_pairing_not_the_flight(tmp_path) -> None:
     sensors = LateLidar(simulator_rig(), stop_at=10.0)
     runner = _runner(sensors)
     t_frame = 10.03
-    handed = _run(runner, t_frame, 11.0)
+    handed = _run(runner, t_frame, 13.0)
     # nothing covers 10.13 ever: handed over with what is there once the bounded wait is over
-    assert handed == [round(t_frame + 0.1 + PAIRING_WAIT, 2)] == [10.43]
+    assert handed == [round(t_frame + 0.1 + PAIRING_WAIT, 2)] == [12.13]
     assert runner.pairing_short == 1
     assert not runner.pairing.pending
+    # the LiDAR stopped at 10.0 (its last closed scan ends at 9.9): 0.23 s short of the window's
+    # end, after the whole bounded wait
+    timing = runner.pairing.timing()
+    assert timing["waited_s_p50"] == round(0.1 + PAIRING_WAIT, 3) and timing["short_by_s_p50"] == 0.23
 
 
 class RenderingLidar(LateLidar):
@@ -127,3 +134,21 @@ def test_a_source_that_knows_its_window_pairs_at_once(tmp_path) -> None:
     handed = _run(runner, 10.03, 11.0)
     assert handed == [10.13] and runner.pairing_short == 0  # not held for the returns it lacks
     assert [round(c, 2) for c in sensors.calls] == [10.03, 10.13]
+
+
+def test_a_frame_still_waiting_when_the_search_ends_goes_with_what_there_is_counted_short(tmp_path) -> None:
+    """The flight stops perceiving when its search is over (``finish``); a replay of it waits
+    PAIRING_WAIT on the same scans and counts the frame short, so the flight must count it too
+    (the one-pipeline test compares the counts)."""
+    sensors = LateLidar(simulator_rig())
+    runner = _runner(sensors)
+    handed = _run(runner, 10.03, 10.1)  # the search ends before the window past the frame is over
+    assert handed == [] and runner.waiting
+    runner.finish(10.1)
+    assert runner.pipeline.counters.frames == 1 and not runner.waiting
+    assert runner.pairing_short == 1
+    # one whose window is covered is not short
+    runner = _runner(RenderingLidar(simulator_rig()))
+    _run(runner, 10.03, 10.05)
+    runner.finish(10.2)
+    assert runner.pipeline.counters.frames == 1 and runner.pairing_short == 0

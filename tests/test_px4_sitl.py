@@ -8,6 +8,9 @@ tests are skipped, saying so, only when it is absent.
 * ``test_px4_answers_commands_as_the_simulated_px4_does``: the same commands to PX4 and to
   our simulated PX4 on the ground; the COMMAND_ACK results (or their absence) must agree:
   that is how the differences were found (and stay fixed).
+* ``test_px4_timesync_agrees_with_the_simulated_px4s``: the client's TIMESYNC (both ways)
+  against PX4 and against our simulated PX4; round trip, requests answered, the map's lag
+  behind the telemetry stamps and the drift must agree in kind.
 * ``test_small_scene_inspection_against_px4_sitl``: ``insulator-rs inspect --connection
   ... --sim-sensors`` flies the small scene (two insulators) with the tower placed relative
   to PX4's home; every insulator found and photographed, no "Failsafe activated" in PX4's
@@ -17,26 +20,13 @@ tests are skipped, saying so, only when it is absent.
   then gets too few detection events to find both insulators every time (measured: 1 of 2
   at -s 4; 2 of 2 in two runs and 1 of 2 in one at -s 2, beside other jobs).
 * ``test_small_scene_live_sensor_inspection_against_px4_sitl``: the same flight with the LIVE
-  drivers: ``insulator-rs inspect --lidar mid360://listen:PORT --camera http://...`` in a
-  subprocess, fed by the sensor head (``insulator_rs.sim.sensor_head``, a process of its own)
-  that reads PX4's pose from PX4's GCS link and streams Livox SDK2 datagrams on UDP (sensor
-  clock offset 1234.5 s, +25 ppm) and an MJPEG stream OpenCV reads; the shipped
-  ``insulator-sim`` network detects. Scored here against the scene's ground truth.
-  Measured (PX4 -s 1, this 2-core box shared with other jobs, load 2-8): the flight takes
-  126-192 s (+8 s of wall time); every run had no LiDAR datagram lost, malformed, unmapped or
-  unstamped and 380-530 camera frames; the insulators found were 0.02-0.25 m from the truth
-  (the larger errors along the string: its ends come from the network's boxes on 320 x 240
-  frames). What varies is how many localizations the flight gets (15-46) and the network's
-  occasional boxes on the tower body, so ``confirmations`` (localizations before an
-  insulator is registered) decides: with 1 (the ``--sim-sensors`` flights'), 3 of 4 runs
-  passed with 1-3 false finds each, and one aborted (a false find's inspection waypoint had
-  no safe trajectory); with the mission default 4, 2 of 3 passed (no false find) and one
-  found only 1 of 2; with ``LIVE_CONFIRMATIONS`` = 2, 3 of 3 passed (0.075 / 0.135,
-  0.129 / 0.053 and 0.037 / 0.086 m; 0, 1 and 0 false finds). 1-17 frames per flight were paired short (the sensor
-  head's sends are up to 0.15-0.3 s late at p99 on this box). The LiDAR drift estimate
-  (sensor clock -25 ppm in truth) read -68 to +490 ppm: the sensor head's and the client's
-  vehicle clocks are each a fit to PX4's telemetry, so it is reported, not asserted (the
-  in-process wire flight asserts it to 5 ppm).
+  drivers (``live_sitl.fly_live``; 2 confirmations and 2 Hz detection, not yet the defaults): ``insulator-rs inspect --lidar
+  mid360://listen:PORT --camera http://...`` in a subprocess, fed by the sensor head
+  (``insulator_rs.sim.sensor_head``, a process of its own) that reads PX4's pose from PX4's
+  GCS link and streams Livox SDK2 datagrams on UDP (the LiDAR's crystal: offset 1234.5 s,
+  +25 ppm against the host's clock) and an MJPEG stream OpenCV reads; the shipped
+  ``insulator-sim`` network detects. Scored here against the scene's ground truth. The soak
+  figures (``python tests/live_sitl.py``) are in the README.
 """
 
 from __future__ import annotations
@@ -45,16 +35,16 @@ import json
 import math
 import os
 import socket
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
-from px4_sitl import FAILSAFE_LINE, Px4Sitl, mission_at_home, sitl_folder
+from live_sitl import fly_live
+from px4_sitl import FAILSAFE_LINE, Px4Sitl, companion_link, mission_at_home, sitl_folder
 from test_mission_inspect import small_scene
 
 from insulator_rs.app.cli import main
+from insulator_rs.mission.config import load_mission
+from insulator_rs.sim.towers import load_tower
 
 FOLDER = sitl_folder()
 pytestmark = [
@@ -94,14 +84,8 @@ def _ack(link, target: tuple[int, int], command: int, *params: float, timeout: f
 
 def _answers(connection: str) -> dict[str, int | None]:
     from insulator_rs.mavlink.wire import mavlink2 as M
-    from insulator_rs.mavlink.wire import mavutil
 
-    link = mavutil.mavlink_connection(connection, source_system=1, source_component=191)
-    try:
-        link.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
-        heartbeat = link.recv_match(type="HEARTBEAT", blocking=True, timeout=30)
-        assert heartbeat is not None, f"no HEARTBEAT on {connection}"
-        target = (heartbeat.get_srcSystem(), 1)
+    with companion_link(connection) as (link, target):
         custom = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         probes = {
             "IMAGE_START_CAPTURE (autopilot)": (M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1),
@@ -121,8 +105,6 @@ def _answers(connection: str) -> dict[str, int | None]:
             "unknown command 12345": (12345,),
         }
         return {name: _ack(link, target, *probe) for name, probe in probes.items()}
-    finally:
-        link.close()
 
 
 def test_px4_answers_commands_as_the_simulated_px4_does(px4) -> None:
@@ -135,6 +117,48 @@ def test_px4_answers_commands_as_the_simulated_px4_does(px4) -> None:
         host, port = sim.address
         simulated = _answers(f"udpout:{host}:{port}")
     assert simulated == real
+
+
+def _timesync_figures(vehicle, seconds: float = 4.0) -> dict[str, float]:
+    """What the client's TIMESYNC made of an autopilot after ``seconds``: its record, the
+    autopilot's requests it answered, and the map's lag behind the telemetry stamps (s)."""
+    time.sleep(seconds)
+    record = vehicle.timesync_record()
+    lags = []
+    for _ in range(20):
+        lags.append(vehicle.timesync.now() - vehicle.state().time)
+        time.sleep(0.02)
+    return {"source": record.source, "exchanges": record.exchanges, "rejected": record.rejected,
+            "rtt_ms": record.rtt_ms, "drift_ppm": record.drift_ppm, "answered": vehicle.timesync.answered,
+            "lag_min_s": min(lags), "lag_max_s": max(lags)}
+
+
+def test_px4_timesync_agrees_with_the_simulated_px4s(px4) -> None:
+    """Reference: PX4 v1.16.0 itself. The client's TIMESYNC against PX4 and against our
+    simulated PX4 must agree in kind: both answer (map fitted, round trip of a few ms on
+    loopback), both ask (about 10 Hz: the client answered them), the map sits just ahead of the
+    newest telemetry stamp (never behind it by more than about two of a stamp's quanta: PX4
+    SIH steps its clock in 4 ms, ours in 5 ms), and the drift is a simulator's against the
+    wall clock (both run on this host; measured after 4 s on a loaded 2-core box: PX4 SIH
+    -20800 ppm, its lockstep running 2 % slow, ours +1215 ppm; RTT 0.48 and 0.92 ms; 45 of
+    each one's requests answered; lag -6.4..16 ms and 2.9..21 ms)."""
+    from insulator_rs.mavlink.client import connect_vehicle
+    from insulator_rs.sim.px4 import connect_simulated_px4
+
+    figures = {}
+    for name, open_vehicle in (("px4", lambda: connect_vehicle(px4.connection, time_scale=SPEED)),
+                               ("simulated", lambda: connect_simulated_px4(sim_options={"system_id": 2}))):
+        vehicle = open_vehicle()
+        try:
+            figures[name] = _timesync_figures(vehicle)
+        finally:
+            vehicle.close()
+    print(figures)
+    for name, f in figures.items():
+        assert f["source"] == "timesync" and f["exchanges"] >= 20, (name, f)
+        assert f["rtt_ms"] < 20.0 and f["answered"] >= 20, (name, f)
+        assert -0.01 < f["lag_min_s"] and f["lag_max_s"] < 0.08, (name, f)
+        assert abs(f["drift_ppm"]) < 5e4 and f["rejected"] <= 2, (name, f)
 
 
 def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
@@ -159,7 +183,11 @@ def test_small_scene_inspection_against_px4_sitl(px4, tmp_path) -> None:
     # every insulator of the scene found and photographed (a perception false find, if any,
     # is inspected too: the flight cannot know it is one)
     assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2 and s["insulators_inspected"] >= 2
-    assert len(s["photos"]) == 2 * s["insulators_inspected"]
+    # one first shot a waypoint; an unfit one retaken at most photo_retakes times (the check)
+    first = [p for p in s["photos"] if p.get("attempt", 1) == 1]
+    retakes = load_mission(mission).inspection.photo_retakes
+    assert len(first) == 2 * s["insulators_inspected"]
+    assert len(s["photos"]) <= (1 + retakes) * len(first)
     assert all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
     assert {p["insulator_id"] for p in s["photos"]} == {r["id"] for r in s["insulators"]}
     assert sum(p["insulator_visible"] for p in g["photos"]) >= 4
@@ -236,108 +264,51 @@ def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch,
     assert FAILSAFE_LINE not in px4.log()
     assert rc == 0 and s["status"] == "finished", s["status"]
     assert g["insulators_matched"] == 2 and s["insulators_inspected"] >= 2
-    assert len(s["photos"]) == 2 * s["insulators_inspected"]
+    # one first shot a waypoint; an unfit one retaken at most photo_retakes times (the check)
+    first = [p for p in s["photos"] if p.get("attempt", 1) == 1]
+    retakes = load_mission(mission).inspection.photo_retakes
+    assert len(first) == 2 * s["insulators_inspected"]
+    assert len(s["photos"]) <= (1 + retakes) * len(first)
     assert stats[0]["foreign_address"] >= sent["truncated"] + sent["heartbeats"]
     assert sent["replies"] == 0  # nothing streamed to the stranger
     assert f"foreign_address {stats[0]['foreign_address']}" in capsys.readouterr().out  # reported
 
 
-# A live flight's camera: the simulator's lens at 320 x 240 (the rig's calibration must match
-# the frames the camera delivers), rendered and served at 3 fps by the sensor head.
-LIVE_SCALE = 0.25
-# localizations before an insulator is registered (see the module docstring)
+# The CI flight's settings: 2 confirmations and detection at 2 Hz, as this test has flown since it
+# was written. At the mission's defaults (4, 1 Hz) the live path does not find both strings in
+# every flight yet: the soak (``python tests/live_sitl.py``) measures it, figures in the README.
 LIVE_CONFIRMATIONS = 2
-LIVE_TIMEOUT = 600.0  # s of wall time for the whole flight (measured: see the test's docstring)
-
-
-def _live_rig(folder: Path) -> Path:
-    """A rig file: the simulator rig's extrinsics, its camera scaled to ``LIVE_SCALE``."""
-    from insulator_rs.rig import scaled_camera, simulator_rig
-
-    rig = simulator_rig()
-    cam = scaled_camera(rig.camera, LIVE_SCALE)
-    k = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
-    (folder / "live_camera.yaml").write_text(
-        f"image_width: {cam.width}\nimage_height: {cam.height}\ncamera_name: live\n"
-        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: {k}\n"
-        f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
-        f"  data: {[float(d) for d in cam.dist]}\n")
-    matrix = lambda T: "[" + ", ".join(str([float(v) for v in row]) for row in T) + "]"  # noqa: E731
-    path = folder / "live_rig.toml"
-    path.write_text(f'[camera]\ncalibration = "live_camera.yaml"\nT_b_c = {matrix(rig.T_b_c)}\n\n'
-                    f"[lidar]\nT_b_l = {matrix(rig.T_b_l)}\n")
-    return path
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _stop(proc: subprocess.Popen) -> str:
-    """SIGTERM (then SIGKILL) one process we started; its output."""
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
-    return proc.stdout.read() if proc.stdout is not None else ""
+LIVE_ARGS = ["--detect-period", "0.5"]
 
 
 def test_small_scene_live_sensor_inspection_against_px4_sitl(px4, tmp_path) -> None:
-    """The live-sensor path against PX4 itself (see the module docstring). Reference: the small
-    scene's ground truth (each insulator found within 0.3 m), the drivers' own counters (no
-    LiDAR datagram lost or malformed, every scan mapped to the vehicle clock, camera frames of
-    the calibrated size) and PX4's log (no failsafe)."""
-    import insulator_rs
-    from insulator_rs.sim.towers import load_tower
-
+    """The live-sensor path against PX4 itself (see the module docstring; the flight is
+    ``live_sitl.fly_live``, which the soak script flies at the defaults). Reference:
+    the small scene's ground truth (each insulator found within 0.3 m), the drivers' own counters
+    (no LiDAR datagram lost or malformed, every scan mapped to the vehicle clock, camera frames
+    of the calibrated size), the clock map (TIMESYNC answered) and PX4's log (no failsafe)."""
     scene, mission = small_scene(tmp_path)
-    _live_rig(tmp_path)
-    text = mission.read_text()
-    assert 'rig = "simulator"' in text
-    mission.write_text(text.replace('rig = "simulator"', 'rig = "live_rig.toml"') + f"confirmations = {LIVE_CONFIRMATIONS}\n")
-    mission = mission_at_home(mission, tmp_path / "at_home.toml")
-    env = {**os.environ, "PYTHONPATH": str(Path(insulator_rs.__file__).parents[1])}
-    port = _free_udp_port()
-    head = subprocess.Popen([sys.executable, "-m", "insulator_rs.sim.sensor_head", "--scene", str(scene),
-                             "--mission", str(mission), "--px4", f"udpout:127.0.0.1:{18570 + px4.instance}",
-                             "--lidar-to", f"127.0.0.1:{port}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    out = tmp_path / "report"
-    try:
-        line = head.stdout.readline() if head.stdout is not None else ""
-        assert line.startswith("sensor head ready"), line + _stop(head)
-        url = line.split("camera ", 1)[1].strip()
-        t0 = time.monotonic()
-        flight = subprocess.run([sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--scene", str(scene),
-                                 "--mission", str(mission), "--out", str(out), "--connection", px4.connection,
-                                 "--lidar", f"mid360://listen:{port}", "--camera", url,
-                                 "--detector", "insulator-sim", "--detect-period", "0.5", "--quiet"],
-                                capture_output=True, text=True, env=env, timeout=LIVE_TIMEOUT)
-        wall = time.monotonic() - t0
-    finally:
-        head_out = _stop(head)
-    s = json.loads((out / "summary.json").read_text())
-    truth = [ins.center for ins in load_tower(str(scene)).insulators]
-    found = [r["center"] for r in s["insulators"]]
-    errors = [min((math.dist(t, f) for f in found), default=math.inf) for t in truth]
+    flight = fly_live(px4, tmp_path, scene, mission, extra=LIVE_ARGS, confirmations=LIVE_CONFIRMATIONS)
+    s = flight.summary
+    print(f"live SITL flight: {flight.line()}; {flight.head_output.strip()}")
+    assert not flight.failsafe
+    assert flight.returncode == 0 and flight.status == "finished", (flight.status, flight.stdout[-2000:],
+                                                                    flight.stderr[-2000:])
+    # every string within 0.3 m; false finds are printed, not asserted, at these settings (2
+    # confirmations let the network's occasional boxes on the tower body through: 0-1 a flight)
+    assert max(flight.errors) < 0.3, (flight.errors, flight.false_finds)
     h = s["sensors_health"]
-    print(f"live SITL flight: {s['status']}, flight {s['flight_time_s']:.0f} s, wall {wall:.0f} s, "
-          f"errors {[round(e, 3) for e in errors]}, found {len(found)}, photos {len(s['photos'])}, "
-          f"pairing_short {s['pairing_short']}, health {h}; {head_out.strip()}")
-    deadline = time.monotonic() + DISARM_WAIT
-    while "Disarmed by landing" not in px4.log() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert FAILSAFE_LINE not in px4.log()
-    assert flight.returncode == 0 and s["status"] == "finished", (s["status"], flight.stdout[-2000:],
-                                                                  flight.stderr[-2000:])
-    assert len(truth) == 2 and max(errors) < 0.3, errors
     assert h["lidar_scans"] > 0 and h["lidar_lost"] == 0 and h["lidar_malformed"] == 0
     assert h["lidar_unmapped_scans"] == 0 and h["lidar_receive_errors"] == 0 and h["lidar_foreign_datagrams"] == 0
-    assert h["camera_frames"] > 0 and h["camera_size_mismatch"] == 0 and h["camera_read_failures"] == 0
-    assert s["insulators_inspected"] >= 2 and len(s["photos"]) >= 2 * 2
-    assert all((out / p["file"]).stat().st_size > 1000 for p in s["photos"])
+    assert h["camera_frames"] > 0 and h["camera_size_mismatch"] == 0
+    # OpenCV's reader counts failed reads; GStreamer's source names its error (None: none)
+    assert h.get("camera_read_failures", 0) == 0 and h.get("camera_error") is None
+    assert s["timesync"]["source"] == "timesync"
+    # every true string photographed from each of its waypoints (the rig has no inspection
+    # camera: one photo a waypoint); what was skipped, and why, is in the message
+    truth = [ins.center for ins in load_tower(str(scene)).insulators]
+    per_string = [min(s["insulators"], key=lambda r: math.dist(r["center"], t)) for t in truth]
+    planned = load_mission(mission).inspection.waypoints_per_insulator
+    assert all(len(r["photos"]) >= planned for r in per_string), (
+        [(r["id"], r["photos"]) for r in per_string], s.get("inspections_skipped"))
+    assert all((tmp_path / "report" / p["file"]).stat().st_size > 1000 for p in s["photos"])

@@ -4,10 +4,13 @@ replay, the Ray fleet and the Rerun log.
 The flight is the small scene of ``test_mission_inspect`` (two insulators) flown with the
 shipped network ``insulator-sim`` and ``--record`` (JPEG frames, the default). Its replay runs
 the same detector, the same perception runner and registry on the recorded frames, scans and
-poses; the insulators must agree within 5 cm (measured 0.016 and 0.013 m). JPEG (quality 95)
-does change what the network sees at the detection scale (49 of 87 frames had boxes in flight,
-40 of the same frames decoded from the recording): the exact parity, on the same pixels, is
-``test_one_pipeline.py``.
+poses; the insulators must agree within 10 cm, and each be within 0.15 m of the ground truth.
+JPEG (quality 95) does change what the network sees at the detection scale: with the passes
+spaced by the sensors' view, 42 frames had boxes in flight and 35 of the same frames decoded
+from the recording (29 and 24 localizations; 3 boxed frames in the replay had no recorded
+points: the flight had not asked for them), and the two estimates of a string differ by 0.081
+and 0.028 m (each 0.03-0.06 m from the truth). With the passes of before, 0.016 and 0.013 m
+(5 cm was the bound then). The exact parity, on the same pixels, is ``test_one_pipeline.py``.
 """
 
 import json
@@ -28,7 +31,7 @@ from test_mission_inspect import small_scene
 pytestmark = pytest.mark.slow
 ARGS = ["--detect-period", "1.0", "--detect-scale", "0.25", "--photo-scale", "0.2", "--quiet",
         "--detector", "insulator-sim"]
-ROUND_TRIP_TOLERANCE = 0.05  # m
+ROUND_TRIP_TOLERANCE = 0.10  # m: two estimates of a string from partly different boxes (see above)
 
 
 @pytest.fixture(scope="module")
@@ -59,13 +62,14 @@ def test_recorded_flight_replays_to_the_same_insulators(flight, capsys):
     replayed = json.loads((out / "summary.json").read_text())
     assert replayed["status"] == "finished" and replayed["detector"] == "insulator-sim"
     assert replayed["frames"] == flown["detection_events"]
+    assert replayed["attitude"] == "full"  # the tilting airframe's poses, recorded whole
     page = (out / "report.html").read_text()  # the replay's report has the crew's page too
     assert page.count("data-insulator-id=") == replayed["insulators_found"] and "<td>replay</td>" in page
     _same_insulators(flown, replayed)
     # ground truth is the command's, after the replay: score.json beside the summary, none in it
     assert "insulators_matched" not in replayed and "mean_error_m" not in replayed
     score = json.loads((out / "score.json").read_text())
-    assert score["insulators_matched"] == 2 and score["mean_error_m"] < 0.15
+    assert score["insulators_matched"] == 2 and max(r["error_m"] for r in score["insulators"]) < 0.15
     assert (out / "trajectory.png").stat().st_size > 10_000
     assert "finished" in capsys.readouterr().out
 

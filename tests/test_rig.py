@@ -92,6 +92,12 @@ def test_scaling_keeps_a_real_principal_point():
     (lambda f: (f / "rig.toml").write_text(
         f'[camera]\ncalibration = "cam.yaml"\nT_b_c = {T_B_C}\nfocal = 3\n[lidar]\nT_b_l = {T_B_L}\n'),
      "camera.focal"),
+    (lambda f: (f / "rig.toml").write_text(
+        f'[camera]\ncalibration = "cam.yaml"\nT_b_c = {T_B_C}\n[lidar]\nT_b_l = {T_B_L}\nfov_deg = [52, -7]\n'),
+     "lidar.fov_deg"),
+    (lambda f: (f / "rig.toml").write_text(
+        f'[camera]\ncalibration = "cam.yaml"\nT_b_c = {T_B_C}\n[lidar]\nT_b_l = {T_B_L}\nfov_deg = "wide"\n'),
+     "lidar.fov_deg"),
 ])
 def test_bad_rig_files_are_refused_naming_the_field(tmp_path, mutate, field):
     write_opencv_calibration(tmp_path / "cam.yaml")
@@ -104,6 +110,23 @@ def test_bad_rig_files_are_refused_naming_the_field(tmp_path, mutate, field):
         load_mission(tmp_path / "mission.toml")
 
 
+def test_the_camera_latency_is_read_and_bounded(tmp_path):
+    """``[camera] latency_s``: 0 when left out, a measured figure in [-0.5, 0.5] s (either sign: it is
+    measured against the LiDAR's clock), else refused by name."""
+    write_opencv_calibration(tmp_path / "cam.yaml")
+    assert load_rig(write_rig(tmp_path)).camera_latency_s == 0.0
+    assert simulator_rig().camera_latency_s == 0.0
+    text = (tmp_path / "rig.toml").read_text()
+    for value, ok in (("0.045", 0.045), ("0", 0.0), ("-0.01", -0.01), ("0.6", None), ("-0.6", None), ("true", None),
+                      ('"45 ms"', None)):
+        (tmp_path / "rig.toml").write_text(text.replace("[camera]\n", f"[camera]\nlatency_s = {value}\n"))
+        if ok is not None:
+            assert load_rig(tmp_path / "rig.toml").camera_latency_s == ok
+        else:
+            with pytest.raises(ConfigError, match=r"rig.toml: camera.latency_s: expected a number in \[-0.5, 0.5\] s"):
+                load_rig(tmp_path / "rig.toml")
+
+
 def test_a_missing_rig_file_and_a_bad_value_are_named(tmp_path):
     text = (MISSIONS / "tower_a.toml").read_text()
     (tmp_path / "m1.toml").write_text(text.replace('rig = "simulator"', 'rig = "nowhere.toml"'))
@@ -114,3 +137,52 @@ def test_a_missing_rig_file_and_a_bad_value_are_named(tmp_path):
         load_mission(tmp_path / "m2.toml")
     (tmp_path / "m3.toml").write_text("\n".join(line for line in text.splitlines() if not line.startswith("rig =")))
     assert load_mission(tmp_path / "m3.toml").rig is None
+
+
+def _rotation_y(pitch_down_deg: float) -> np.ndarray:
+    """A body rotation pitching x down by the angle (FLU: a positive rotation about y)."""
+    a = np.radians(pitch_down_deg)
+    T = np.eye(4)
+    T[:3, :3] = [[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]]
+    return T
+
+
+def test_the_shared_view_is_inside_the_image_by_cv2_project_points_and_the_mid360_fov():
+    """Reference: cv2.projectPoints with the calibration's distortion. A point straight ahead of a
+    level body at each edge elevation of the shared view lands in the image (on the pinhole edge
+    row or inside it: the barrel lens sees more), and one 2 deg beyond the camera's edge does not
+    reach past it by more than the lens does; the lower edge is the Mid-360's -7 deg."""
+    rig = simulator_rig()
+    down, up = rig.vertical_view()
+    assert np.degrees(down) == pytest.approx(-7.0)  # the LiDAR bounds it below
+    cam = rig.camera
+    K = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+    T_c_b = np.linalg.inv(rig.T_b_c)
+    for el in (down, up):
+        p_b = 10.0 * np.array([np.cos(el), 0.0, np.sin(el)])
+        p_c = T_c_b[:3, :3] @ p_b + T_c_b[:3, 3]
+        px, _ = cv2.projectPoints(p_c[None], np.zeros(3), np.zeros(3), K, np.array(cam.dist))
+        assert -0.5 - 1e-6 <= px[0, 0, 1] <= cam.height - 0.5 + 1e-6, (np.degrees(el), px)
+    # the upper edge is the camera's: its top row, pinhole (cv2 without distortion)
+    p_b = 10.0 * np.array([np.cos(up), 0.0, np.sin(up)])
+    p_c = T_c_b[:3, :3] @ p_b + T_c_b[:3, 3]
+    px, _ = cv2.projectPoints(p_c[None], np.zeros(3), np.zeros(3), K, np.zeros(5))
+    assert px[0, 0, 1] == pytest.approx(-0.5, abs=1e-6)
+
+
+def test_a_pitched_camera_and_a_narrower_lidar_move_the_shared_view(tmp_path):
+    write_opencv_calibration(tmp_path / "cam.yaml")
+    level = load_rig(write_rig(tmp_path))
+    T_b_c_pitched = (_rotation_y(10.0) @ np.array(T_B_C)).tolist()
+    pitched = load_rig(write_rig(tmp_path, T_b_c=T_b_c_pitched))
+    (down0, up0), (down1, up1) = level.vertical_view(), pitched.vertical_view()
+    assert np.degrees(up0 - up1) == pytest.approx(10.0, abs=1e-6)  # the camera's top edge came down 10 deg
+    assert down0 == down1  # still the LiDAR's -7 deg
+    rig = write_rig(tmp_path)  # level again
+    rig.write_text(rig.read_text() + "fov_deg = [-30.0, 20.0]\n")
+    narrow = load_rig(rig)
+    assert narrow.lidar_fov_deg == (-30.0, 20.0)
+    assert np.degrees(narrow.vertical_view()[1]) == pytest.approx(20.0)
+    rig.write_text(rig.read_text().replace("fov_deg = [-30.0, 20.0]", "fov_deg = [60.0, 80.0]"))
+    with pytest.raises(ConfigError, match="rig.toml: camera.T_b_c, lidar.T_b_l: .*share no elevation"):
+        load_rig(rig).vertical_view()

@@ -8,8 +8,8 @@ noticed because every CI venv held ``[test]``. Two checks:
   ``python/insulator_rs`` (module level or inside a function, except under
   ``TYPE_CHECKING``) of a module outside the standard library names a distribution
   of ``[project] dependencies``; modules of an optional part (``OPTIONAL`` below:
-  the recordings of the ``bags`` extra, the offline training tools of ``train``,
-  COCO scoring) may use their extra's distributions instead, and nothing else.
+  the recordings of the ``bags`` extra (replay, calibrate), the offline training tools of ``train``,
+  COCO scoring, the GStreamer camera of ``gstreamer``) may use their extra's distributions instead, and nothing else.
 * ``python tests/test_runtime_imports.py`` (dynamic, run by .ci/run and
   scripts/test-aarch64.sh in a venv holding the wheel alone): imports every
   onboard module, i.e. every module not in ``OPTIONAL``. The in-suite
@@ -32,6 +32,7 @@ PACKAGE = ROOT / "python" / "insulator_rs"
 # declared distribution (torch and torchvision are Ultralytics' own requirements).
 DISTRIBUTION = {
     "cv2": "opencv-python-headless",
+    "gi": "PyGObject",
     "yaml": "PyYAML",
     "serial": "pyserial",
     "rerun": "rerun-sdk",
@@ -46,6 +47,8 @@ OPTIONAL = {
     "recording/": "bags",  # record flights, read bags (rosbags, mcap)
     "replay/": "bags",  # replay flights, fleet re-processing (Ray), progress bars, Rerun logs
     "app/replay_command.py": "bags",
+    "app/calibrate_command.py": "bags",  # calibrate time-offset reads a recorded flight
+    "drivers/gstreamer_camera.py": "gstreamer",  # GStreamer pipelines through PyGObject (--camera gst:...)
     "detection/train.py": "train",  # the offline training tools (Ultralytics + PyTorch)
     "app/train_command.py": "train",
     "detection/warm_start.py": "train",
@@ -169,6 +172,92 @@ def test_optional_table_names_real_files_and_extras() -> None:
     for prefix, extra in OPTIONAL.items():
         assert extra in extras, f"{prefix}: no extra {extra!r} in pyproject.toml"
         assert (PACKAGE / prefix).exists(), f"{prefix}: no such module or folder"
+
+
+def _module_level_imports(path: Path) -> dict[str, int]:
+    """{imported module: line} of what loads the moment one file is imported: its module-level
+    imports, in if/try blocks too, not in functions or under ``TYPE_CHECKING``."""
+    found: dict[str, int] = {}
+
+    def visit(body: list[ast.stmt]) -> None:
+        for node in body:
+            if isinstance(node, ast.If):
+                if not _is_type_checking(node.test):
+                    visit(node.body)
+                visit(node.orelse)
+            elif isinstance(node, ast.Try):
+                visit(node.body)
+                for handler in node.handlers:
+                    visit(handler.body)
+                visit(node.orelse)
+                visit(node.finalbody)
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    found.setdefault(alias.name, node.lineno)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                found.setdefault(node.module, node.lineno)
+
+    visit(ast.parse(path.read_text(encoding="utf-8"), filename=str(path)).body)
+    return found
+
+
+def _module_file(dotted: str) -> Path | None:
+    parts = dotted.split(".")[1:]
+    if not parts:
+        return PACKAGE / "__init__.py"
+    rel = Path(*parts)
+    for candidate in (PACKAGE / rel.with_suffix(".py"), PACKAGE / rel / "__init__.py"):
+        if candidate.exists():
+            return candidate
+    return None
+
+
+def _loads_on_import(path: Path, seen: dict[Path, set[str]]) -> set[str]:
+    """The third-party distributions importing ``path`` loads, through the package's own
+    module-level imports (depth first; ``seen`` memoises and breaks cycles)."""
+    if path in seen:
+        return seen[path]
+    seen[path] = set()
+    out: set[str] = set()
+    for name in _module_level_imports(path):
+        top = name.split(".")[0]
+        if top == "insulator_rs":
+            target = _module_file(name)
+            if target is not None:
+                out |= _loads_on_import(target, seen)
+        elif top not in STDLIB and top != "__future__":
+            out.add(_norm(DISTRIBUTION.get(top, top)))
+    seen[path] = out
+    return out
+
+
+def test_no_onboard_module_loads_an_extra_on_import() -> None:
+    """The transitive half of the rule: app/calibrate_command.py (onboard by the table then)
+    imported replay/time_offset.py at module level, which imports the recordings, which import
+    rosbags; a plain install's ``insulator-rs`` then failed to start, the main job included."""
+    runtime, _ = declared()
+    seen: dict[Path, set[str]] = {}
+    problems = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if _extra_of(_relative(path)) is None:
+            missing = _loads_on_import(path, seen) - runtime
+            if missing:
+                problems.append(f"{_relative(path)}: importing it loads {sorted(missing)}, "
+                                f"not in [project] dependencies")
+    assert not problems, "\n".join(problems)
+
+
+def test_every_optional_subcommand_says_which_extra_it_needs() -> None:
+    """A subcommand module of an optional part must be in the command line's EXTRAS, or a
+    plain install's ``insulator-rs --help`` (and every other command) fails on its import."""
+    from insulator_rs.app import cli
+
+    for name, module_name in cli.SUBCOMMANDS:
+        target = _module_file(module_name)
+        assert target is not None, module_name
+        extra = _extra_of(_relative(target))
+        if extra in ("bags", "gstreamer"):  # train's extra is absent by design: import_optional skips it
+            assert cli.EXTRAS.get(name) == extra, f"{name}: {module_name} needs the {extra} extra"
 
 
 def test_the_scan_sees_function_level_imports() -> None:

@@ -7,6 +7,8 @@ message (encode -> bytes -> decode) carries the exchange in the MAVLink test.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -47,6 +49,36 @@ def test_two_way_exchanges_recover_offset_and_drift_despite_outliers() -> None:
     assert np.max(np.abs(sync.to_target(t) - remote(t))) < 2e-4
 
 
+def _exchanges(sync: TwoWaySync, clock, seconds: float = 60.0, rate_hz: float = 10.0) -> None:
+    rng = np.random.default_rng(3)
+    for k in range(int(seconds * rate_hz)):
+        send = 10.0 + k / rate_hz
+        up, down = rng.uniform(0.0002, 0.001, 2)
+        sync.add_exchange(send, float(clock(send + up)), send + up + down)
+
+
+def test_the_map_reports_its_own_error_on_each_new_exchange() -> None:
+    """A crystal (offset + 40 ppm) is a line: the map predicts each new exchange within the
+    round trip's asymmetry (< 1 ms). A clock whose rate drops 20 % at t = 40 s (PX4 SITL's
+    lockstep starved) is not: one second after the step the remote time is 0.2 s behind the
+    line the window held, so the worst prediction error is tens of ms at least. Reference:
+    the simulated clocks themselves."""
+    crystal = TwoWaySync(window=64)
+    _exchanges(crystal, remote)
+    e = crystal.prediction_error_ms()
+    assert e is not None and e["p99"] < 1.0 and e["max"] < 1.0
+
+    def slowed(t):
+        t = np.asarray(t, np.float64)
+        return OFFSET + np.where(t < 40.0, t, 40.0 + 0.8 * (t - 40.0))
+
+    wandering = TwoWaySync(window=64)
+    _exchanges(wandering, slowed)
+    e = wandering.prediction_error_ms()
+    assert e is not None and e["max"] > 20.0 and e["p50"] < 5.0
+    assert TwoWaySync().prediction_error_ms() is None
+
+
 def test_two_way_rejects_slow_or_impossible_round_trips() -> None:
     sync = TwoWaySync(max_rtt=0.01)
     assert not sync.add_exchange(1.0, 5.0, 1.5)
@@ -73,6 +105,50 @@ def test_one_way_lower_envelope_tracks_offset_and_drift() -> None:
     got = sync.to_target(sensor)
     assert np.max(np.abs(got - vehicle)) < 5e-4
     assert sync.fit.drift == pytest.approx(1.0 / (1.0 + DRIFT) - 1.0, abs=5e-6)
+
+
+def _loaded_link(rng: np.random.Generator, seconds: float, rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(sensor stamps, true vehicle times, arrivals) of a link on a loaded computer: 0.1 ms +
+    exponential(1 ms) latency, and the floor itself raised by 2-30 ms for 1-8 s stretches
+    about a third of the time (the receive thread starved), as measured against PX4 SITL."""
+    sensor = np.arange(0.0, seconds, 1.0 / rate)
+    vehicle = (sensor - OFFSET) / (1.0 + DRIFT)
+    latency = 0.0001 + rng.exponential(0.001, len(sensor))
+    t = 0.0
+    while t < seconds:
+        length = rng.uniform(1.0, 8.0)
+        if rng.random() < 0.35:
+            latency[(sensor >= t) & (sensor < t + length)] += rng.uniform(0.002, 0.03)
+        t += length
+    return sensor, vehicle, vehicle + latency
+
+
+def test_one_way_drift_over_a_loaded_link_needs_a_long_window() -> None:
+    """Reference: the true map. Five minutes of a Mid-360's pairs (125 a second) over a loaded
+    link: the binned window (the least-latency pair of each 0.25 s, 8.5 minutes) reads the drift
+    within 5 ppm (issue 18's target); a window of the last 2048 pairs (16 s, as the driver kept
+    before) cannot (printed beside it)."""
+    rng = np.random.default_rng(7)
+    sensor, vehicle, arrival = _loaded_link(rng, 300.0, 125.0)
+    binned, pairs = OneWaySync(bin_s=0.25), OneWaySync()
+    for s, a in zip(sensor, arrival):
+        binned.add(float(s), float(a))
+        pairs.add(float(s), float(a))
+    truth = 1.0 / (1.0 + DRIFT) - 1.0
+    err_binned, err_pairs = abs(binned.fit.drift - truth) * 1e6, abs(pairs.fit.drift - truth) * 1e6
+    print(f"drift error over a loaded link: binned {err_binned:.2f} ppm, last 2048 pairs {err_pairs:.1f} ppm")
+    assert err_binned < 5.0
+    assert err_pairs > err_binned
+    assert np.max(np.abs(binned.to_target(sensor[-5000:]) - vehicle[-5000:])) < 1e-3  # the last 40 s within 1 ms
+
+
+def test_one_way_bins_keep_the_least_latency_pair() -> None:
+    sync = OneWaySync(bin_s=1.0)
+    for sent, received in ((0.1, 0.5), (0.2, 0.25), (0.9, 1.4), (1.5, 1.6), (1.7, 1.9)):
+        sync.add(sent, received)
+    assert list(sync._pairs) == [(0.2, 0.25, 1.0), (1.5, 1.6, 1.0)]
+    with pytest.raises(ValueError, match="bin_s"):
+        OneWaySync(bin_s=0.0)
 
 
 def test_robust_line_ignores_gross_outliers() -> None:
@@ -174,3 +250,34 @@ def test_telemetry_clock_against_the_simulated_px4() -> None:
         clock.close()
         vehicle.close()
     assert max(errors) < 0.02, errors
+
+
+@pytest.mark.parametrize("rate", [0.915, 1.0, 2.0, 4.0])
+def test_telemetry_clock_follows_a_vehicle_clock_at_another_rate(rate: float) -> None:
+    """Reference: the true vehicle clock. PX4 SITL in lockstep runs at its speed factor, and
+    slower when starved (measured: 0.915 of the host's rate with other jobs beside it; -s 2 and
+    -s 4 run 2 and 4 times faster). Telemetry stamped in whole ms, 100 a second, arriving 0.1 ms
+    + exponential(1 ms) late, and the rate stepping by 5 % halfway: 3.5 s into each rate the
+    clock.s ``now`` is within 3 ms (of vehicle time) of the truth."""
+    rng = np.random.default_rng(11)
+    host = {"t": 0.0}
+    sent: list[tuple[float, float]] = []  # (host arrival, vehicle stamp)
+
+    def vehicle_at(h: float) -> float:
+        return 50.0 + rate * h if h < 10.0 else 50.0 + rate * 10.0 + 1.05 * rate * (h - 10.0)
+
+    stamp = {"v": float("nan")}
+    clock = TelemetryClock(lambda: stamp["v"], host_clock=lambda: host["t"])
+    errors = []
+    for k in range(2000):  # 20 s of host time, a telemetry message every 10 ms
+        t_sent = 0.01 * k
+        arrival = t_sent + 1e-4 + rng.exponential(1e-3)
+        host["t"] = arrival
+        stamp["v"] = math.floor(vehicle_at(t_sent) * 1e3) / 1e3  # time_boot_ms
+        clock.poll()
+        if (3.5 < arrival < 10.0) or arrival > 13.5:
+            errors.append(clock.now() - vehicle_at(arrival))
+        sent.append((arrival, stamp["v"]))
+    errors = np.abs(np.array(errors))
+    print(f"rate {rate}: |now - truth| p50 {np.median(errors) * 1e3:.2f} ms, max {errors.max() * 1e3:.2f} ms")
+    assert errors.max() < 3e-3

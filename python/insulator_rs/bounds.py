@@ -108,6 +108,14 @@ MISSION: dict[str, Limit] = {
     "inspection.confirmations": Limit(1, 20, "", "an insulator is seen by about 10-30 detection "
                                       "events per pass; more confirmations never register one",
                                       integer=True),
+    "inspection.battery_reserve": Limit(0.1, 0.9, "of the pack", "below 10 % a LiPo sags under "
+                                        "load and PX4's own critical and emergency actions "
+                                        "(BAT_CRIT_THR 7 %, BAT_EMERGEN_THR 5 %) take the vehicle; "
+                                        "keeping more than 90 % leaves no flight"),
+    "inspection.photo_retakes": Limit(0, 5, "", "each retake is a hover at the waypoint; a photo "
+                                      "still unfit after five more shots has a cause another shot "
+                                      "does not cure (the camera, the detector, the framing)",
+                                      integer=True),
 }
 
 #: Horizontal distance of the take-off point from the tower base, m.
@@ -176,12 +184,20 @@ OPTIONS: dict[str, Limit] = {
                              "loop; slower than a minute it sees an insulator once a pass"),
     "--detect-scale": Limit(0.0, 1.0, "", "a fraction of the camera's resolution", lo_open=True),
     "--photo-scale": Limit(0.0, 1.0, "", "a fraction of the camera's resolution", lo_open=True),
+    "--sim-camera-latency": Limit(0.0, 0.5, "s", "a simulated camera's frames stamped this late; "
+                                  "the rig's [camera] latency_s allows at most half a second"),
     "--max-flight-time": Limit(0.0, 7200.0, "s", "no multirotor battery lasts two hours",
                                lo_open=True),
+    "--sim-battery": Limit(0.0, 1.0, "of the pack", "a charge is a fraction of the full pack; 0 "
+                           "cannot arm", lo_open=True),
     "--seed": Limit(0, 2**32 - 1, "", "numpy seeds are non-negative; 32 bits are plenty",
                     integer=True),
     "--threads": Limit(1, 256, "", "more threads than cores only contend (23k threads took "
                        "16.8 GB); 256 covers any companion computer", integer=True),
+    "--wind": Limit(0.0, 20.0, "m/s", "inspection multirotors are rated for 12-15 m/s of wind; "
+                    "nobody inspects a tower in a gale"),
+    "--wind direction": Limit(-360.0, 360.0, "deg", "where the wind blows from, clockwise from "
+                              "north"),
     "--false-positives": Limit(0.0, 20.0, "per image", "a real detector at confidence 0.25 gives "
                                "a handful; 20 per image already drowns the localization"),
 }
@@ -209,3 +225,22 @@ def option(flag: str) -> Callable[[str], float]:
 
     parse.__name__ = flag.lstrip("-").replace("-", "_")
     return parse
+
+
+def wind_option(text: str) -> tuple[float, float]:
+    """An argparse ``type`` for ``--wind SPEED[,DIR_DEG]``: (speed m/s, from-direction deg
+    clockwise from north; 0, a northerly, when not given), each checked against :data:`OPTIONS`."""
+    parts = text.split(",")
+    if len(parts) > 2:
+        raise argparse.ArgumentTypeError(f"expected SPEED or SPEED,DIR_DEG, got {text!r}")
+    values = []
+    for flag, part in zip(("--wind", "--wind direction"), parts):
+        try:
+            value = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag}: expected a number, got {part!r}") from None
+        problem = OPTIONS[flag].problem(value)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(f"{flag}: {problem}")
+        values.append(value)
+    return values[0], values[1] if len(values) > 1 else 0.0

@@ -112,3 +112,28 @@ class ReportError(InsulatorError, ValueError):
     """A report folder cannot be read back (``insulator-rs report``, ``report.html``): a missing
     or malformed ``summary.json`` or ``inspection.geojson``. The message names the file and what
     is wrong with it."""
+
+
+class ParameterError(VehicleError):
+    """An autopilot parameter could not be read, set or verified: the autopilot has no parameter
+    of that name, never answered (no PARAM_VALUE after every retry), reported another value than
+    the one set, or the value does not fit the parameter's type or range.
+
+    ``parameter`` names the parameter (PX4's name, e.g. ``"RTL_RETURN_ALT"``); the message says
+    which of those it is. A ``VehicleError``: before take-off the mission refuses to arm on it."""
+
+    def __init__(self, parameter: str, reason: str) -> None:
+        super().__init__(f"parameter {parameter}: {reason}")
+        self.parameter = parameter
+        self.reason = reason
+
+
+class PreflightRefused(InsulatorError):
+    """The pre-flight gate refused to arm (``insulator_rs.flight.preflight``): a check failed.
+
+    ``failed`` holds (check name, reason) for every check that failed; the message names each.
+    Nothing was armed or flown."""
+
+    def __init__(self, failed: list[tuple[str, str]]) -> None:
+        super().__init__("pre-flight checks failed: " + "; ".join(f"{name}: {reason}" for name, reason in failed))
+        self.failed = list(failed)

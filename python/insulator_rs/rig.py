@@ -9,9 +9,27 @@ shipped rig such as ``"simulator"``). The form (see ``rigs/simulator.toml``)::
                                   # Kalibr camchain or ROS camera_info YAML, relative to this file
     T_b_c = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_c @ p_c; may be left out when
                                                   # the calibration holds the LiDAR-camera extrinsic
+    latency_s = 0.045             # optional: stamp minus exposure (s, in [-0.5, 0.5]), measured: the
+                                  # arrival latency of frames whose exposure time the source does
+                                  # not give (subtracted); `insulator-rs calibrate time-offset FLIGHT`
+                                  # measures it against the LiDAR
+
+    [inspection_camera]           # optional: the photo camera on its gimbal (insulator_rs.inspection_camera);
+                                  # without it the detection camera takes the photos, as before
+    calibration = "zoom.yaml"     # at the widest zoom; 12 MP class (e.g. 4000x3000)
+    make = "..."                  # EXIF make/model (1-32 printable ASCII characters)
+    model = "..."
+    pixel_pitch_um = 1.55         # sensor pixel size (needed with focal_length_mm)
+    focal_length_mm = [4.5, 45.0] # the zoom range; or focal_length_px = [min, max]; neither: fixed lens.
+                                  # The wide end must be the calibration's focal length (within 5 %)
+    T_b_c = [[...], ...]          # optional: the camera at zero gimbal angles on a level body
+    gimbal_pitch_deg = [-90, 30]  # gimbal limits (degrees; pitch down negative, yaw from the body
+    gimbal_yaw_deg = [-30, 30]    # heading, CCW); roll and pitch are stabilised
 
     [lidar]
     T_b_l = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_l @ p_l
+    fov_deg = [-7.0, 52.0]        # optional: the LiDAR's vertical field of view in its own frame
+                                  # (degrees, down, up); the Livox Mid-360's when left out
 
 The simulator's own defaults (its camera lens, where its camera and Mid-360 sit) come
 from the shipped ``simulator`` rig, so the simulated sensors and the perception that reads
@@ -22,7 +40,8 @@ naming the file and the field.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,11 +51,26 @@ from insulator_rs._core import CameraModel
 from insulator_rs._toml import tomllib
 from insulator_rs.calibration import load_calibration
 from insulator_rs.exceptions import ConfigError
+from insulator_rs.inspection_camera import GimbalLimits, InspectionCamera
 from insulator_rs.poses import check_pose
 from insulator_rs.textfile import read_config_text
 
 RIGS_DIR = Path(__file__).resolve().parent / "rigs"
 SIMULATOR_RIG = "simulator"
+#: The Livox Mid-360's vertical field of view (degrees from its x-y plane, down and up: Livox's
+#: specification), the LiDAR the live driver speaks to.
+MID360_VERTICAL_FOV_DEG = (-7.0, 52.0)
+#: The fields of ``[inspection_camera]``.
+INSPECTION_FIELDS = {"calibration", "make", "model", "pixel_pitch_um", "focal_length_px", "focal_length_mm",
+                     "T_b_c", "gimbal_pitch_deg", "gimbal_yaw_deg"}
+#: The zoom range's wide end and the calibration (taken at the widest zoom) may differ this much
+#: (relative): a lens's stated focal length is rounded.
+ZOOM_CALIBRATION_TOLERANCE = 0.05
+#: The optical frame looking along the body x axis (C's z = B's x, C's x = -B's y, C's y = -B's z):
+#: an inspection camera's mount when the rig does not give one.
+FORWARD_T_B_C = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+#: The camera latency a rig may state (s, either sign): beyond half a second a stamp is not late, it is wrong.
+MAX_CAMERA_LATENCY_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -60,19 +94,60 @@ class CameraLens:
 class SensorRig:
     """A validated rig: ``camera`` (full-resolution intrinsics), ``T_b_c`` and ``T_b_l`` (4x4
     float64 rigid transforms), ``source`` (the file it came from), ``lens`` (make, model, pixel
-    pitch of the camera, where the rig gives them)."""
+    pitch of the camera, where the rig gives them), ``camera_latency_s`` (``[camera] latency_s``:
+    the frame stamp minus its exposure time, s; 0 where the rig does not say), which the live
+    camera subtracts from the arrival of a frame whose exposure time it does not know."""
 
     source: str
     camera: CameraModel
     T_b_c: np.ndarray
     T_b_l: np.ndarray
     lens: CameraLens = CameraLens()
+    camera_latency_s: float = 0.0
+    lidar_fov_deg: tuple[float, float] = MID360_VERTICAL_FOV_DEG
+    inspection: InspectionCamera | None = None
+
+    def inspection_camera(self) -> InspectionCamera:
+        """The camera that takes the inspection photos: the rig's ``[inspection_camera]``, or,
+        for a rig without one, the detection camera standing in (fixed lens, the gimbal pitch
+        only, not dedicated) as every rig flew before there was one."""
+        if self.inspection is not None:
+            return self.inspection
+        f = 0.5 * (self.camera.fx + self.camera.fy)
+        return InspectionCamera(self.camera, self.T_b_c.copy(), (f, f), GimbalLimits(), self.lens.make,
+                                self.lens.model, self.lens.pixel_pitch_um, dedicated=False)
+
+    def vertical_view(self) -> tuple[float, float]:
+        """Elevations (rad, down < up) that the camera and the LiDAR both see straight ahead of a
+        level body (along its x axis): localization needs a box and its points at once.
+
+        The camera's are the pinhole angles of the image's top and bottom rows at the principal
+        column; a barrel lens sees a little more there, so this errs on the side of less. The
+        LiDAR's are its field of view's two edges in its own x direction, carried through
+        ``T_b_l`` (a pitched mount moves them)."""
+        cam = self.camera
+        rows = ((-0.5 - cam.cy) / cam.fy, (cam.height - 0.5 - cam.cy) / cam.fy)  # image y down
+        cam_el = [_elevation(self.T_b_c[:3, :3] @ np.array([0.0, y, 1.0])) for y in rows]
+        lidar_el = [_elevation(self.T_b_l[:3, :3] @ np.array([np.cos(e), 0.0, np.sin(e)]))
+                    for e in np.radians(self.lidar_fov_deg)]
+        down = max(min(cam_el), min(lidar_el))
+        up = min(max(cam_el), max(lidar_el))
+        if not down < up:
+            raise ConfigError(f"{self.source}: camera.T_b_c, lidar.T_b_l: the camera and the LiDAR "
+                              f"share no elevation straight ahead (camera {np.degrees(cam_el).round(1)}, "
+                              f"LiDAR {np.degrees(lidar_el).round(1)} deg)")
+        return float(down), float(up)
 
     def exif_camera(self) -> dict[str, Any]:
         """The photos' EXIF camera fields: make, model and the focal length in mm (from the
         full-resolution calibration and the pixel pitch; None where the rig does not say)."""
         return {"make": self.lens.make, "model": self.lens.model,
                 "focal_length_mm": self.lens.focal_length_mm(self.camera)}
+
+
+def _elevation(direction: np.ndarray) -> float:
+    """The angle (rad) of a body-frame direction above the body's x-y plane."""
+    return float(np.arctan2(direction[2], np.hypot(direction[0], direction[1])))
 
 
 def resolve_rig(name: str, relative_to: Path | None = None) -> Path:
@@ -121,31 +196,117 @@ def load_rig(path: str | Path) -> SensorRig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: <file>: cannot parse: {exc}") from exc
-    extra = sorted(set(data) - {"camera", "lidar"})
+    extra = sorted(set(data) - {"camera", "lidar", "inspection_camera"})
     if extra:
-        raise ConfigError(f"{source}: {extra[0]}: unknown field (allowed: camera, lidar)")
-    cam_t = _table(source, data, "camera", {"calibration", "T_b_c", "make", "model", "pixel_pitch_um"})
-    lidar_t = _table(source, data, "lidar", {"T_b_l"})
-    calibration = cam_t.get("calibration")
-    if not isinstance(calibration, str) or not calibration:
-        raise ConfigError(f"{source}: camera.calibration: expected the calibration file's path, "
-                          f"got {calibration!r}")
-    cal_path = Path(calibration).expanduser()
-    if not cal_path.is_absolute():
-        cal_path = p.resolve().parent / cal_path
-    try:
-        cal = load_calibration(cal_path)
-    except (ConfigError, OSError) as exc:  # a bad calibration, or none at that path
-        raise ConfigError(f"{source}: camera.calibration: {exc}") from exc
+        raise ConfigError(f"{source}: {extra[0]}: unknown field (allowed: camera, inspection_camera, lidar)")
+    cam_t = _table(source, data, "camera", {"calibration", "T_b_c", "make", "model", "pixel_pitch_um", "latency_s"})
+    lidar_t = _table(source, data, "lidar", {"T_b_l", "fov_deg"})
+    cal = _calibration(source, p, cam_t, "camera")
     T_b_l = _matrix(source, lidar_t, "lidar", "T_b_l")
     if "T_b_c" in cam_t or cal.T_c_l is None:
         T_b_c = _matrix(source, cam_t, "camera", "T_b_c")
     else:  # the camera-LiDAR calibration's extrinsic places the camera on the body through the LiDAR
         T_b_c = T_b_l @ np.linalg.inv(cal.T_c_l)
-    return SensorRig(source, cal.camera, T_b_c, T_b_l, _lens(source, cam_t))
+    inspection = None
+    if "inspection_camera" in data:
+        inspection = _inspection_camera(source, p, _table(source, data, "inspection_camera", INSPECTION_FIELDS))
+    return SensorRig(source, cal.camera, T_b_c, T_b_l, _lens(source, cam_t), _latency(source, cam_t),
+                     _lidar_fov(source, lidar_t), inspection)
 
 
-def _lens(source: str, cam_t: dict[str, Any]) -> CameraLens:
+def _calibration(source: str, p: Path, table: dict[str, Any], prefix: str) -> Any:
+    """The calibration file named by ``<prefix>.calibration`` (relative to the rig file)."""
+    calibration = table.get("calibration")
+    if not isinstance(calibration, str) or not calibration:
+        raise ConfigError(f"{source}: {prefix}.calibration: expected the calibration file's path, "
+                          f"got {calibration!r}")
+    cal_path = Path(calibration).expanduser()
+    if not cal_path.is_absolute():
+        cal_path = p.resolve().parent / cal_path
+    try:
+        return load_calibration(cal_path)
+    except (ConfigError, OSError) as exc:  # a bad calibration, or none at that path
+        raise ConfigError(f"{source}: {prefix}.calibration: {exc}") from exc
+
+
+def _range(source: str, table: dict[str, Any], key: str, lo: float, hi: float, unit: str,
+           default: tuple[float, float] | None) -> tuple[float, float] | None:
+    """``[inspection_camera] <key>``: [min, max] numbers with lo <= min <= max <= hi."""
+    if key not in table:
+        return default
+    value = table[key]
+    ok = (isinstance(value, list) and len(value) == 2
+          and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+          and lo <= float(value[0]) <= float(value[1]) <= hi)
+    if not ok:
+        raise ConfigError(f"{source}: inspection_camera.{key}: expected [min, max] {unit} with "
+                          f"{lo:g} <= min <= max <= {hi:g}, got {value!r}")
+    return float(value[0]), float(value[1])
+
+
+def _inspection_camera(source: str, p: Path, t: dict[str, Any]) -> InspectionCamera:
+    """``[inspection_camera]`` (module docstring): its calibration at the widest zoom, the zoom
+    range (``focal_length_px``, or ``focal_length_mm`` with ``pixel_pitch_um``; neither: a fixed
+    lens), whose wide end must be the calibration's focal length (within
+    :data:`ZOOM_CALIBRATION_TOLERANCE`), the mount ``T_b_c`` (the detection camera's axes at the
+    body origin when left out) and the gimbal's pitch and yaw limits (degrees)."""
+    cal = _calibration(source, p, t, "inspection_camera")
+    cam = cal.camera
+    lens = _lens(source, t, "inspection_camera")
+    f_cal = 0.5 * (cam.fx + cam.fy)
+    if "focal_length_px" in t and "focal_length_mm" in t:
+        raise ConfigError(f"{source}: inspection_camera.focal_length_mm: give focal_length_px or "
+                          f"focal_length_mm, not both")
+    focal = _range(source, t, "focal_length_px", 1.0, 1e6, "px", None)
+    key = "focal_length_px"
+    if "focal_length_mm" in t:
+        key = "focal_length_mm"
+        mm = _range(source, t, key, 0.1, 2000.0, "mm", None)
+        if lens.pixel_pitch_um is None:
+            raise ConfigError(f"{source}: inspection_camera.pixel_pitch_um: missing (focal_length_mm "
+                              f"needs the pixel pitch to give px)")
+        assert mm is not None
+        focal = (mm[0] / (lens.pixel_pitch_um * 1e-3), mm[1] / (lens.pixel_pitch_um * 1e-3))
+    if focal is None:
+        focal = (f_cal, f_cal)  # a fixed lens
+    elif abs(focal[0] - f_cal) > ZOOM_CALIBRATION_TOLERANCE * f_cal:
+        raise ConfigError(f"{source}: inspection_camera.{key}: the widest end ({focal[0]:.1f} px) is not "
+                          f"the calibration's focal length ({f_cal:.1f} px): calibrate at the widest zoom")
+    else:
+        focal = (f_cal, focal[1])
+    T_b_c = _matrix(source, t, "inspection_camera", "T_b_c") if "T_b_c" in t else FORWARD_T_B_C.copy()
+    pitch = _range(source, t, "gimbal_pitch_deg", -180.0, 180.0, "degrees", (-90.0, 30.0))
+    yaw = _range(source, t, "gimbal_yaw_deg", -180.0, 180.0, "degrees", (0.0, 0.0))
+    assert pitch is not None and yaw is not None
+    gimbal = GimbalLimits((math.radians(pitch[0]), math.radians(pitch[1])),
+                          (math.radians(yaw[0]), math.radians(yaw[1])))
+    return InspectionCamera(cam, T_b_c, focal, gimbal, lens.make, lens.model, lens.pixel_pitch_um)
+
+
+def _lidar_fov(source: str, lidar_t: dict[str, Any]) -> tuple[float, float]:
+    """``[lidar] fov_deg``: two numbers, -90 <= down < up <= 90; the Mid-360's when left out."""
+    value = lidar_t.get("fov_deg", list(MID360_VERTICAL_FOV_DEG))
+    ok = (isinstance(value, list) and len(value) == 2
+          and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+          and -90.0 <= float(value[0]) < float(value[1]) <= 90.0)
+    if not ok:
+        raise ConfigError(f"{source}: lidar.fov_deg: expected [down, up] degrees with "
+                          f"-90 <= down < up <= 90, got {value!r}")
+    return float(value[0]), float(value[1])
+
+
+
+def _latency(source: str, cam_t: dict[str, Any]) -> float:
+    """``[camera] latency_s``: a number in [-MAX_CAMERA_LATENCY_S, MAX_CAMERA_LATENCY_S] s, 0 when
+    left out (either sign: measured against the LiDAR's clock, it carries that clock's error too)."""
+    value = cam_t.get("latency_s", 0.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not abs(float(value)) <= MAX_CAMERA_LATENCY_S:
+        raise ConfigError(f"{source}: camera.latency_s: expected a number in [-{MAX_CAMERA_LATENCY_S:g}, "
+                          f"{MAX_CAMERA_LATENCY_S:g}] s (stamp minus exposure, measured), got {value!r}")
+    return float(value)
+
+
+def _lens(source: str, cam_t: dict[str, Any], prefix: str = "camera") -> CameraLens:
     """``[camera] make``, ``model`` (printable ASCII, 1-32 characters: EXIF and MAVLink's
     CAMERA_INFORMATION hold 32 bytes) and ``pixel_pitch_um`` (0.5-50 um: phone to machine-vision
     sensors)."""
@@ -153,12 +314,12 @@ def _lens(source: str, cam_t: dict[str, Any]) -> CameraLens:
     for key in ("make", "model"):
         v = cam_t.get(key)
         if v is not None and not (isinstance(v, str) and 1 <= len(v) <= 32 and all(32 <= ord(c) < 127 for c in v)):
-            raise ConfigError(f"{source}: camera.{key}: expected 1-32 printable ASCII characters, got {v!r}")
+            raise ConfigError(f"{source}: {prefix}.{key}: expected 1-32 printable ASCII characters, got {v!r}")
         names[key] = v
     pitch = cam_t.get("pixel_pitch_um")
     if pitch is not None:
         if isinstance(pitch, bool) or not isinstance(pitch, (int, float)) or not (0.5 <= float(pitch) <= 50.0):
-            raise ConfigError(f"{source}: camera.pixel_pitch_um: expected a number in [0.5, 50] um, got {pitch!r}")
+            raise ConfigError(f"{source}: {prefix}.pixel_pitch_um: expected a number in [0.5, 50] um, got {pitch!r}")
         pitch = float(pitch)
     return CameraLens(names["make"], names["model"], pitch)
 
@@ -171,7 +332,9 @@ def _simulator_rig() -> SensorRig:
 def simulator_rig() -> SensorRig:
     """The shipped rig of the simulated airframe (arrays copied: callers may modify them)."""
     rig = _simulator_rig()
-    return SensorRig(rig.source, rig.camera, rig.T_b_c.copy(), rig.T_b_l.copy(), rig.lens)
+    inspection = None if rig.inspection is None else replace(rig.inspection, T_b_c=rig.inspection.T_b_c.copy())
+    return SensorRig(rig.source, rig.camera, rig.T_b_c.copy(), rig.T_b_l.copy(), rig.lens, rig.camera_latency_s,
+                     rig.lidar_fov_deg, inspection)
 
 
 def scaled_camera(model: CameraModel, scale: float) -> CameraModel:
@@ -187,3 +350,37 @@ def scaled_camera(model: CameraModel, scale: float) -> CameraModel:
     sx, sy = w / model.width, h / model.height
     return CameraModel(model.fx * sx, model.fy * sy, (model.cx + 0.5) * sx - 0.5, (model.cy + 0.5) * sy - 0.5,
                        w, h, dist=[float(k) for k in model.dist])
+
+
+def write_camera_latency(path: str | Path, latency_s: float) -> SensorRig:
+    """Set ``[camera] latency_s`` in the rig file at ``path`` (the line replaced, or added under
+    ``[camera]``; comments and the rest kept), then read the file back as a rig; on any error
+    the file is left as it was (ConfigError names the file and the field)."""
+    p = Path(path)
+    text = read_config_text(p, f"{p}: <file>")
+    if not (np.isfinite(latency_s) and abs(latency_s) <= MAX_CAMERA_LATENCY_S):
+        raise ConfigError(f"{p}: camera.latency_s: {latency_s!r} s is outside "
+                          f"[-{MAX_CAMERA_LATENCY_S:g}, {MAX_CAMERA_LATENCY_S:g}]")
+    lines = text.splitlines(keepends=True)
+    line = f"latency_s = {latency_s:.4f}  # s: frame stamp minus exposure (insulator-rs calibrate time-offset)\n"
+    section = None
+    at = None
+    for i, raw in enumerate(lines):
+        stripped = raw.strip()
+        if stripped.startswith("["):
+            section = stripped.split("#", 1)[0].strip()
+            if section == "[camera]":
+                at = i + 1
+        elif section == "[camera]" and stripped.split("=", 1)[0].strip() == "latency_s":
+            lines[i] = line
+            break
+    else:
+        if at is None:
+            raise ConfigError(f"{p}: camera: missing table (not a rig file)")
+        lines.insert(at, line)
+    p.write_text("".join(lines), encoding="utf-8")
+    try:
+        return load_rig(p)
+    except ConfigError:
+        p.write_text(text, encoding="utf-8")
+        raise

@@ -8,6 +8,8 @@
   a density independent of the size (the DBSCAN benchmark workload).
 * :func:`lidar_frame` — a full-frame cloud spread over a Livox Mid-360's field
   of view (the projection/culling benchmark workload).
+* :func:`tower_cloud` — a whole lattice tower and its conductors over ~60 m, as
+  accumulated scans see it (the sparse tower-scale DBSCAN workload).
 
 Frames and units: metres; clouds for ``localize`` are in the body frame B (FLU,
 the UAV at the origin); :func:`lidar_frame` is in the LiDAR frame L. Every
@@ -31,6 +33,7 @@ __all__ = [
     "insulator_cloud",
     "lidar_frame",
     "line_clusters",
+    "tower_cloud",
 ]
 
 # Source labels of the points of an insulator cloud.
@@ -239,6 +242,84 @@ def lidar_frame(
             rng_m * np.sin(elevation),
         ]
     )
+
+
+# A lattice tower (fusion_core's benches/tower.rs builds the same recipe): height, body
+# half-widths at base and top, (height, reach) of the cross-arms, panel height, conductor
+# half-span along y, sag, the conductor and stray shares, and the per-axis jitter (m).
+_TOWER_HEIGHT = 48.0
+_TOWER_BASE_HALF, _TOWER_TOP_HALF = 5.0, 1.0
+_TOWER_ARMS = ((30.0, 9.0), (37.0, 7.5), (44.0, 6.0))
+_TOWER_PANEL = 3.0
+_SPAN_HALF, _SAG = 30.0, 2.0
+_WIRE_SHARE, _STRAY_SHARE, _TOWER_JITTER = 0.25, 0.02, 0.02
+
+
+def _tower_segments() -> NDArray[np.float64]:
+    """(S,2,3): the lattice as straight members (legs, rings and X-bracing per panel,
+    cross-arm chords and braces, an earth-wire peak)."""
+
+    def half(z: float) -> float:
+        return _TOWER_BASE_HALF + (_TOWER_TOP_HALF - _TOWER_BASE_HALF) * z / _TOWER_HEIGHT
+
+    def corners(z: float) -> list[list[float]]:
+        h = half(z)
+        return [[h, h, z], [-h, h, z], [-h, -h, z], [h, -h, z]]
+
+    segs: list[tuple[list[float], list[float]]] = []
+    z = 0.0
+    while z < _TOWER_HEIGHT:
+        z1 = min(z + _TOWER_PANEL, _TOWER_HEIGHT)
+        lo, hi = corners(z), corners(z1)
+        for k in range(4):
+            n = (k + 1) % 4
+            segs += [(lo[k], hi[k]), (hi[k], hi[n]), (lo[k], hi[n]), (lo[n], hi[k])]
+        z = z1
+    for za, reach in _TOWER_ARMS:
+        h = half(za)
+        for side in (-1.0, 1.0):
+            tip = [side * reach, 0.0, za]
+            for y in (-h, h):
+                segs += [([side * h, y, za], tip), ([side * h, y, za + 2.0], tip),
+                         ([side * h, y, za], [side * (h + reach) / 2.0, 0.0, za + 1.0])]
+    top = _TOWER_HEIGHT + 3.0
+    segs += [([_TOWER_TOP_HALF, _TOWER_TOP_HALF, _TOWER_HEIGHT], [0.0, 0.0, top]),
+             ([-_TOWER_TOP_HALF, -_TOWER_TOP_HALF, _TOWER_HEIGHT], [0.0, 0.0, top])]
+    return np.asarray(segs, dtype=np.float64)
+
+
+def tower_cloud(n_points: int, *, seed: int = 0) -> NDArray[np.float64]:
+    """``n_points`` (N,3) float64: a lattice tower and its conductors, about 60 m long.
+
+    A 48 m tower (body tapering from 10 m to 2 m square, X-braced panels of 3 m,
+    three pairs of cross-arms) sampled uniformly along its members; 25 % of the
+    points on six conductors hanging 3 m below the arm tips with a 2 m parabolic
+    sag over +-30 m along y; 2 % uniform stray returns; +-2 cm jitter on each axis.
+    Most grid cells of side eps/sqrt(3) at eps 0.3 m hold fewer than 5 points (median 1
+    at 10k points, 3 at 65k): the sparse tower-scale
+    DBSCAN workload (issue 23; fusion_core's ``benches/tower.rs`` is the same
+    recipe, with a different random generator).
+    """
+    if n_points < 0:
+        raise ValueError(f"need n_points >= 0, got {n_points}")
+    rng = np.random.default_rng(seed)
+    segs = _tower_segments()
+    length = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
+    n_stray = int(n_points * _STRAY_SHARE)
+    n_wire = int(n_points * _WIRE_SHARE)
+    n_lattice = n_points - n_stray - n_wire
+    k = rng.choice(len(segs), size=n_lattice, p=length / length.sum())
+    t = rng.uniform(0.0, 1.0, size=(n_lattice, 1))
+    lattice = segs[k, 0] + t * (segs[k, 1] - segs[k, 0])
+    arms = np.asarray(_TOWER_ARMS)[rng.integers(0, len(_TOWER_ARMS), size=n_wire)]
+    side = rng.choice([-1.0, 1.0], size=n_wire)
+    y = rng.uniform(-_SPAN_HALF, _SPAN_HALF, size=n_wire)
+    wire = np.column_stack([side * arms[:, 1], y, arms[:, 0] - 3.0 - _SAG * (y / _SPAN_HALF) ** 2])
+    body = np.concatenate([lattice, wire])
+    body += rng.uniform(-_TOWER_JITTER, _TOWER_JITTER, size=body.shape)
+    stray = np.column_stack([rng.uniform(-12.0, 12.0, n_stray), rng.uniform(-_SPAN_HALF, _SPAN_HALF, n_stray),
+                             rng.uniform(0.0, _TOWER_HEIGHT, n_stray)])
+    return np.concatenate([body, stray])
 
 
 # --- geometry helpers ------------------------------------------------------------------

@@ -8,7 +8,7 @@ use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use fusion_core::{
-    dbscan, deskew, deskew_points_in_boxes, localize, points_in_boxes, project_points, CameraModel, LocalizeParams,
+    dbscan, deskew, deskew_points_in_boxes, deskew_points_in_boxes_scalar, localize, points_in_boxes, project_points, CameraModel, LocalizeParams,
     Method, PixelBox, PoseStream,
 };
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
@@ -210,6 +210,58 @@ fn bench_deskew(c: &mut Criterion) {
         b.iter(|| points_in_boxes(black_box(&pts), &t_c_l, &cam, &boxes).unwrap())
     });
     g.finish();
+
+    // The target is one core: the same fused call in a one-thread rayon pool, scalar
+    // reference and SIMD path side by side, and their ratio.
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let mut g = c.benchmark_group(ONE_CORE_GROUP);
+    g.throughput(Throughput::Elements(FRAME_POINTS as u64));
+    g.bench_function(SCALAR_ID, |b| {
+        b.iter(|| {
+            one.install(|| {
+                deskew_points_in_boxes_scalar(black_box(&pts), &times, &stream, 0.1, &t_b_l, &t_c_l, &cam, &boxes).unwrap()
+            })
+        })
+    });
+    g.bench_function(SIMD_ID, |b| {
+        b.iter(|| {
+            one.install(|| deskew_points_in_boxes(black_box(&pts), &times, &stream, 0.1, &t_b_l, &t_c_l, &cam, &boxes).unwrap())
+        })
+    });
+    g.finish();
+    print_ratio(ONE_CORE_GROUP, SCALAR_ID, SIMD_ID);
+}
+
+/// Group and ids of the one-core scalar-versus-SIMD comparison.
+const ONE_CORE_GROUP: &str = "deskew_points_in_boxes_20k_1core";
+const SCALAR_ID: &str = "scalar";
+const SIMD_ID: &str = "simd";
+/// The target for the fused kernel on one core, microseconds per 20k points.
+const FUSED_TARGET_US: f64 = 60.0;
+
+/// Criterion's mean estimate (ns) of `group/id` from this run's `new/estimates.json`.
+fn mean_ns(group: &str, id: &str) -> Option<f64> {
+    let dir = std::env::var_os("CARGO_TARGET_DIR").map_or_else(
+        || std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target"),
+        std::path::PathBuf::from,
+    );
+    let text = std::fs::read_to_string(dir.join("criterion").join(group).join(id).join("new/estimates.json")).ok()?;
+    // {"mean":{"confidence_interval":{...},"point_estimate":N,...
+    let mean = &text[text.find("\"mean\"")?..];
+    let rest = &mean[mean.find("\"point_estimate\":")? + "\"point_estimate\":".len()..];
+    rest[..rest.find([',', '}'])?].trim().parse().ok()
+}
+
+fn print_ratio(group: &str, scalar: &str, simd: &str) {
+    match (mean_ns(group, scalar), mean_ns(group, simd)) {
+        (Some(a), Some(b)) => println!(
+            "{group}: scalar {:.1} us, SIMD {:.1} us, ratio {:.2}x (target <= {FUSED_TARGET_US} us)",
+            a / 1e3,
+            b / 1e3,
+            a / b
+        ),
+        _ => println!("{group}: no estimates to compare (run without a filter that skips either)"),
+    }
 }
 
 criterion_group!(benches, bench_project_cull, bench_dbscan, bench_localize, bench_deskew);

@@ -19,7 +19,7 @@ pub use bounded::{localize_bounded, BoundedLocalization, BoundedParams, BoxView}
 pub use camera::{CameraModel, NEAR_LIMIT};
 pub use culling::{points_in_boxes, PixelBox};
 pub use dbscan::{dbscan, NOISE};
-pub use deskew::{deskew, deskew_points_in_boxes, PoseStream};
+pub use deskew::{deskew, deskew_points_in_boxes, deskew_points_in_boxes_scalar, PoseStream};
 pub use error::{FusionError, Result};
 pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
 pub use projection::{project_points, Projection};

@@ -18,10 +18,10 @@ pub struct Projection {
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Projector {
     /// Rotation C <- L, row-major plain f64s (no matrix indexing in the hot loop).
-    rotation: [[f64; 3]; 3],
-    translation: [f64; 3],
+    pub(crate) rotation: [[f64; 3]; 3],
+    pub(crate) translation: [f64; 3],
     /// A copy, so the hot loop reads its fields from the stack, not through a pointer.
-    cam: CameraModel,
+    pub(crate) cam: CameraModel,
 }
 
 impl Projector {

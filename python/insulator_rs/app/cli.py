@@ -23,12 +23,13 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("dataset", "insulator_rs.app.dataset_command"),
     ("replay", "insulator_rs.app.replay_command"),
     ("report", "insulator_rs.app.report_command"),
+    ("calibrate", "insulator_rs.app.calibrate_command"),
 )
 
 # Subcommands of an optional part -> the extra that provides their dependencies. Without
 # it (a plain ``pip install``, as on a Jetson) the subcommand is still listed, and running
 # it says what to install instead of every command failing on the missing import.
-EXTRAS: dict[str, str] = {"replay": "bags"}
+EXTRAS: dict[str, str] = {"replay": "bags", "calibrate": "bags"}
 
 
 def import_optional(module_name: str) -> ModuleType | None:

@@ -11,6 +11,8 @@ from insulator_rs.app.cli import import_optional
 STUDIES: tuple[tuple[str, str, str], ...] = (
     ("localization", "insulator_rs.evaluation.localization_study",
      "localization error of the four methods on towers A and B (paper Tables I and II)"),
+    ("airframe", "insulator_rs.evaluation.airframe_study",
+     "localization on the tilting airframe in wind and braking: full attitude vs the level assumption"),
     ("efficiency", "insulator_rs.evaluation.efficiency_study",
      "single-flight vs two-flight inspection time (paper efficiency figure)"),
     ("motion", "insulator_rs.evaluation.motion_study",

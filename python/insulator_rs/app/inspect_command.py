@@ -49,6 +49,7 @@ from insulator_rs.report import check_out_folder, parse_out_folder
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
 from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits
+from insulator_rs.sim.wind import WindSpec
 from insulator_rs.sim.sensors import (
     SimulatedSensors,
     kinematic_true_pose,
@@ -69,7 +70,8 @@ LIMIT_HEADROOM = 1.5
 
 
 def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
-    """The simulated airframe at the mission's take-off point, limits with headroom over the plan's."""
+    """The simulated airframe at the mission's take-off point, limits with headroom over the plan's
+    (its pack full: :func:`charged` sets another charge)."""
     geom = MissionGeometry.from_mission(mission)
     lim = mission.vehicle
     return KinematicVehicle(
@@ -80,18 +82,36 @@ def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
                             max_vertical_acceleration=lim.a_max_vertical * LIMIT_HEADROOM))
 
 
+def charged(vehicle: KinematicVehicle, battery: float | None) -> KinematicVehicle:
+    """``vehicle`` with its pack at ``battery`` (a fraction; None: as it is, full). The pack
+    drains with time and distance (sim/kinematics.py)."""
+    if battery is not None:
+        vehicle.battery_fraction = battery
+    return vehicle
+
+
+def windy(vehicle: KinematicVehicle, wind: tuple[float, float], seed: int) -> KinematicVehicle:
+    """``vehicle`` flying in ``wind`` (speed m/s, from-direction deg clockwise from north), with
+    Dryden turbulence seeded by ``seed``."""
+    if wind[0] > 0:
+        vehicle.set_wind(WindSpec(speed=wind[0], from_deg=wind[1], seed=seed))
+    return vehicle
+
+
 def mavlink_vehicle(mission: Mission, seed: int, *, connection: str | None, time_scale: float,
-                    signing_key: Path | None, gcs_port: int | None = None) -> tuple[Vehicle, SimulatedPx4 | None]:
+                    signing_key: Path | None, gcs_port: int | None = None,
+                    wind: tuple[float, float] = (0.0, 0.0),
+                    battery: float | None = None) -> tuple[Vehicle, SimulatedPx4 | None]:
     """The MAVLink offboard client, and the simulated PX4 it flies when this started one: to
     the simulated PX4 (started here on loopback, flying :func:`kinematic_vehicle`, with PX4's
     GCS link on ``gcs_port`` when given) when ``connection`` is None, else (simulator None) to
-    that autopilot with W's origin put at the tower base."""
+    that autopilot with W's origin put at the tower base. ``battery``: the simulated pack's charge (None: full)."""
     from insulator_rs.mavlink import connect_vehicle
     from insulator_rs.sim.px4 import start_simulated_px4
 
     tower = mission.tower
     if connection is None:
-        sim_options = {"vehicle": kinematic_vehicle(mission, seed), "origin": (tower.lat, tower.lon, tower.alt),
+        sim_options = {"vehicle": windy(charged(kinematic_vehicle(mission, seed), battery), wind, seed), "origin": (tower.lat, tower.lon, tower.alt),
                        "gcs_port": gcs_port}
         simulator, client = start_simulated_px4(time_scale=time_scale, signing_key=signing_key,
                                                 sim_options=sim_options)
@@ -139,6 +159,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
     p.add_argument("--seed", type=bounds.option("--seed"), default=0)
+    p.add_argument("--wind", type=bounds.wind_option, default=(0.0, 0.0), metavar="SPEED[,DIR_DEG]",
+                   help="mean wind in the simulator (m/s, from DIR_DEG clockwise from north; default "
+                        "0), with seeded Dryden turbulence (the simulated airframe only)")
     p.add_argument("--detector", default=None,
                    help="a shipped model name or an ONNX file: the YOLO network run on the detection images "
                         "(default: the shipped one that fits the camera, insulator-sim for the simulator's, "
@@ -155,7 +178,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s)")
     p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
     p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
+    p.add_argument("--sim-battery", type=bounds.option("--sim-battery"), default=None, metavar="FRACTION",
+                   help="the simulated airframe's charge at take-off (fraction of the pack; default 1: full). "
+                        "Its pack drains with time and distance (25 min hover); the mission comes back "
+                        "before [inspection] battery_reserve is touched")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--sim-camera-latency", type=bounds.option("--sim-camera-latency"), default=0.0,
+                   help="s: the simulated camera's frames are stamped this long after their exposure (a late "
+                        "camera, for `insulator-rs calibrate time-offset`; default 0)")
     p.add_argument("--record", type=Path, default=None,
                    help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
                         "messages in this MCAP file (replay it with `insulator-rs replay`)")
@@ -197,6 +227,9 @@ def _vehicle_kind(args: argparse.Namespace) -> str:
         if args.gcs_port is not None:
             raise ValueError("--gcs-port: only applies to --vehicle mavlink (the simulated PX4)")
         return kind
+    if args.sim_battery is not None and args.connection is not None:
+        raise ValueError("--sim-battery: sets the charge of our simulated airframe; an outside autopilot has its "
+                         "own (PX4 SIH: SIM_BAT_DRAIN, SIM_BAT_MIN_PCT)")
     if args.gcs_port is not None and (args.connection is not None or not 0 <= args.gcs_port <= 65535):
         raise ValueError("--gcs-port: a UDP port in [0, 65535] of the simulated PX4 (PX4 SITL has its own)")
     if args.time_scale is not None and not (math.isfinite(args.time_scale)
@@ -255,19 +288,24 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
         return 2
+    if args.wind[0] > 0 and getattr(args, "connection", None) is not None:
+        print("insulator-rs inspect: error: --wind: sets the wind of our simulated airframe; an outside "
+              "autopilot flies in its own wind (PX4 SIH: its SIH wind parameters)", file=sys.stderr)
+        return 2
     mission = _with_limits(mission, args.v_max, args.a_max)
     rig = mission.rig if mission.rig is not None else simulator_rig()
     if mavlink:
         try:
             vehicle, simulator = mavlink_vehicle(mission, args.seed, connection=args.connection,
                                                  time_scale=args.time_scale or 1.0, signing_key=args.signing_key,
-                                                 gcs_port=args.gcs_port)
+                                                 gcs_port=args.gcs_port, wind=args.wind,
+                                                 battery=args.sim_battery)
         except (VehicleError, ConfigError) as exc:  # no autopilot answering, a bad key file
             print(f"insulator-rs inspect: error: MAVLink vehicle: {exc}", file=sys.stderr)
             return 2
         pose = simulated_px4_true_pose(simulator) if simulator is not None else reported_pose(vehicle)
     else:
-        vehicle = kinematic_vehicle(mission, args.seed)
+        vehicle = windy(charged(kinematic_vehicle(mission, args.seed), args.sim_battery), args.wind, args.seed)
         pose = kinematic_true_pose(vehicle)
     live = args.lidar is not None
     sensors: Any
@@ -283,7 +321,8 @@ def run(args: argparse.Namespace) -> int:
         photo_camera = rig.camera
     else:
         sensors = SimulatedSensors(tower.mesh, pose, rig, detect_scale=args.detect_scale,
-                                   photo_scale=args.photo_scale, seed=args.seed)
+                                   photo_scale=args.photo_scale, seed=args.seed,
+                                   camera_latency_s=args.sim_camera_latency)
         detector = network if network is not None else GroundTruthDetector(sensors, seed=args.seed)
         photo_camera = sensors.photo_model
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
@@ -293,8 +332,8 @@ def run(args: argparse.Namespace) -> int:
     if mavlink:  # the pilot's view: STATUSTEXT and a MAVLink camera through the autopilot (mavlink/gcs.py)
         from insulator_rs.mavlink.gcs import CameraDescription, MavlinkGcsObserver
 
-        lens = rig.lens  # focal length and sensor size from the full-resolution calibration
-        camera = replace(CameraDescription.from_camera_model(rig.camera, pixel_pitch_um=lens.pixel_pitch_um,
+        lens = rig.inspection_camera()  # the photo camera: focal length and sensor size at full resolution
+        camera = replace(CameraDescription.from_camera_model(lens.camera, pixel_pitch_um=lens.pixel_pitch_um,
                                                              vendor=lens.make, model=lens.model),
                          width_px=int(photo_camera.width), height_px=int(photo_camera.height))
         observer = MavlinkGcsObserver.on_vehicle(vehicle, camera=camera,
@@ -308,7 +347,7 @@ def run(args: argparse.Namespace) -> int:
         recorder = McapRecorder(args.record, image_format=args.record_images)
         recorder.metadata(RECORD_NAME, FlightMetadata(
             mission_text=Path(mission_path).read_text(encoding="utf-8"), mission_suffix=Path(mission_path).suffix,
-            mission_source=str(mission_path),
+            mission_source=str(Path(mission_path).resolve()),  # absolute: a replay resolves its rig from there
             scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
         vehicle = RecordingVehicle(vehicle, recorder)
         sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
@@ -340,7 +379,7 @@ def run(args: argparse.Namespace) -> int:
         sensors.close()
         if recorder is not None:
             recorder.close()
-    if summary["status"].startswith("aborted"):
+    if summary["status"].startswith(("aborted", "refused_preflight")):
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
     if link_stats is not None:  # what the link refused (strangers, garbage, bad signatures), by reason

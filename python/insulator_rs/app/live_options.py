@@ -4,11 +4,13 @@ Kept here so the command's module only registers, checks and opens (three calls)
 
 * :func:`add_arguments` adds the flags;
 * :func:`check_arguments` refuses a combination that cannot fly, before anything flies;
-* :func:`open_from_arguments` starts the vehicle clock (telemetry stamps), the Mid-360
-  driver and the camera, and returns them as one ``Sensors``.
+* :func:`open_from_arguments` starts the vehicle clock (the MAVLink client's TIMESYNC map;
+  telemetry stamps while the autopilot has not answered TIMESYNC, or if it never does), the
+  Mid-360 driver and the camera (its frames shifted by the rig's ``[camera] latency_s``), and
+  returns them as one ``Sensors``.
 
 A live flight needs both sensors (each detection is paired with the LiDAR points of the
-same instant), a real autopilot (``--connection``: the vehicle clock is its telemetry's),
+same instant), a real autopilot (``--connection``: the vehicle clock is its TIMESYNC map),
 and a detection network (by default the real-photo one; there is no ground truth to stand in for it).
 """
 
@@ -21,7 +23,7 @@ from insulator_rs.drivers.live_sensors import LiveSensors, open_live_sensors
 from insulator_rs.ports.detector import STANDIN
 from insulator_rs.drivers.livox import parse_url
 from insulator_rs.exceptions import SensorError
-from insulator_rs.timesync import TelemetryClock
+from insulator_rs.timesync import TelemetryClock, TimesyncRecord, VehicleClock
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,8 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "mid360://listen[:PORT] (only listen, default port 56301); needs --connection "
                              "and --camera")
     parser.add_argument("--camera", default=None, metavar="SOURCE",
-                        help="live camera through OpenCV: a V4L2 index (0), a GStreamer pipeline ending in "
-                             "appsink, or a video file; its frames must match the rig's calibration size")
+                        help="live camera: a V4L2 index (0), a GStreamer pipeline (gst:PIPELINE, or any text with "
+                             "'!'; run through PyGObject, frames stamped at exposure; BGR appsink appended when "
+                             "none is named), a stream URL, or a video file; its frames must match the rig's "
+                             "calibration size")
 
 
 def check_arguments(args: argparse.Namespace) -> bool:
@@ -59,7 +63,7 @@ def check_arguments(args: argparse.Namespace) -> bool:
 class _ClockedSensors(LiveSensors):
     """LiveSensors that also stop the vehicle clock they were stamped with."""
 
-    def __init__(self, inner: LiveSensors, clock: TelemetryClock) -> None:
+    def __init__(self, inner: LiveSensors, clock: VehicleClock) -> None:
         super().__init__(inner.lidar, inner.camera)
         self.clock = clock
 
@@ -67,6 +71,10 @@ class _ClockedSensors(LiveSensors):
         out = super().health()
         out["clock_errors"] = self.clock.errors
         return out
+
+    def timesync_record(self) -> TimesyncRecord:
+        """The clock the sensors were stamped with (the summary's ``timesync``)."""
+        return self.clock.record()
 
     def close(self) -> None:
         try:
@@ -76,12 +84,15 @@ class _ClockedSensors(LiveSensors):
 
 
 def open_from_arguments(args: argparse.Namespace, vehicle: Any, rig: Any) -> LiveSensors:
-    """Starts the vehicle clock (from ``vehicle.state().time``), the Mid-360 and the camera
-    of ``args`` with the extrinsics and calibration of ``rig``; SensorError names what failed."""
-    clock = TelemetryClock(lambda: vehicle.state().time).start()
+    """Starts the vehicle clock (the vehicle's TIMESYNC map, ``vehicle.state().time`` stamps as
+    the fallback), the Mid-360 and the camera of ``args`` with the extrinsics, calibration and
+    camera latency of ``rig``; SensorError names what failed."""
+    clock = VehicleClock(getattr(vehicle, "timesync", None), TelemetryClock(lambda: vehicle.state().time)).start()
     try:
+        # the LiDAR on the host's clock (a crystal, as its own), mapped to the vehicle's after
         sensors = open_live_sensors(args.lidar, args.camera, now=clock.now, T_b_l=rig.T_b_l, T_b_c=rig.T_b_c,
-                                    camera_model=rig.camera)
+                                    camera_model=rig.camera, camera_latency_s=rig.camera_latency_s,
+                                    host_clock=clock.host_now, host_to_vehicle=clock.to_vehicle)
     except BaseException:
         clock.close()
         raise

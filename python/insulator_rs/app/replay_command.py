@@ -134,3 +134,7 @@ def _print_one(summary: dict[str, Any], score: dict[str, Any] | None, out: Path)
           + (f" ({score['insulators_matched']} of {score['insulators_in_scene']} matched, mean error "
              f"{err:.3f} m, scored after the replay)" if score is not None and err is not None else "")
           + (f", {speed:.1f}x real time" if speed else "") + f"; report in {out}")
+    if summary.get("attitude") == "yaw-only":
+        print("insulator-rs replay: warning: every recorded pose is level (a yaw-only recording, from "
+              "before the vehicle reported its attitude): the replay takes the body as level, as that "
+              "flight did", file=sys.stderr)

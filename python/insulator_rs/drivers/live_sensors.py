@@ -1,15 +1,17 @@
-"""The live ``Sensors`` adapter: a Livox Mid-360 and an OpenCV camera behind one port.
+"""The live ``Sensors`` adapter: a Livox Mid-360 and a camera (OpenCV or GStreamer) behind one port.
 
 Either may be absent (a LiDAR-only or camera-only rig): its methods then return None.
 The camera is fixed to the airframe (no gimbal is commanded from here), so ``photo``
 returns the newest frame with the camera's own ``T_b_c``, whatever pose was asked for;
 the flight loop must aim the vehicle (yaw) for an inspection photo.
 
-``lidar_scan(now)`` returns the driver's recent complete scans (the last ``LIDAR_KEEP_SCANS``,
-1 s) merged into one: a caller that polls slower than the sensor's 10 Hz (a flight loop busy
-with a detection, on a loaded computer) still gets every point; it keeps those newer than the
-ones it has (the flight loop does). Measured against PX4 SITL on a loaded two-core box: with the
-newest scan alone, 60 of 152 detection frames had no LiDAR point within their +-100 ms.
+``lidar_scan(now)`` returns every complete scan the driver finished since the last call, merged
+into one (None when there is none): a caller that polls slower than the sensor's 10 Hz (a flight
+loop busy with a detection, on a loaded computer) still gets every point, once. The driver keeps
+the last ``LIDAR_KEEP_SCANS`` (3 s) for a caller that stalls longer. Measured against PX4 SITL on
+a loaded two-core box: with the newest scan alone, 60 of 152 detection frames had no LiDAR
+point within their +-100 ms; handing the last 10 scans merged on every call (as this did before)
+cost a concatenation of 1 s of points per control tick and recorded every point ten times.
 """
 
 from __future__ import annotations
@@ -20,13 +22,15 @@ from collections.abc import Callable
 import numpy as np
 
 from insulator_rs._core import CameraModel
-from insulator_rs.drivers.camera import OpenCvCamera
-from insulator_rs.drivers.livox import HOST_PORT_POINT, LivoxMid360, TimeMap, parse_url
+from insulator_rs.drivers.camera_select import open_camera
+from insulator_rs.drivers.camera_source import CameraSource
+from insulator_rs.drivers.livox import HOST_PORT_IMU, HOST_PORT_POINT, LivoxMid360, TimeMap, parse_url
 from insulator_rs.exceptions import SensorError
-from insulator_rs.ports.sensors import CameraFrame, LidarScan
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, StreamStatus
 
-#: Scans the Mid-360 driver keeps for ``lidar_scan`` (1 s at 10 Hz).
-LIDAR_KEEP_SCANS = 10
+#: Scans the Mid-360 driver keeps for ``lidar_scan`` (3 s at 10 Hz: perception's PAIRING_WAIT,
+#: 2 s, is how late a scan may come and still be paired).
+LIDAR_KEEP_SCANS = 30
 
 
 def merge_scans(scans: list[LidarScan]) -> LidarScan | None:
@@ -44,20 +48,36 @@ def merge_scans(scans: list[LidarScan]) -> LidarScan | None:
 class LiveSensors:
     """``Sensors`` over live drivers (both already started)."""
 
-    def __init__(self, lidar: LivoxMid360 | None, camera: OpenCvCamera | None) -> None:
+    def __init__(self, lidar: LivoxMid360 | None, camera: CameraSource | None) -> None:
         if lidar is None and camera is None:
             raise ValueError("LiveSensors: need a LiDAR, a camera, or both")
         self.lidar = lidar
         self.camera = camera
+        self._handed_until = -np.inf  # vehicle time: the end of the newest scan handed over
 
     def detection_frame(self, now: float) -> CameraFrame | None:
         return None if self.camera is None else self.camera.latest(now)
 
     def lidar_scan(self, now: float) -> LidarScan | None:
-        return None if self.lidar is None else merge_scans(self.lidar.scans_until(now))
+        if self.lidar is None:
+            return None
+        new = [scan for scan in self.lidar.scans_until(now) if scan.time_end > self._handed_until]
+        if new:
+            self._handed_until = new[-1].time_end
+        return merge_scans(new)
 
-    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
+        # no inspection-camera driver yet: the detection camera's frame (its own intrinsics)
         return self.detection_frame(now)
+
+    def streams(self, now: float) -> list[StreamStatus]:
+        """What each driver has received and stamped up to ``now`` (nothing is consumed)."""
+        out = []
+        if self.camera is not None:
+            out.append(camera_stream(self.camera, now))
+        if self.lidar is not None:
+            out.append(lidar_stream(self.lidar, now))
+        return out
 
     def health(self) -> dict[str, object]:
         out: dict[str, object] = {}
@@ -74,6 +94,21 @@ class LiveSensors:
             self.camera.close()
 
 
+def camera_stream(camera: CameraSource, now: float) -> StreamStatus:
+    """A camera driver's stream at ``now``: frames kept, the newest stamp, frames left unstamped."""
+    frame = camera.latest(now)
+    return StreamStatus("camera", camera.frames, None if frame is None else frame.time, camera.unstamped,
+                        "the camera source ended" if camera.ended else None)
+
+
+def lidar_stream(lidar: LivoxMid360, now: float) -> StreamStatus:
+    """A Mid-360 driver's stream at ``now``: complete scans kept, the newest scan's end, scans
+    left without a vehicle-clock stamp."""
+    scans = lidar.scans_until(now)
+    return StreamStatus("lidar", len(scans), scans[-1].covered_until if scans else None,
+                        lidar.unstamped + lidar.unmapped_scans)
+
+
 def local_address_towards(host: str, port: int = 56100) -> str:
     """The local IP the kernel would use to reach ``host`` (no packet is sent)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -86,22 +121,32 @@ def local_address_towards(host: str, port: int = 56100) -> str:
 
 def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[], float],
                       T_b_l: np.ndarray, T_b_c: np.ndarray, camera_model: CameraModel | None,
-                      time_map: TimeMap | None = None) -> LiveSensors:
+                      time_map: TimeMap | None = None, camera_latency_s: float = 0.0,
+                      host_clock: Callable[[], float] | None = None,
+                      host_to_vehicle: TimeMap | None = None) -> LiveSensors:
     """Opens and starts the live drivers named on the command line.
 
     ``lidar``: ``mid360://HOST[:PORT]`` (HOST = the Mid-360's IP: it is configured to send
     to us and started; ``mid360://listen[:PORT]``: only listen on PORT, default 56301).
-    ``camera``: a V4L2 index, a GStreamer pipeline or a video file (see
-    :mod:`insulator_rs.drivers.camera`); needs ``camera_model``. ``now``: the vehicle clock.
+    ``camera``: a V4L2 index, a GStreamer pipeline (``gst:PIPELINE``, or any string with ``!``),
+    a URL or a video file (see :mod:`insulator_rs.drivers.camera_select`); needs
+    ``camera_model``. ``now``: the vehicle clock. ``camera_latency_s``: the rig's measured
+    camera latency, subtracted where a frame's exposure time is not known. ``host_clock``
+    with ``host_to_vehicle``: the LiDAR's arrivals are stamped on the host's clock and mapped
+    to the vehicle clock afterwards (see :mod:`insulator_rs.drivers.livox`).
     """
     livox: LivoxMid360 | None = None
-    cam: OpenCvCamera | None = None
+    cam: CameraSource | None = None
     try:
         if lidar:
             host, port = parse_url(lidar)
             listen_only = host in ("", "listen")
             livox = LivoxMid360(
-                now=now, T_b_l=T_b_l, point_port=HOST_PORT_POINT if port is None else port,
+                now=now if host_clock is None else host_clock, to_vehicle=host_to_vehicle, T_b_l=T_b_l,
+                point_port=HOST_PORT_POINT if port is None else port,
+                # port 0 (any free one) for the points: the IMU's too, not the fixed 56401 another
+                # listener may hold (a LiDAR told where to send asks for both)
+                imu_port=0 if port == 0 else HOST_PORT_IMU,
                 lidar_ip=None if listen_only else host,
                 announce_ip=None if listen_only else local_address_towards(host),
                 time_map=time_map, keep_scans=LIDAR_KEEP_SCANS,
@@ -109,7 +154,7 @@ def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[]
         if camera is not None:
             if camera_model is None:
                 raise SensorError("--camera: the camera's intrinsics (camera model) are needed")
-            cam = OpenCvCamera(camera, camera=camera_model, T_b_c=T_b_c, now=now, realtime=True).start()
+            cam = open_camera(camera, camera=camera_model, T_b_c=T_b_c, now=now, latency_s=camera_latency_s)
         return LiveSensors(livox, cam)
     except BaseException:
         if livox is not None:

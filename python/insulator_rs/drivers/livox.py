@@ -7,14 +7,22 @@ which validates it (length, version, type, CRC-32), counts every fault, and asse
 kept (the newest ``keep_scans``) for :meth:`LivoxMid360.lidar_scan`.
 
 Time: a packet's stamp is the sensor's clock (time since power-on, or PTP/GPS time). The
-driver pairs each valid packet's last-point stamp with the vehicle time of its arrival
-(``now()``, the vehicle clock as the caller knows it: simulated time, or the host clock
-through MAVLink TIMESYNC); of every ``PAIR_EVERY`` packets the pair with the least latency
-goes to a :class:`~insulator_rs.timesync.OneWaySync` (its 2048-pair window then spans ~16 s
-of data, not 1 s: measured against PX4 SITL on a loaded box, a 1 s window put the drift
-anywhere within +-1000 ppm), and all point times are mapped through it; a ``time_map``
-given by the caller (a known or externally estimated map, sensor seconds -> vehicle
-seconds) replaces that estimate. A datagram that arrives before the vehicle clock exists
+driver pairs each valid packet's last-point stamp with the time of its arrival on the
+``now()`` clock; of every ``PAIR_EVERY`` packets the pair with the least latency goes to a
+:class:`~insulator_rs.timesync.OneWaySync` that keeps the least-latency pair of each 0.25 s
+(its 2048 of them span 8.5 minutes: measured against PX4 SITL on a loaded box, a 1 s window
+put the drift anywhere within +-1000 ppm, a 16 s one still at -692 and +856 ppm for a truth
+of -25), and all point times are mapped through it, then through ``to_vehicle``.
+
+Two clocks, two maps, as the hardware has them: ``now`` is the host's own clock (a crystal,
+as the LiDAR's is, so sensor -> host is the straight line the envelope fits) and
+``to_vehicle`` maps host instants to the vehicle clock (MAVLink TIMESYNC, or the
+:class:`~insulator_rs.timesync.TelemetryClock`). Fitting the LiDAR straight to the vehicle
+clock's estimate instead puts every wobble of that estimate into the LiDAR's map (PX4 SITL
+runs in lockstep: its clock slows when a loaded box starves it). Without ``to_vehicle``,
+``now`` is the vehicle clock itself (the simulator). A ``time_map`` given by the caller (a
+known or externally estimated map, sensor seconds -> vehicle seconds) replaces both.
+A datagram that arrives before the vehicle clock exists
 (no telemetry yet) cannot be stamped: it is dropped and counted (``unstamped``).
 
 Control (``lidar_ip`` given): discovery broadcast to port 56000 is available through
@@ -55,10 +63,18 @@ HOST_PORT_COMMAND = 56101
 HOST_PORT_POINT = 56301
 HOST_PORT_IMU = 56401
 MAX_DATAGRAM = 2048
-#: Kernel receive buffer asked for (a second of Mid-360 data is 2.9 MB).
-RECEIVE_BUFFER_BYTES = 8 << 20
+#: Kernel receive buffer asked for (a second of Mid-360 data is 2.9 MB): 32 MB, 11 s. A receive
+#: thread starved on a loaded computer must find the datagrams still there; measured against
+#: PX4 SITL in CI, 2 datagrams were lost with 8 MB asked (the kernel caps SO_RCVBUF at
+#: net.core.rmem_max, 4 MB there). SO_RCVBUFFORCE (CAP_NET_ADMIN) passes the cap; without it
+#: the cap holds, and the effective size is in ``health()`` (raise rmem_max on the Jetson).
+RECEIVE_BUFFER_BYTES = 32 << 20
+#: Linux's SO_RCVBUFFORCE (Python's socket module does not name it everywhere).
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 #: How long a read waits before checking for shutdown (s).
 POLL_S = 0.05
+#: s of sensor time per clock pair kept: the least-latency pair of each (timesync.OneWaySync).
+CLOCK_BIN_S = 0.25
 #: Valid packets per clock pair (the one with the least latency is kept: see the module docstring).
 PAIR_EVERY = 16
 
@@ -113,7 +129,8 @@ def discover(*, timeout: float = 1.0, broadcast: str = "255.255.255.255",
 class LivoxMid360:
     """A live Mid-360 (or our emitter) as a LiDAR source in the vehicle clock.
 
-    ``now``: the vehicle time (s) of "now", called on each datagram's arrival.
+    ``now``: the time (s) of "now", called on each datagram's arrival: the host clock with
+    ``to_vehicle`` (host s -> vehicle s), else the vehicle clock itself (module docstring).
     ``T_b_l``: the LiDAR's extrinsics (4x4). ``lidar_ip``: the sensor's address for
     control commands (None: only listen). ``time_map``: sensor s -> vehicle s, replacing
     the arrival-based estimate.
@@ -123,7 +140,7 @@ class LivoxMid360:
                  point_port: int = HOST_PORT_POINT, imu_port: int | None = HOST_PORT_IMU,
                  lidar_ip: str | None = None, lidar_command_port: int = PORT_COMMAND,
                  announce_ip: str | None = None,
-                 time_map: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
+                 time_map: TimeMap | None = None, to_vehicle: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
                  reorder_grace_s: float = 0.005, resync_gap_s: float = 1.0, command_timeout: float = 1.0) -> None:
         T = np.asarray(T_b_l, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -138,7 +155,9 @@ class LivoxMid360:
         self.announce_ip = announce_ip
         self.command_timeout = float(command_timeout)
         self._time_map = time_map
-        self.clock = OneWaySync()
+        self._to_vehicle = to_vehicle
+        self._vehicle_clock_seen = False  # once the vehicle clock answered, it always does
+        self.clock = OneWaySync(bin_s=CLOCK_BIN_S)
         self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s,
                                              resync_gap_s=resync_gap_s)
         self._scans: deque[LidarScan] = deque(maxlen=keep_scans)
@@ -150,6 +169,7 @@ class LivoxMid360:
         self.unmapped_scans = 0
         self.receive_errors = 0
         self.unstamped = 0
+        self.receive_buffer_bytes = 0  # the kernel's effective receive buffer (the last socket bound)
         self._pair: tuple[float, float] | None = None  # the least-latency (stamp, arrival) of this group
         self._pair_count = 0
         self.foreign_datagrams = 0
@@ -170,7 +190,11 @@ class LivoxMid360:
     def _bind(self, port: int, what: str) -> socket.socket:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECEIVE_BUFFER_BYTES)
+            except OSError:  # not permitted (no CAP_NET_ADMIN): as much as rmem_max allows
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+            self.receive_buffer_bytes = int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
             sock.bind((self.host_ip, port))
         except OSError as err:
             sock.close()
@@ -257,6 +281,9 @@ class LivoxMid360:
             return
         try:
             arrival = self._now()
+            if not self._vehicle_clock_seen and self._to_vehicle is not None:
+                self._to_vehicle(np.array([arrival]))
+            self._vehicle_clock_seen = True
         except InsulatorError:  # no vehicle time yet: the datagram cannot be stamped
             self.unstamped += 1
             return
@@ -289,7 +316,13 @@ class LivoxMid360:
             return np.asarray(self._time_map(sensor_s), np.float64)
         if not self.clock.ready():
             return None
-        return self.clock.to_target(sensor_s)
+        arrival = self.clock.to_target(sensor_s)
+        if self._to_vehicle is None:
+            return arrival
+        try:
+            return np.asarray(self._to_vehicle(arrival), np.float64)
+        except InsulatorError:  # no vehicle time yet: the scan cannot be stamped
+            return None
 
     def _take(self, scan: LivoxScan) -> None:
         times = self._map(scan.times_ns.astype(np.float64) * 1e-9)
@@ -337,6 +370,7 @@ class LivoxMid360:
     def health(self) -> dict[str, object]:
         stats: dict[str, object] = dict(self._assembler.stats())
         stats["receive_errors"] = self.receive_errors
+        stats["receive_buffer_bytes"] = self.receive_buffer_bytes
         stats["unmapped_scans"] = self.unmapped_scans
         stats["unstamped"] = self.unstamped
         stats["foreign_datagrams"] = self.foreign_datagrams

@@ -272,15 +272,23 @@ def _purity(points_w: np.ndarray, truth: InsulatorTruth) -> float:
     return float(np.mean(inside))
 
 
+#: (t0, t1) -> the odometry each pose stream gets between t0 and t1: {stream name: poses}
+Odometry = Callable[[float, float], dict[str, list[PoseStamped]]]
+EventOutcome = tuple[LocalizedInsulator | None, str, int, float]
+
+
 def _localize_event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float], np.ndarray], times: Sequence[float],
                     detector: DetectorStandin, rng: np.random.Generator, cfg: StudyConfig, insulator_length: float,
-                    ) -> dict[str, tuple[LocalizedInsulator | None, str, int, float]] | None:
+                    odometry: Odometry | None = None) -> dict[tuple[str, str], EventOutcome] | None:
     """One localization event through the flight's perception pipeline, one pipeline per
-    method fed the same data: {method: (localization or None, outcome, accumulated points,
-    purity)}. None when the images ran out before a localization was attempted."""
-    pipelines = {m: PerceptionPipeline(rig.camera_model, rig.camera.T_b_c, rig.T_b_l, method=m,
-                                       insulator_length=insulator_length, localize_params=cfg.localize_params)
-                 for m in cfg.methods}
+    method and pose stream fed the same sensor data: {(method, stream): (localization or None,
+    outcome, accumulated points, purity)}. ``odometry`` gives the pose streams (default: one,
+    "full", the trajectory with the configured noise). None when the images ran out before a
+    localization was attempted."""
+    if odometry is None:
+        def odometry(t0: float, t1: float) -> dict[str, list[PoseStamped]]:
+            return {"full": _odometry(trajectory, t0, t1, rng, cfg)}
+    pipelines: dict[tuple[str, str], PerceptionPipeline] = {}
     image = np.broadcast_to(np.zeros(3, np.uint8), (rig.image_size[1], rig.image_size[0], 3))
     period = rig.lidar.frame_period
     fed_until = times[0] - 1.0
@@ -294,11 +302,17 @@ def _localize_event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable
             continue
         # the scan ending at the image and the next one: the flight pairs a frame with +-100 ms
         scans = [rig.lidar_scan(trajectory, t_end, seed=int(rng.integers(2**31))) for t_end in (t, t + period)]
-        poses = _odometry(trajectory, fed_until + 1.0 / POSE_RATE_HZ, t + period, rng, cfg)
+        streams = odometry(fed_until + 1.0 / POSE_RATE_HZ, t + period)
+        if not pipelines:
+            pipelines = {(m, name): PerceptionPipeline(rig.camera_model, rig.camera.T_b_c, rig.T_b_l, method=m,
+                                                       insulator_length=insulator_length,
+                                                       localize_params=cfg.localize_params)
+                         for name in streams for m in cfg.methods}
         fed_until = t + period
         frame = CameraFrame(t, image, rig.camera_model, rig.camera.T_b_c)
         results = {}
-        for method, per in pipelines.items():
+        for key, per in pipelines.items():
+            poses = streams[key[1]]
             c = per.counters
             before = (c.localizations, c.failures, c.implausible, c.not_insulator)
             for pose in poses:
@@ -313,7 +327,7 @@ def _localize_event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable
                                         "implausible" if after[2] > before[2] else "not an insulator")
             track = max(per.tracks, key=lambda tr: len(tr.events))
             acc = np.vstack(list(track.events))
-            results[method] = (out[0] if out else None, outcome, len(acc), _purity(acc, target))
+            results[key] = (out[0] if out else None, outcome, len(acc), _purity(acc, target))
         if results:
             return results  # every pipeline saw the same data, so all attempted together
     return None
@@ -328,31 +342,33 @@ def _errors(center_w: np.ndarray, direction_w: np.ndarray,
             math.degrees(math.acos(cos)), float(abs(np.dot(d, truth.axis))))
 
 
+def cell_inputs(tower_key: str, cfg: StudyConfig, seed: int) -> tuple[np.random.Generator, DetectorStandin, float]:
+    """A cell's random stream, its detector stand-in (both from ``seed``) and the tower's
+    mission insulator length (m)."""
+    from insulator_rs.sim.detector_standin import DetectorStandin
+
+    detector = DetectorStandin(jitter=cfg.box_jitter, miss_rate=cfg.miss_rate,
+                               false_positives=cfg.false_positives, seed=seed)
+    length = load_mission(MISSIONS_DIR / f"{TOWERS[tower_key]}.toml").inspection.insulator_length
+    return np.random.default_rng(seed), detector, length
+
+
 def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
              progress: Callable[[int, int], None] | None = None) -> list[EventResult]:
     """``cfg.events`` localization events at one standoff; one result per event and method."""
-    from insulator_rs.sim.detector_standin import DetectorStandin
-
     seed = cfg.seed * 1000 + int(round(standoff * 10)) + (0 if tower_key == "A" else 500)
-    rng = np.random.default_rng(seed)
-    detector = DetectorStandin(jitter=cfg.box_jitter, miss_rate=cfg.miss_rate,
-                               false_positives=cfg.false_positives, seed=seed)
+    rng, detector, length = cell_inputs(tower_key, cfg, seed)
     insulators = rig.tower.insulators
-    length = load_mission(MISSIONS_DIR / f"{TOWERS[tower_key]}.toml").inspection.insulator_length
     results: list[EventResult] = []
-    event = attempts = 0
-    while event < cfg.events:
-        attempts += 1
-        if attempts > 20 * cfg.events + 20:
-            raise RuntimeError(f"tower {tower_key}, w = {standoff} m: only {event} usable events in "
-                               f"{attempts - 1} attempts (the target is rarely seen by both sensors)")
+
+    def attempt(event: int) -> bool:
         target = insulators[int(rng.integers(len(insulators)))]
         trajectory, times = _event_poses(rig.tower, target, standoff, rng, cfg)
         got = _localize_event(rig, target, trajectory, times, detector, rng, cfg, length)
         if got is None:
-            continue
+            return False
         for method in cfg.methods:
-            loc, outcome, n_input, purity = got[method]
+            loc, outcome, n_input, purity = got[(method, "full")]
             if loc is None:
                 results.append(EventResult(tower_key, standoff, event, target.instance_id, method,
                                            False, math.nan, math.nan, math.nan, math.nan,
@@ -361,10 +377,25 @@ def run_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig,
             err, err_h, err_v, ang, err_axial = _errors(loc.center, loc.axis, target)
             results.append(EventResult(tower_key, standoff, event, target.instance_id, method, True,
                                        err, err_h, err_v, ang, err_axial, loc.n_points, n_input, purity))
-        event += 1
         if progress is not None:
-            progress(event, cfg.events)
+            progress(event + 1, cfg.events)
+        return True
+
+    draw_events(cfg.events, f"tower {tower_key}, w = {standoff} m", attempt)
     return results
+
+
+def draw_events(count: int, what: str, attempt: Callable[[int], bool]) -> None:
+    """Call ``attempt(event)`` until ``count`` calls returned True (a usable event, numbered from
+    0); RuntimeError after 20 attempts per event and 20 more."""
+    event = attempts = 0
+    while event < count:
+        attempts += 1
+        if attempts > 20 * count + 20:
+            raise RuntimeError(f"{what}: only {event} usable events in {attempts - 1} attempts (the target "
+                               "is rarely seen by both sensors)")
+        if attempt(event):
+            event += 1
 
 
 @dataclass(frozen=True)
@@ -459,6 +490,15 @@ def write_csv(path: Path, rows: Sequence[object]) -> None:
         writer = csv.DictWriter(f, fieldnames=list(dicts[0]))
         writer.writeheader()
         writer.writerows(dicts)
+
+
+def write_study(out: Path, name: str, rows: Sequence[object], table: str) -> int:
+    """A study's ``name``.csv (rows) and ``name``.txt (table) into ``out``; prints the table, returns 0."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / f"{name}.csv", rows)
+    (out / f"{name}.txt").write_text(table + "\n")
+    print(table)
+    return 0
 
 
 def plot_errors(results: Sequence[EventResult], path: Path) -> None:

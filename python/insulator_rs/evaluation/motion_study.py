@@ -6,8 +6,9 @@ flown faster and turning, so each 100 ms LiDAR frame is smeared by the motion. E
 is localized twice from the same frames: as measured (each frame used with the pose at its
 image time, what the study and the flight did before deskew), and deskewed with
 ``ir.deskew_points_in_boxes`` against the odometry pose stream (20 Hz, with the study's
-odometry noise) to the image time. Reported: the centre error (median, mean) per speed and
-yaw rate, for each.
+odometry noise) to the image time. Reported: the centre error (median, mean) per speed,
+yaw rate and pitch rate (the body tilting, as a multirotor does when it starts to brake or a
+gust hits it: its attitude swings 17 degrees in a few tenths of a second), for each.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from insulator_rs.evaluation.localization_study import (
     _errors,
     _event_poses,
     _noisy,
-    write_csv,
+    write_study,
 )
 
 if TYPE_CHECKING:
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
 ODOMETRY_RATE = 20.0  # Hz: the pose stream the deskew interpolates
 DEFAULT_SPEEDS = (1.0, 3.0, 6.0)  # m/s along the line
 DEFAULT_YAW_RATES = (0.0, 30.0)  # deg/s
+DEFAULT_PITCH_RATES = (0.0, 30.0)  # deg/s (the command line's; the function's default is 0 only)
 
 
 @dataclass(frozen=True)
@@ -49,15 +51,21 @@ class MotionResult:
     event: int
     error_raw: float
     error_deskewed: float
+    pitch_rate_deg: float = 0.0
 
 
-def _turning(trajectory: Callable[[float], np.ndarray], t_mid: float, yaw_rate: float) -> Callable[[float], np.ndarray]:
-    """The trajectory with the body also yawing at ``yaw_rate`` rad/s about its own z."""
+def _turning(trajectory: Callable[[float], np.ndarray], t_mid: float, yaw_rate: float,
+             pitch_rate: float = 0.0) -> Callable[[float], np.ndarray]:
+    """The trajectory with the body also yawing at ``yaw_rate`` rad/s about its own z and
+    pitching at ``pitch_rate`` rad/s about its own y (level at ``t_mid``)."""
     def T(t: float) -> np.ndarray:
         a = yaw_rate * (t - t_mid)
+        p = pitch_rate * (t - t_mid)
         R = np.eye(4)
         R[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
-        return trajectory(t) @ R
+        P = np.eye(4)
+        P[:3, :3] = [[math.cos(p), 0.0, math.sin(p)], [0.0, 1.0, 0.0], [-math.sin(p), 0.0, math.cos(p)]]
+        return trajectory(t) @ R @ P
     return T
 
 
@@ -107,50 +115,50 @@ def _event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float],
 
 
 def run_motion_study(events: int, speeds: Sequence[float], yaw_rates_deg: Sequence[float], *, tower: str = "A",
-                     standoff: float = 8.0, method: str = "dbscan+ransac", seed: int = 0) -> list[MotionResult]:
+                     standoff: float = 8.0, method: str = "dbscan+ransac", seed: int = 0,
+                     pitch_rates_deg: Sequence[float] = (0.0,)) -> list[MotionResult]:
     import insulator_rs as ir
     from insulator_rs.sim.detector_standin import DetectorStandin
 
     results = []
-    for speed in speeds:
-        for yaw_deg in yaw_rates_deg:
-            cfg = replace(StudyConfig(), speed=speed, seed=seed)
-            rig = SensorRig(TOWERS[tower], cfg, seed)
-            rng = np.random.default_rng(seed * 7919 + int(speed * 100) + int(yaw_deg))
-            detector = DetectorStandin(jitter=cfg.box_jitter, seed=seed)
-            done = attempts = 0
-            while done < events and attempts < 20 * events + 20:
-                attempts += 1
-                target = rig.tower.insulators[int(rng.integers(len(rig.tower.insulators)))]
-                trajectory, times = _event_poses(rig.tower, target, standoff, rng, cfg)
-                trajectory = _turning(trajectory, times[0], math.radians(yaw_deg))
-                got = _event(rig, target, trajectory, times, detector, rng, cfg)
-                if got is None:
+    for speed, yaw_deg, pitch_deg in ((s, y, p) for s in speeds for y in yaw_rates_deg for p in pitch_rates_deg):
+        cfg = replace(StudyConfig(), speed=speed, seed=seed)
+        rig = SensorRig(TOWERS[tower], cfg, seed)
+        rng = np.random.default_rng(seed * 7919 + int(speed * 100) + int(yaw_deg) + 31 * int(pitch_deg))
+        detector = DetectorStandin(jitter=cfg.box_jitter, seed=seed)
+        done = attempts = 0
+        while done < events and attempts < 20 * events + 20:
+            attempts += 1
+            target = rig.tower.insulators[int(rng.integers(len(rig.tower.insulators)))]
+            trajectory, times = _event_poses(rig.tower, target, standoff, rng, cfg)
+            trajectory = _turning(trajectory, times[0], math.radians(yaw_deg), math.radians(pitch_deg))
+            got = _event(rig, target, trajectory, times, detector, rng, cfg)
+            if got is None:
+                continue
+            raw_b, desk_b, T_w_b = got
+            errs = []
+            for pts in (raw_b, desk_b):
+                try:
+                    est = ir.localize(pts, method=method, seed=done)  # type: ignore[arg-type]
+                except ir.LocalizationError:
+                    errs.append(math.nan)
                     continue
-                raw_b, desk_b, T_w_b = got
-                errs = []
-                for pts in (raw_b, desk_b):
-                    try:
-                        est = ir.localize(pts, method=method, seed=done)  # type: ignore[arg-type]
-                    except ir.LocalizationError:
-                        errs.append(math.nan)
-                        continue
-                    c = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
-                    d = T_w_b[:3, :3] @ np.asarray(est.direction)
-                    errs.append(_errors(c, d, target)[0])
-                results.append(MotionResult(speed, yaw_deg, done, errs[0], errs[1]))
-                done += 1
+                c = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
+                d = T_w_b[:3, :3] @ np.asarray(est.direction)
+                errs.append(_errors(c, d, target)[0])
+            results.append(MotionResult(speed, yaw_deg, done, errs[0], errs[1], pitch_deg))
+            done += 1
     return results
 
 
 def format_table(results: Sequence[MotionResult]) -> str:
-    lines = ["speed m/s | yaw deg/s | events | raw median / mean m | deskewed median / mean m"]
-    keys = sorted({(r.speed, r.yaw_rate_deg) for r in results})
-    for sp, yw in keys:
-        rows = [r for r in results if (r.speed, r.yaw_rate_deg) == (sp, yw)]
+    lines = ["speed m/s | yaw deg/s | pitch deg/s | events | raw median / mean m | deskewed median / mean m"]
+    keys = sorted({(r.speed, r.yaw_rate_deg, r.pitch_rate_deg) for r in results})
+    for sp, yw, pt in keys:
+        rows = [r for r in results if (r.speed, r.yaw_rate_deg, r.pitch_rate_deg) == (sp, yw, pt)]
         raw = np.array([r.error_raw for r in rows])
         desk = np.array([r.error_deskewed for r in rows])
-        lines.append(f"{sp:9.1f} | {yw:9.0f} | {len(rows):6d} | {np.nanmedian(raw):.3f} / {np.nanmean(raw):.3f}"
+        lines.append(f"{sp:9.1f} | {yw:9.0f} | {pt:11.0f} | {len(rows):6d} | {np.nanmedian(raw):.3f} / {np.nanmean(raw):.3f}"
                      f"       | {np.nanmedian(desk):.3f} / {np.nanmean(desk):.3f}")
     return "\n".join(lines)
 
@@ -159,6 +167,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--events", type=int, default=30, help="events per (speed, yaw rate) cell")
     parser.add_argument("--speeds", nargs="+", type=float, default=list(DEFAULT_SPEEDS), help="m/s")
     parser.add_argument("--yaw-rates", nargs="+", type=float, default=list(DEFAULT_YAW_RATES), help="deg/s")
+    parser.add_argument("--pitch-rates", nargs="+", type=float, default=list(DEFAULT_PITCH_RATES),
+                        help="deg/s: the body tilting during the frame (braking, gusts)")
     parser.add_argument("--tower", choices=("A", "B"), default="A")
     parser.add_argument("--standoff", type=float, default=8.0)
     parser.add_argument("--seed", type=int, default=0)
@@ -170,10 +180,5 @@ def run(args: argparse.Namespace) -> int:
         print("insulator-rs eval motion: error: --events must be >= 1 and --speeds >= 0")
         return 2
     results = run_motion_study(args.events, args.speeds, args.yaw_rates, tower=args.tower, standoff=args.standoff,
-                               seed=args.seed)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / "motion_study.csv", results)
-    table = format_table(results)
-    (args.out / "motion_study.txt").write_text(table + "\n")
-    print(table)
-    return 0
+                               seed=args.seed, pitch_rates_deg=args.pitch_rates)
+    return write_study(args.out, "motion_study", results, format_table(results))

@@ -47,8 +47,11 @@ def _axis_error_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def _photo_visibility(tower: Tower, camera: CameraModel, photo: dict[str, Any], gt_id: int) -> tuple[bool, bool]:
     """(visible, whole in frame) of true insulator ``gt_id`` in the photo, re-rendered."""
-    cam = Camera(camera, np.asarray(photo["T_b_c"], dtype=np.float64))
-    frame = cam.render(tower.mesh, pose_from_yaw(np.asarray(photo["position"]), float(photo["yaw"])))
+    if "T_w_c" in photo:  # the camera's pose as the flight had it (full attitude, gimbal)
+        frame = Camera(camera, np.eye(4)).render(tower.mesh, np.asarray(photo["T_w_c"], dtype=np.float64))
+    else:  # a summary from before the camera pose was recorded: a level body then
+        cam = Camera(camera, np.asarray(photo["T_b_c"], dtype=np.float64))
+        frame = cam.render(tower.mesh, pose_from_yaw(np.asarray(photo["position"]), float(photo["yaw"])))
     box = frame.boxes.get(gt_id)
     if box is None:
         return False, False

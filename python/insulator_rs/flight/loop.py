@@ -10,11 +10,17 @@ machine visits (a photo at each, from the companion computer's camera through
 ``Sensors.photo``, gimbal aimed), then the flight goes on, crosses over the top, finishes and
 lands. The loop does not know whether it is recorded: recording wraps the ports.
 
-A vehicle failsafe (link lost, the pilot took over, battery, position lost) aborts the
-mission: the report says why and keeps everything found so far, and once the failsafe fired
-nothing more is sent to the vehicle. A command the vehicle refuses, or a leg no safe trajectory
-can be planned for, aborts the mission cleanly (landing if airborne and the vehicle still takes
-commands); a sensor error costs that detection event or photo, never the flight.
+A vehicle failsafe (link lost, the pilot took over, battery, position lost) aborts the mission:
+the report says why and keeps everything found so far, and once the failsafe fired nothing more
+is sent to the vehicle. Every other abort (a command the vehicle refuses, a leg no safe
+trajectory can be planned for, the flight-time limit, the operator's abort, the battery reserve
+(:mod:`insulator_rs.flight.reserve`: the rest of the plan no longer fits above the mission's
+``battery_reserve``, and the way out is due), the camera silent) stops the vehicle and flies
+the safe route out that :mod:`insulator_rs.planning.abort` plans from what the state machine
+knew (on across over the tower, back out beside an arm), then lands clear of the tower and the
+conductor corridors; where no route can be planned the vehicle holds in the autopilot's HOLD
+and the pilot is told to take over, never a blind descent. A sensor error costs that detection
+event or photo, never the flight; only a camera silent for SENSOR_LOST_TIMEOUT s aborts.
 
 The report folder (:mod:`insulator_rs.report`: photos with EXIF GPS, WGS-84, GeoJSON/KML) is
 written as the flight goes; an interruption (Ctrl-C) still leaves the summary, the photos
@@ -25,30 +31,42 @@ from __future__ import annotations
 
 import math
 import time as wallclock
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from insulator_rs.exceptions import PlanningError, SensorError, VehicleError, VehicleFailsafe
+from insulator_rs.exceptions import (ParameterError, PlanningError, PreflightRefused, SensorError, VehicleError,
+                                     VehicleFailsafe)
 from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
+from insulator_rs.flight.autopilot_setup import AutopilotSetup
+from insulator_rs.flight.gimbal import aim_at, gimballed_T_b_c, stabilised_T_b_c  # noqa: F401 (their old home)
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photos import InspectionPhotos
-from insulator_rs.flight.record import camera_record, insulator_records, perception_record
+from insulator_rs.flight.preflight import PreflightResult, preflight_checks
+from insulator_rs.flight.record import camera_record, insulator_records, perception_record, timesync_record
+from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
+from insulator_rs.perception.photo_check import PhotoCheck, check_photo, expected_view
 from insulator_rs.perception.pipeline import BOUNDED, LocalizedInsulator, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.planning.abort import AbortCase, AbortRoute, leg_trajectory, plan_abort_route, plan_stop
+from insulator_rs.planning.energy import RouteDemand, route_demand
 from insulator_rs.planning.exploration import MIN_PASS_HEIGHT, PlanKind
+from insulator_rs.planning.framing import MIN_FILL
+from insulator_rs.planning.minsnap import MinSnapTrajectory
 from insulator_rs.planning.pmm import rest_to_rest_times
-from insulator_rs.planning.segments import plan_segment
+from insulator_rs.planning.px4_failsafes import tower_failsafe_parameters
+from insulator_rs.planning.segments import SAFETY_CHECK_DT, plan_segment
 from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.ports.detector import BoxDetector, detections_dropped, detector_name
 from insulator_rs.ports.observer import FlightObserver, InsulatorFound, PhaseChange, PhotoTaken
 from insulator_rs.ports.sensors import PoseStamped, Sensors
-from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, wrap_angle
+from insulator_rs.ports.vehicle import FlightMode, Vehicle, VehicleState, vehicle_parameters, wrap_angle
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.summary import FlightDetails, RunSummary
 from insulator_rs.rig import SensorRig
@@ -58,12 +76,21 @@ CONTROL_PERIOD = 0.05  # s: 20 Hz setpoint stream, as PX4 offboard wants
 PHOTO_YAW_TOLERANCE = math.radians(3.0)
 PHOTO_SPEED_TOLERANCE = 0.2  # m/s
 PHOTO_SETTLE_TIMEOUT = 8.0  # s
+# s held at the waypoint before a retake is settled: the gust or the swing that spoiled the
+# photo has time to pass (the retake then re-aims from the pose it settled at)
+RETAKE_HOLD = 1.0
 HOLD_TIMEOUT = 10.0  # s in HOLD before the mission aborts
 STATUS_PERIOD = 15.0  # s of flight between progress lines
 SUMMARY_PERIOD = 5.0  # s of flight between summary rewrites
 LAND_HEIGHT = 2.0  # m above the take-off point where the landing starts
 TAKEOFF_TIMEOUT = 60.0  # s of vehicle time for the climb to the first pass height
 LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
+SENSOR_LOST_TIMEOUT = 10.0  # s of flight without a new camera frame: the sensor is lost, abort
+OFFBOARD_WARMUP = 0.5  # s of setpoints streamed before asking for OFFBOARD (PX4 wants a stream)
+GROUND_STATION_WAIT = 2.5  # wall s to wait for a ground station's HEARTBEAT (1 Hz) before take-off
+# s of vehicle time to wait, after the mission ends with the vehicle in the air (PX4's own return,
+# a pilot holding), for the landing before the autopilot's old parameters are put back
+RESTORE_WAIT = 300.0
 
 
 @dataclass(frozen=True)
@@ -82,26 +109,20 @@ class FlightSettings:
         object.__setattr__(self, "policy", Policy(self.policy))  # a bad policy is refused, named
 
 
-def gimballed_T_b_c(T_b_c: np.ndarray, pitch: float) -> np.ndarray:
-    """The camera mounted at ``T_b_c`` on a gimbal pitched by ``pitch`` rad (negative looks
-    down) about the body y axis."""
-    c, s = math.cos(-pitch), math.sin(-pitch)
-    R = np.eye(4)
-    R[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
-    return R @ T_b_c
-
-
 class FlightLoop:
     """One single-flight inspection: state, perception, report (see the module docstring)."""
 
     def __init__(self, mission: Mission, vehicle: Vehicle, sensors: Sensors, detector: BoxDetector,
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
                  overwrite: bool = False, observer: FlightObserver | None = None,
-                 photo_camera: Any = None) -> None:
+                 photo_camera: Any = None, photo_detector: BoxDetector | None = None) -> None:
         self.mission = mission
         self.vehicle = vehicle
         self.sensors = sensors
         self.detector = detector
+        # what checks each photo (perception/photo_check.py): the flight's detector unless the
+        # composition root gives another (the simulator's stand-in on photos)
+        self.photo_detector = detector if photo_detector is None else photo_detector
         self.rig = rig
         self.settings = settings
         # who watches the flight: the console unless quiet, and what the caller adds (the GCS)
@@ -123,6 +144,9 @@ class FlightLoop:
         # frame the insulator from the waypoints and give the planned GSD
         self.photo_model = rig.camera if photo_camera is None else photo_camera
         self.fov = 2 * math.atan((self.photo_model.height / 2) / self.photo_model.fy)
+        # the rig's dedicated inspection camera (zoom, gimbal) frames the shots; a rig without
+        # one photographs with the detection camera as before (None)
+        self.inspection = rig.inspection
         self.sm = InspectionStateMachine(self.geom.path, self.registry, self._waypoints,
                                          policy=settings.policy, cost=self._cost)
         tower = mission.tower
@@ -131,17 +155,25 @@ class FlightLoop:
         self.clock = FlightClock(self.vehicle.state().time)  # UTC of vehicle stamps; re-anchored at take-off
         self.out = out
         self.photos = InspectionPhotos(self.report, mission.inspection.insulator_length,
-                                       exif_camera=rig.exif_camera())
+                                       exif_camera=rig.exif_camera(), inspection=rig.inspection)
         self.waypoints: list[InspectionWaypoint] = []
         self.status = "running"
         self.abort_reason: str | None = None
+        self.abort_route: AbortRoute | None = None  # the safe route out an abort flew
+        self.handed_over: str | None = None  # why the vehicle was left holding for the pilot
+        self._abort_request: str | None = None  # the operator's (request_abort), taken by tick
+        self._frames_seen = (0, 0.0)  # camera frames so far, and when that count last grew
         self.t_start = 0.0
         self.sensor_errors = 0  # the runner's and the photos'
         self._airborne = False
+        self.autopilot_setup: AutopilotSetup | None = None  # the tower's PX4 parameters (a PX4 vehicle)
         self._printed_transitions = 0
         self._next_status = STATUS_PERIOD
         self._next_summary = SUMMARY_PERIOD
         self._wall0 = wallclock.perf_counter()
+        self.battery = BatteryReserve(mission.inspection.battery_reserve)
+        self.left: dict[str, Any] | None = None  # what an abort left of the plan (the report's)
+        self.preflight_result: PreflightResult | None = None  # the gate before arming (flight/preflight.py)
 
     # -- helpers -------------------------------------------------------------------------
     def _waypoints(self, ins: Insulator) -> list[InspectionWaypoint]:
@@ -150,7 +182,7 @@ class FlightLoop:
                                    volumes=self.geom.volumes, count=p.waypoints_per_insulator,
                                    inspection_distance=p.inspection_distance,
                                    insulator_length=p.insulator_length, fov=self.fov,
-                                   camera=self.photo_model)
+                                   camera=self.photo_model, inspection=self.inspection)
         self.waypoints.extend(wps)
         return wps
 
@@ -216,11 +248,18 @@ class FlightLoop:
             self.on_failsafe(exc)
             st = self.vehicle.state()
         t = st.time - self.t_start
+        self.battery.observe(st)
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
         self.runner.add_pose(PoseStamped(st.time, st.T_w_b))  # the whole reported attitude
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
             for fix in self.runner.step(st.time):
                 self._localized(fix, st)
+        elif self.runner.waiting:
+            # the search is over: a frame of it still waiting for its points goes with what there
+            # is, and what it localizes refines the registry (no waypoints now). Dropped, as it
+            # was, a replay of the flight, which pairs it, counted and localized one frame more.
+            for fix in self.runner.finish(st.time):
+                self.registry.observe(fix.center, fix.axis)
         if t >= self._next_status:
             self._next_status += STATUS_PERIOD
             self.say(f"[{t:7.1f} s] {self.sm.state.value}: at {np.round(st.position, 1).tolist()}, "
@@ -230,12 +269,96 @@ class FlightLoop:
             self._next_summary += SUMMARY_PERIOD
             self.report.flush()
             self.write_summary()
-        if t > self.settings.max_flight_time and self.sm.state != State.ABORT:
-            self.abort(f"flight time limit of {self.settings.max_flight_time:.0f} s", st.time)
+        if self.sm.state not in (State.ABORT, State.IDLE):
+            reason = self._abort_due(st, t)
+            if reason is not None:
+                self.abort(reason, st.time)
         self._print_transitions()
         return st
 
+    def _abort_due(self, st: VehicleState, t: float) -> str | None:
+        """Why the mission must abort now, if it must: the operator asked, the flight-time
+        limit, the battery reserve, the camera silent."""
+        if self._abort_request is not None:
+            return self._abort_request
+        if t > self.settings.max_flight_time:
+            return f"flight time limit of {self.settings.max_flight_time:.0f} s"
+        reason = self.battery.check(st, t, lambda: self._battery_demands(st))
+        if reason is not None:
+            return reason
+        frames, since = self._frames_seen
+        if self.runner.counts.frames != frames or self.sm.state == State.FINISH:
+            self._frames_seen = (self.runner.counts.frames, st.time)
+        elif st.time - since > SENSOR_LOST_TIMEOUT:
+            return f"sensor lost: no camera frame for {SENSOR_LOST_TIMEOUT:.0f} s"
+        return None
+
+    def _battery_demands(self, st: VehicleState) -> tuple[RouteDemand, RouteDemand]:
+        """What the battery reserve weighs: (the rest of the plan, the way out from here), each
+        to the touchdown. The rest of the plan: the plan's items in order (scan, inspect,
+        return, cross, then above the landing point), each deferred far-side waypoint as a
+        detour there and back from the nearest plan point on its side, a photo stop
+        (PHOTO_SETTLE_TIMEOUT, the longest a settle may take) at every inspection waypoint.
+        The way out: the safe route an abort here would fly (:func:`plan_abort_route`), or,
+        where none can be planned now, the way home over the crossing height."""
+        lim = (self.v_max, self.a_max)
+        here = np.asarray(st.position, dtype=np.float64)
+        touchdown = RouteDemand(TOUCHDOWN_TIME, LAND_HEIGHT)
+        points = [here]
+        stops = 0
+        for it in self.sm.plan:
+            if it.kind == PlanKind.LAND:
+                points.append(it.position + np.array([0.0, 0.0, LAND_HEIGHT]))
+                break
+            points.append(np.asarray(it.position, dtype=np.float64))
+            stops += it.kind == PlanKind.INSPECT
+        rest = route_demand(np.array(points), *lim, stops=stops, stop_time=PHOTO_SETTLE_TIMEOUT) + touchdown
+        for side, wps in self.sm.deferred.items():
+            on_side = [p for p, it in zip(points[1:], self.sm.plan) if it.side == side] or [points[-1]]
+            for w in wps:
+                near = min(on_side, key=lambda p: float(np.linalg.norm(p - w.position)))
+                rest = rest + route_demand(np.array([near, w.position, near]), *lim, stops=1,
+                                           stop_time=PHOTO_SETTLE_TIMEOUT)
+        try:
+            route = self._abort_route(here)
+            way = [here] + [leg[1] for leg in route.legs]
+        except PlanningError:
+            up = max(here[2], self.geom.volumes.top + self.mission.inspection.crossing_clearance)
+            home = np.asarray(self.geom.takeoff, dtype=np.float64)
+            way = [here, np.array([here[0], here[1], up]), np.array([home[0], home[1], up]),
+                   home + np.array([0.0, 0.0, LAND_HEIGHT])]
+        return rest, route_demand(np.array(way), *lim) + touchdown
+
+    def _abort_route(self, position: np.ndarray) -> AbortRoute:
+        """The safe route out from ``position`` (at rest) that an abort flies, from what the state
+        machine knows (the abort's context once aborted, else what an abort now would keep)."""
+        ctx = self.sm.aborted or self.sm.exit_context("battery reserve", self.vehicle.state().time)
+        return plan_abort_route(self.geom.line, self.geom.volumes, position, toward_side=ctx.toward_side,
+                                back_to=ctx.back_to, ground_z=float(self.geom.takeoff[2]),
+                                land_height=LAND_HEIGHT,
+                                crossing_clearance=self.mission.inspection.crossing_clearance)
+
+    def _left_of_plan(self) -> dict[str, Any]:
+        """What the plan still held (the moment of an abort): the insulators found and not yet
+        inspected, the inspection waypoints not flown (buffered and deferred), the exploration
+        path not flown (its waypoints and length)."""
+        plan = self.sm.plan
+        scan = [np.asarray(it.position, dtype=np.float64) for it in plan
+                if it.kind in (PlanKind.SCAN, PlanKind.CROSS)]
+        length = float(np.sum(np.linalg.norm(np.diff(np.array(scan), axis=0), axis=1))) if len(scan) > 1 else 0.0
+        return {"insulators_uninspected": [i.id for i in self.registry.insulators if not i.inspected],
+                "inspection_waypoints": sum(it.kind == PlanKind.INSPECT for it in plan)
+                + sum(len(w) for w in self.sm.deferred.values()),
+                "exploration_waypoints": len(scan), "exploration_left_m": length}
+
+    def request_abort(self, reason: str = "operator abort") -> None:
+        """The operator aborts the mission (from another thread too): taken at the next control
+        tick, then the safe route out and the landing, as for any abort."""
+        self._abort_request = reason
+
     def abort(self, reason: str, time: float | None = None) -> None:
+        if self.sm.aborted is None and self.sm.state != State.IDLE:
+            self.left = self._left_of_plan()  # before the state machine drops the plan
         self.abort_reason = reason
         self.sm.abort(reason, self.vehicle.state().time if time is None else time)
         self.observer.aborted(self.now(), reason)
@@ -255,19 +378,14 @@ class FlightLoop:
                            clearance=self.mission.inspection.crossing_clearance,
                            time_allocation=self.settings.time_allocation)
         traj = seg.trajectory
-        if traj is None:
-            return True
         k = 0
-        t = 0.0
-        t0 = st.time
         version = self.sm.plan_version  # a change of the plan on the way means: re-plan
-        while t < traj.total_time - 1e-9:
-            # by vehicle time, not ticks: through MAVLink a period ends on a telemetry sample, and
-            # sensing takes wall time while the vehicle flies on
-            t = min(max(st.time - t0, t) + CONTROL_PERIOD, traj.total_time)
-            pos = traj.evaluate(np.array([t]), 0)[0]
-            vel = traj.evaluate(np.array([t]), 1)[0]
-            st = self.tick(pos, vel, items[min(k, len(items) - 1)].yaw)
+        # no trajectory: the vehicle is at the items already (a re-plan that came as it arrived,
+        # tower A's second waypoint): it goes on to the photo, not round the same leg forever
+        if traj is None:
+            for _ in items[:-1]:
+                self.sm.reached(st.time)
+        for t, st in ([] if traj is None else self._follow(traj, lambda: items[min(k, len(items) - 1)].yaw)):
             if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
                 return False
             while k < len(items) - 1 and t >= seg.item_times[k] - 1e-9:
@@ -283,6 +401,20 @@ class FlightLoop:
         if self.sm.target() is last:
             self.sm.reached(self.vehicle.state().time)
         return True
+
+    def _follow(self, traj: MinSnapTrajectory, yaw: Callable[[], float]) -> Iterator[tuple[float, VehicleState]]:
+        """Stream ``traj`` from its start, one tick at a time, at heading ``yaw()``; yields the
+        trajectory time and the vehicle's state after each tick (the caller stops when it must)."""
+        st = self.vehicle.state()
+        t, t0 = 0.0, st.time
+        while t < traj.total_time - 1e-9:
+            # by vehicle time, not ticks: through MAVLink a period ends on a telemetry sample, and
+            # sensing takes wall time while the vehicle flies on
+            t = min(max(st.time - t0, t) + CONTROL_PERIOD, traj.total_time)
+            pos = traj.evaluate(np.array([t]), 0)[0]
+            vel = traj.evaluate(np.array([t]), 1)[0]
+            st = self.tick(pos, vel, yaw())
+            yield t, st
 
     def _healthy(self) -> bool:
         st = self.vehicle.state()
@@ -310,37 +442,155 @@ class FlightLoop:
                 self.abort(f"fault did not clear within {HOLD_TIMEOUT:.0f} s", st.time)
 
     def take_photo(self, wp: InspectionWaypoint) -> None:
-        """Settle on the waypoint with the camera aimed, take the photo through the sensors, save it."""
+        """Take the photo of ``wp`` (:meth:`_shoot`) and check it on itself; an unfit one is taken
+        again, re-settled and re-aimed, at most ``[inspection] photo_retakes`` times. Every
+        attempt is saved and recorded (its ``attempt`` and ``check``)."""
+        retakes = self.mission.inspection.photo_retakes
+        for attempt in range(1, retakes + 2):
+            check = self._shoot(wp, attempt)
+            if check is None or check.fit:
+                return
+            if attempt <= retakes:
+                self.say(f"[{self.now():7.1f} s] photo of insulator {wp.insulator_id} unfit "
+                         f"({', '.join(check.reasons)}): retake {attempt} of {retakes}")
+
+    def _settle(self, wp: InspectionWaypoint, hold: float) -> VehicleState | None:
+        """Hold ``wp`` for at least ``hold`` s until settled (heading, speed) or PHOTO_SETTLE_TIMEOUT;
+        the settled state, None when the mission aborted meanwhile."""
         t0 = self.vehicle.state().time
         while True:
             st = self.tick(wp.position, None, wp.yaw)
             if self.sm.state == State.ABORT:
-                return
+                return None
             settled = (abs(wrap_angle(st.yaw - wp.yaw)) < PHOTO_YAW_TOLERANCE
                        and np.linalg.norm(st.velocity) < PHOTO_SPEED_TOLERANCE)
-            if settled or st.time - t0 > PHOTO_SETTLE_TIMEOUT:
-                break
-        T_b_c = gimballed_T_b_c(self.rig.T_b_c, wp.gimbal_pitch)
+            if (settled and st.time - t0 >= hold) or st.time - t0 > PHOTO_SETTLE_TIMEOUT:
+                return st
+
+    def _shoot(self, wp: InspectionWaypoint, attempt: int) -> PhotoCheck | None:
+        """Settle on the waypoint with the camera aimed, take the photo through the sensors,
+        check it (the detector once on the photo), save it; its check, None without a photo."""
+        st = self._settle(wp, 0.0 if attempt == 1 else RETAKE_HOLD)
+        if st is None:
+            return None
+        zoom = None
+        if self.inspection is None:
+            pitch, gimbal_yaw = wp.gimbal_pitch, 0.0
+            T_b_c = stabilised_T_b_c(st.T_w_b, self.rig.T_b_c, wp.gimbal_pitch)
+        else:  # aimed from where the vehicle settled, at the zoom the shot was framed for
+            pitch, gimbal_yaw, T_b_c = aim_at(st.T_w_b, self.inspection.T_b_c, wp.target, self.inspection.gimbal)
+            if wp.focal_px is not None:
+                zoom = self.inspection.at_focal(wp.focal_px)
         try:
-            frame = self.sensors.photo(st.time, T_b_c)
+            frame = self.sensors.photo(st.time, T_b_c, camera=zoom)
         except SensorError as exc:
             self._sensor_error(exc)
             frame = None
         if frame is None:
             self.say(f"[{self.now():7.1f} s] photo of insulator {wp.insulator_id}: no image from the camera")
-            return
+            return None
         ins = next((i for i in self.registry.insulators if i.id == wp.insulator_id), None)
+        axis = None if ins is None else ins.axis
+        T_c_w = np.linalg.inv(st.T_w_b @ frame.T_b_c)
+        view = expected_view(frame.camera, T_c_w, wp.target, wp.target if ins is None else ins.center,
+                             np.array([0.0, 0.0, 1.0]) if axis is None else axis,
+                             self.mission.inspection.insulator_length, required_span=MIN_FILL,
+                             tiled=wp.tiles > 1)
+        check = check_photo(self.photo_detector, frame.image, view)
         time_utc = self.clock.at(frame.time)
         record = self.photos.save(wp, frame, time_utc=time_utc, time_s=frame.time - self.t_start,
-                                  position=st.position, yaw=st.yaw, velocity=st.velocity,
-                                  axis=None if ins is None else ins.axis)
+                                  position=st.position, yaw=st.yaw, T_w_b=st.T_w_b, velocity=st.velocity,
+                                  axis=axis, gimbal=(pitch, gimbal_yaw), check=check, attempt=attempt)
         q = record["quality"]
+        verdict = "fit" if check.fit else f"unfit: {', '.join(check.reasons)}"
         self.say(f"[{self.now():7.1f} s] photo {record['file']}: GSD {q['gsd_mm_px']:.1f} mm/px, "
-                 f"blur {q['motion_blur_px']:.2f} px")
+                 f"blur {q['motion_blur_px']:.2f} px; checked on the photo: {verdict}"
+                 + (f" ({check.error})" if check.error else ""))
         w = record["wgs84"]  # where the GCS draws the photo's marker
         self.observer.photo_taken(PhotoTaken(record["time_s"], time_utc.timestamp(), wp.insulator_id,
                                              len(self.photos), record["file"], st.position.copy(),
-                                             (w["lat"], w["lon"], w["alt"]), st.yaw, wp.gimbal_pitch))
+                                             (w["lat"], w["lon"], w["alt"]),
+                                             wrap_angle(st.yaw + gimbal_yaw), pitch))
+        self.write_summary()
+        return check
+
+    def configure_autopilot(self) -> None:
+        """Before arming: the autopilot's own failsafes set for this tower and verified (a vehicle
+        with parameters only; see :mod:`insulator_rs.planning.px4_failsafes`); home is where the
+        vehicle stands (PX4 sets it at arming). A parameter that cannot be read or set raises
+        ParameterError: the mission aborts before anything flies."""
+        store = vehicle_parameters(self.vehicle)
+        if store is None:
+            return
+        gcs = store.ground_station(GROUND_STATION_WAIT)
+        settings = tower_failsafe_parameters(self.geom.volumes, self.vehicle.state().position,
+                                             self.geom.path_points(),
+                                             crossing_clearance=self.mission.inspection.crossing_clearance,
+                                             ground_station=gcs, vehicle_return_alt=store.read("RTL_RETURN_ALT"))
+        self.autopilot_setup = AutopilotSetup(store, settings, ground_station=gcs)
+        try:
+            self.autopilot_setup.apply()
+        finally:
+            self.write_summary()
+        self.say("autopilot parameters set and verified: " + ", ".join(f"{s.name} {s.value:g}" for s in settings)
+                 + ("" if gcs else "; no ground station heard: NAV_DLL_ACT left as it was"))
+
+    def preflight(self) -> None:
+        """Before arming, after the autopilot's parameters are set: the pre-flight gate
+        (:mod:`insulator_rs.flight.preflight`), each check said; PreflightRefused naming every
+        failed check refuses the flight before the arm command."""
+        p = self.mission.inspection
+        result = preflight_checks(self.vehicle, self.sensors, self.detector, demand=self._mission_demand(),
+                                  reserve=p.battery_reserve, volumes=self.geom.volumes,
+                                  mission_points=self.geom.path_points())
+        self.preflight_result = result
+        for c in result.checks:
+            self.say(f"pre-flight {c.check.value}: {c.outcome.value.replace('_', ' ')} ({c.reason})")
+        if not result.passed:
+            raise result.refusal()
+
+    def _mission_demand(self) -> RouteDemand:
+        """What the battery pays for the mission before anything is found: the exploration path
+        from the take-off point to above the landing point, and the touchdown."""
+        points = np.vstack([self.vehicle.state().position, self.geom.path_points()])
+        return route_demand(points, self.v_max, self.a_max) + RouteDemand(TOUCHDOWN_TIME, LAND_HEIGHT)
+
+    def on_preflight_refused(self, exc: PreflightRefused) -> None:
+        """The gate refused: the operator and the GCS are told each failed check; nothing armed."""
+        self.observer.preflight_failed(self.now(), exc.failed)
+        self.say(f"refused to arm: {exc}")
+        self.write_summary()
+
+    def restore_autopilot(self) -> None:
+        """After the flight: the autopilot's old parameters back, once the vehicle is on the
+        ground (waiting up to RESTORE_WAIT s of vehicle time while PX4 returns or lands by
+        itself); while it still flies, the tower's values stay set and the report says so."""
+        setup = self.autopilot_setup
+        if setup is None or not setup.pending:
+            return
+        st = self.vehicle.state()
+        waited = 0.0
+        # only PX4's own return or landing ends on the ground by itself; a hover (HOLD, the
+        # pilot's POSCTL) is someone's to end, so the values stay for them
+        landing_modes = (FlightMode.RTL.value, FlightMode.LAND.value)
+        while not st.landed and st.mode in landing_modes and waited < RESTORE_WAIT:
+            before = st.time
+            try:
+                st = self.vehicle.advance(1.0)
+            except VehicleFailsafe as exc:  # PX4's own failsafe flies on: keep waiting for its landing
+                self.say(f"[{self.now():7.1f} s] waiting for the landing to restore parameters: {exc}")
+                st = self.vehicle.state()
+            except VehicleError:
+                break
+            if st.time <= before:
+                break  # no telemetry any more: the vehicle cannot be seen landing
+            waited += st.time - before
+            self.report.log_pose(st.time - self.t_start, st.position, st.yaw, self.sm.state.value)
+        if st.landed:
+            setup.restore()
+        else:
+            setup.keep(f"the vehicle is still in the air (mode {st.mode}): the tower's values stay set")
+        self.say(f"[{self.now():7.1f} s] autopilot parameters: {setup.restore_status}")
         self.write_summary()
 
     def takeoff(self) -> None:
@@ -361,6 +611,7 @@ class FlightLoop:
                 break
         self.vehicle.start_offboard()
         self.sm.start(self.vehicle.state().time)
+        self._frames_seen = (self.runner.counts.frames, self.vehicle.state().time)
         self._print_transitions()
 
     def land(self) -> None:
@@ -387,7 +638,87 @@ class FlightLoop:
             except VehicleFailsafe as exc:
                 self.on_failsafe(exc)
                 return
+            self.battery.observe(st)  # the descent drains the pack too, down to the charge at touchdown
             self.report.log_pose(st.time - self.t_start, st.position, st.yaw, self.sm.state.value)
+
+    def leave_safely(self) -> None:
+        """After an abort: stop, fly the safe route out (:mod:`insulator_rs.planning.abort`, from
+        what the state machine knew: the side a crossing was heading for, where a detour began)
+        and land at its end; where no route can be planned, or the vehicle will not fly it, hold
+        and hand over to the pilot. Nothing when a failsafe has the vehicle or it never flew."""
+        if self.failsafe is not None or not self._airborne:
+            return
+        st = self.vehicle.state()
+        if st.landed:
+            return
+        offboard = st.mode == FlightMode.OFFBOARD.value
+        yaw = st.yaw
+        try:
+            stop = plan_stop(self.geom.volumes, st.position, st.velocity, self.a_max)
+            if stop is not None and offboard and not self._fly_abort_leg(stop, yaw):
+                return
+            st = self.vehicle.state()
+            route = self._abort_route(st.position)
+        except PlanningError as exc:
+            self.hand_over(f"no safe route to land: {exc}")
+            return
+        self.abort_route = route
+        self.say(f"[{self.now():7.1f} s] abort: {route.case} to the landing point "
+                 f"{np.round(route.landing, 1).tolist()} ({len(route.legs)} legs)")
+        self.write_summary()
+        if route.case == AbortCase.DESCEND and not offboard:
+            self.land()  # straight down is clear: the autopilot's own landing, no offboard needed
+            return
+        if not offboard and not self._take_offboard():
+            return
+        for leg in route.legs:
+            try:
+                traj = leg_trajectory(leg, self.geom.volumes, v_max=self.v_max, a_max=self.a_max,
+                                      dt=SAFETY_CHECK_DT)
+            except PlanningError as exc:
+                self.hand_over(f"no safe trajectory along the route out: {exc}")
+                return
+            if not self._fly_abort_leg(traj, yaw):
+                return
+        self.land()
+
+    def _fly_abort_leg(self, traj: MinSnapTrajectory, yaw: float) -> bool:
+        """Fly one trajectory of the way out; False (and the vehicle handed over, unless a
+        failsafe has it) when the vehicle stops taking setpoints on the way."""
+        for _, st in self._follow(traj, lambda: yaw):
+            if self.failsafe is not None:
+                return False
+            if not st.healthy or st.mode != FlightMode.OFFBOARD.value:
+                self.hand_over(st.fault or f"the vehicle left offboard on the way out (mode {st.mode})")
+                return False
+        return True
+
+    def _take_offboard(self) -> bool:
+        """Back into offboard for the way out (setpoints streamed here first, as PX4 wants);
+        False, and the vehicle handed over, when the autopilot refuses."""
+        st = self.vehicle.state()
+        here, t0 = st.position.copy(), st.time
+        while st.time - t0 < OFFBOARD_WARMUP and self.failsafe is None:
+            st = self.tick(here, None, st.yaw)
+        try:
+            self.vehicle.start_offboard()
+        except VehicleError as exc:
+            self.hand_over(f"offboard refused for the way out: {exc}")
+            return False
+        return self.failsafe is None
+
+    def hand_over(self, reason: str) -> None:
+        """No safe way on: hold in the autopilot's HOLD where the vehicle is (never a blind
+        descent), say so to the pilot (the GCS's STATUSTEXT), stop commanding."""
+        self.handed_over = reason
+        try:
+            self.vehicle.hold()
+        except VehicleError as exc:
+            reason += f"; the hold command failed too: {exc}"
+            self.handed_over = reason
+        self.observer.handed_over(self.now(), reason)
+        self.say(f"[{self.now():7.1f} s] holding for the pilot: {reason}")
+        self.write_summary()
 
     def on_command_failure(self, exc: VehicleError) -> None:
         """The vehicle refused a command or never answered it (arm, take-off, a mode switch):
@@ -421,22 +752,36 @@ class FlightLoop:
                     if layout.staged else ""))
         for left in layout.leftovers():
             self.say(f"note: {left} is what an earlier run killed mid-way left (kept; delete it when done)")
+        refused: PreflightRefused | None = None
         try:
             self._fly()
+        except PreflightRefused as exc:  # before arming: nothing flew, nothing was armed
+            refused = exc
+            self.on_preflight_refused(exc)
         except VehicleFailsafe as exc:  # raised by a command rather than during a tick
             self.on_failsafe(exc)
+        except ParameterError as exc:  # before arming: nothing flew
+            self.abort(f"autopilot parameters not set ({exc})")
+            self.say(f"[{self.now():7.1f} s] {self.abort_reason}")
         except VehicleError as exc:
             self.on_command_failure(exc)
         except PlanningError as exc:
             self.on_planning_failure(exc)
-        if self.sm.state == State.ABORT:
-            self.land()
+        if refused is not None:
+            self.status = "refused_preflight: " + "; ".join(f"{name}: {reason}" for name, reason in refused.failed)
+        elif self.sm.state == State.ABORT:
+            self.leave_safely()
             self.status = f"aborted: {self.abort_reason or 'mission aborted'}"
+            if self.handed_over is not None:
+                self.status += f"; held for the pilot: {self.handed_over}"
         else:
             self.status = "finished"
+        self.restore_autopilot()
         self._print_transitions()
 
     def _fly(self) -> None:
+        self.configure_autopilot()
+        self.preflight()
         self.takeoff()
         while not self.sm.done:
             if self.sm.state == State.HOLD:
@@ -479,19 +824,41 @@ class FlightLoop:
                                                          "action": self.failsafe.action},
             distance_m=float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
             detections_dropped_by_sanitiser=detections_dropped(self.detector),
+            abort=self._abort_record(),
             inspections_skipped=[{"insulator_id": it.waypoint.insulator_id if it.waypoint is not None else None,
                                   "position": np.asarray(it.position).tolist(), "reason": reason}
                                  for it, reason in self.sm.skipped],
             photo_camera=camera_record(self.photos.camera),
+            photo_checks=self.photos.check_summary([i.id for i in self.registry.insulators]),
             inspection_waypoints=[{"insulator_id": w.insulator_id, "position": w.position, "yaw": w.yaw,
                                    "gimbal_pitch": w.gimbal_pitch} for w in self.waypoints],
             transitions=[{"time_s": tr.time - self.t_start, "from": tr.source.value, "to": tr.target.value,
-                          "reason": tr.reason} for tr in self.sm.transitions])
+                          "reason": tr.reason} for tr in self.sm.transitions],
+            timesync=timesync_record(self.vehicle, self.sensors),
+            battery=self.battery.record(),
+            preflight=None if self.preflight_result is None else self.preflight_result.as_record(),
+            px4_parameters=None if self.autopilot_setup is None else self.autopilot_setup.record())
+        refused = self.preflight_result is not None and not self.preflight_result.passed
         return RunSummary(run="flight", status=self.status, detector=detector_name(self.detector),
-                          method=s.method, flight_time_s=st.time - self.t_start,
+                          method=s.method, flight_time_s=0.0 if refused else st.time - self.t_start,
                           perception=perception_record(self.runner, self.sensor_errors),
                           insulators=insulator_records(self.registry, photos), photos=self.photos.records,
                           sensors_health=self.sensors.health(), flight=details)
+
+    def _abort_record(self) -> dict[str, Any] | None:
+        ctx = self.sm.aborted
+        if ctx is None:
+            return None
+        route = self.abort_route
+        record: dict[str, Any] = {"reason": self.abort_reason or ctx.reason, "time_s": ctx.time - self.t_start,
+                                  "route": None, "landing_point": None, "landing_wgs84": None, "side": None,
+                                  "legs": [], "handed_over": self.handed_over, "left": self.left}
+        if route is not None:
+            lat, lon, alt = enu_to_geodetic(route.landing, self.origin)[0]
+            record.update(route=route.case.value, landing_point=route.landing.tolist(),
+                          landing_wgs84=[float(lat), float(lon), float(alt)], side=route.side,
+                          legs=[leg.tolist() for leg in route.legs])
+        return record
 
     def write_summary(self) -> None:
         self.report.write_summary(self.summary())

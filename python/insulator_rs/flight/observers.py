@@ -27,6 +27,13 @@ class ConsoleObserver:
     def aborted(self, time_s: float, reason: str) -> None:
         pass  # the loop says why, as a message
 
+    def handed_over(self, time_s: float, reason: str) -> None:
+        print(f"[{time_s:7.1f} s] HOLDING, pilot take over: {reason}", flush=True)
+
+    def preflight_failed(self, time_s: float, failed: list[tuple[str, str]]) -> None:
+        for name, reason in failed:
+            print(f"PRE-FLIGHT FAILED, not armed: {name}: {reason}", flush=True)
+
     def message(self, time_s: float, text: str) -> None:
         print(text, flush=True)
 
@@ -57,6 +64,12 @@ class ObserverGroup:
 
     def aborted(self, time_s: float, reason: str) -> None:
         self._each("aborted", time_s, reason)
+
+    def handed_over(self, time_s: float, reason: str) -> None:
+        self._each("handed_over", time_s, reason)
+
+    def preflight_failed(self, time_s: float, failed: list[tuple[str, str]]) -> None:
+        self._each("preflight_failed", time_s, failed)
 
     def message(self, time_s: float, text: str) -> None:
         self._each("message", time_s, text)

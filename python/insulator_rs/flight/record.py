@@ -11,6 +11,7 @@ from typing import Any
 
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.report.summary import InsulatorRecord, PerceptionRecord
+from insulator_rs.timesync import TimesyncRecord
 from insulator_rs.tracking.registry import InsulatorRegistry
 
 
@@ -26,7 +27,7 @@ def perception_record(runner: PerceptionRunner, sensor_errors: int | None = None
     """The runner's and its pipeline's counts (``sensor_errors``: the caller's total, photos included)."""
     c = runner.counts
     return PerceptionRecord(detection_events=c.events, frames_detected=c.frames, localizations=c.localizations,
-                            pairing_short=runner.pairing_short,
+                            pairing_short=runner.pairing_short, pairing_timing=runner.pairing.timing(),
                             sensor_errors=c.sensor_errors if sensor_errors is None else sensor_errors,
                             counters=asdict(runner.pipeline.counters),
                             refused_not_insulator=dict(runner.pipeline.not_insulator))
@@ -36,3 +37,14 @@ def insulator_records(registry: InsulatorRegistry, photos: dict[int, list[str]])
     return [InsulatorRecord(ins.id, ins.center, ins.axis, ins.observations, ins.side, ins.confirmed,
                             ins.inspected, photos.get(ins.id, []))
             for ins in registry.insulators]
+
+
+def timesync_record(vehicle: Any, sensors: Any) -> TimesyncRecord:
+    """How the companion knew vehicle time: the clock live sensors were stamped with (TIMESYNC
+    or its telemetry fallback), else the MAVLink client's TIMESYNC map, else source ``none``
+    (an in-process vehicle: its clock is the host's)."""
+    for port in (sensors, vehicle):
+        record = getattr(port, "timesync_record", None)
+        if callable(record):
+            return record()
+    return TimesyncRecord()

@@ -22,6 +22,11 @@ What it does, as PX4's offboard documentation asks, one job per module:
   onboard computer and streaming SET_POSITION_TARGET_LOCAL_NED at
   ``setpoint_rate_hz``, 20 Hz of vehicle time, before and during offboard) and
   the ``Vehicle`` methods;
+* ``parameters``: PARAM_REQUEST_READ / PARAM_SET verified by PARAM_VALUE (bytewise-encoded
+  integers, the parameter's own type, retried on loss): :attr:`MavlinkVehicle.parameters`;
+* ``timesync``: TIMESYNC both ways (our requests, 10 Hz then 1 Hz, fitted into the host ->
+  vehicle clock map; PX4's requests answered with our time): :attr:`MavlinkVehicle.timesync`
+  is the companion computer's vehicle clock;
 * MAVLink 2 signing with a 32-byte key (``signing``: signature checked before
   any stream state changes).
 
@@ -48,13 +53,16 @@ from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsa
 from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.commands import CommandProtocol
 from insulator_rs.mavlink.failsafes import FailsafeMonitor, FailsafeSettings
-from insulator_rs.mavlink.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned
+from insulator_rs.mavlink.frames import enu_to_ned, local_origin_in_w, yaw_enu_to_ned
 from insulator_rs.mavlink.link import AutopilotLink, LinkStats, open_connection
+from insulator_rs.mavlink.parameters import ParameterProtocol
 from insulator_rs.mavlink.signing import configure_signing, load_signing_key
 from insulator_rs.mavlink.telemetry import REQUESTED_RATES_HZ, Telemetry, TelemetryStore
+from insulator_rs.mavlink.timesync import MavlinkTimesync
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.validation import as_finite, as_vector3, require_positive
-from insulator_rs.ports.vehicle import FlightMode, VehicleState
+from insulator_rs.ports.vehicle import FlightMode, NavigationStatus, VehicleState
+from insulator_rs.timesync import TimesyncRecord
 
 __all__ = ["CommandRejected", "FailsafeSettings", "LinkStats", "MavlinkVehicle", "Telemetry", "VehicleFailsafe",
            "connect_vehicle", "open_connection"]
@@ -89,6 +97,8 @@ class MavlinkVehicle:
         heartbeat_timeout: float = 10.0,
         command_timeout: float = 1.0,
         command_retries: int = 3,
+        parameter_timeout: float = 1.0,
+        parameter_retries: int = 5,
         setpoint_rate_hz: float = 20.0,
         time_scale: float = 1.0,
         failsafes: FailsafeSettings | None = None,
@@ -100,6 +110,7 @@ class MavlinkVehicle:
     ) -> None:
         heartbeat_timeout = require_positive(heartbeat_timeout, "heartbeat_timeout")
         command_timeout = require_positive(command_timeout, "command_timeout")
+        parameter_timeout = require_positive(parameter_timeout, "parameter_timeout")
         self.setpoint_rate_hz = as_finite(setpoint_rate_hz, "setpoint_rate_hz")
         if self.setpoint_rate_hz < 20.0:
             raise ValueError(f"setpoint_rate_hz must be >= 20 (PX4 offboard), got {setpoint_rate_hz!r}")
@@ -114,10 +125,15 @@ class MavlinkVehicle:
         self._telemetry = TelemetryStore()
         self._monitor = FailsafeMonitor(self.failsafes)
         self._setpoint: Setpoint | None = None
+        self.timesync = MavlinkTimesync()  # host -> vehicle clock (TIMESYNC, both ways)
         self._link = AutopilotLink(connection, source_system=source_system, source_component=source_component,
                                    target_system=target_system)
         self._commands = CommandProtocol(self._link, self._lock, self._stop, timeout=command_timeout,
                                          retries=command_retries)
+        # the autopilot's parameters (PARAM_SET verified by PARAM_VALUE): the ParameterStore port
+        self.parameters = ParameterProtocol(self._link, self._lock, self._stop, timeout=parameter_timeout,
+                                            retries=parameter_retries)
+        self._link.add_listener(self._foreign_message)
         if signing_key is not None:
             configure_signing(self._link.mav, signing_key, link_id=1, allow_unsigned=UNSIGNED_ALLOWED)
         self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
@@ -128,8 +144,12 @@ class MavlinkVehicle:
             self._wait_for(lambda: self._telemetry.heartbeat is not None, heartbeat_timeout,
                            f"no autopilot heartbeat on {connection} within {heartbeat_timeout:g} s")
             for message_id, rate in REQUESTED_RATES_HZ.items():
-                self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, 1e6 / rate,
-                              detail=M.mavlink_map[message_id].msgname)
+                try:
+                    self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, 1e6 / rate,
+                                  detail=M.mavlink_map[message_id].msgname)
+                except CommandRejected:
+                    if message_id != M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+                        raise  # an autopilot without ATTITUDE_QUATERNION: the attitude from ATTITUDE
             self._wait_for(lambda: self._telemetry.local is not None and self._telemetry.home is not None,
                            heartbeat_timeout, "no LOCAL_POSITION_NED/HOME_POSITION from the autopilot")
         except BaseException:
@@ -148,6 +168,11 @@ class MavlinkVehicle:
         with self._lock:
             return self._telemetry.snapshot(self.local_origin_w, self._monitor.fault, self._link.stats.as_dict())
 
+    def navigation(self) -> NavigationStatus:
+        """The GPS fix (GPS_RAW_INT), global position and home the autopilot last sent."""
+        with self._lock:
+            return self._telemetry.navigation()
+
     @property
     def link_stats(self) -> LinkStats:
         """What the link received and dropped, by reason (a live object: read, do not keep)."""
@@ -157,6 +182,10 @@ class MavlinkVehicle:
     def link(self) -> AutopilotLink:
         """The link to the autopilot (other components of the companion send through it)."""
         return self._link
+
+    def timesync_record(self) -> TimesyncRecord:
+        """The TIMESYNC map's figures for the summary (source ``none`` if PX4 never answered)."""
+        return self.timesync.record()
 
     @property
     def autopilot(self) -> tuple[int, int] | None:
@@ -171,8 +200,6 @@ class MavlinkVehicle:
         in local coordinates: local_origin_w = ENU(home wrt origin, pymap3d) -
         ENU(home local). Returns the new ``local_origin_w`` (m, W).
         """
-        import pymap3d
-
         lat = as_finite(latitude, "latitude")
         lon = as_finite(longitude, "longitude")
         alt = as_finite(altitude, "altitude")
@@ -182,9 +209,8 @@ class MavlinkVehicle:
             home = self._telemetry.home
             if home is None:
                 raise VehicleError("no HOME_POSITION from the autopilot yet")
-            home_w = np.array(pymap3d.geodetic2enu(home.latitude * 1e-7, home.longitude * 1e-7,
-                                                   home.altitude * 1e-3, lat, lon, alt), dtype=np.float64)
-            self.local_origin_w = home_w - ned_to_enu([home.x, home.y, home.z])
+            self.local_origin_w = local_origin_in_w((home.latitude * 1e-7, home.longitude * 1e-7, home.altitude * 1e-3),
+                                                    [home.x, home.y, home.z], (lat, lon, alt))
             return self.local_origin_w.copy()
 
     def arm(self) -> None:
@@ -355,6 +381,9 @@ class MavlinkVehicle:
                 self._link.send("heartbeat", M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0,
                                 M.MAV_STATE_ACTIVE)
                 next_heartbeat = now + 1.0
+            request = self.timesync.request_due()
+            if request is not None:
+                self._link.send("timesync", *request)
             with self._lock:
                 sp = self._setpoint if self._monitor.commanding_stopped is None else None
             if sp is not None and now >= next_setpoint:
@@ -386,8 +415,21 @@ class MavlinkVehicle:
                 self._setpoint = None  # the pilot (or PX4's own failsafe) took the vehicle: stop at once
         elif kind == "COMMAND_ACK":
             self._commands.on_ack(msg)
+        elif kind == "PARAM_VALUE":
+            self.parameters.on_value(msg)
+        elif kind == "TIMESYNC":
+            answer = self.timesync.on_timesync(msg.tc1, msg.ts1)
+            if answer is not None:  # the autopilot's request: our time back, with its ts1
+                self._link.send("timesync", *answer)
         else:
             self._telemetry.update(msg, now)
+
+    def _foreign_message(self, msg: Any) -> None:
+        """Another system's message the autopilot forwarded (the receiver's thread, before it takes
+        the lock: one float is stored): a ground station's HEARTBEAT says one is on the autopilot's
+        data link."""
+        if msg.get_type() == "HEARTBEAT" and msg.type == M.MAV_TYPE_GCS:
+            self.parameters.on_ground_station_heartbeat()
 
     def _check_failsafes(self) -> None:
         """Run a pending failsafe's action (commands need this thread) and raise it."""

@@ -93,7 +93,8 @@ class FailsafeMonitor:
         if armed and now - telemetry.local_wall > fs.position_stale_timeout \
                 and telemetry.heartbeat_wall - telemetry.local_wall > fs.position_stale_timeout:
             self.raise_failsafe(f"local position stale for more than {fs.position_stale_timeout:g} s", "hold")
-        elif armed and telemetry.battery < fs.low_battery_fraction and not telemetry.on_ground:
+        elif (armed and telemetry.battery is not None and telemetry.battery < fs.low_battery_fraction
+              and not telemetry.on_ground):
             self.raise_failsafe(f"battery low ({telemetry.battery:.0%} < {fs.low_battery_fraction:.0%})",
                                 fs.low_battery_action)
         return False

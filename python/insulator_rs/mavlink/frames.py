@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from insulator_rs.poses import quaternion_from_rotation, rotation_from_quaternion
 from insulator_rs.ports.vehicle import wrap_angle as wrap_pi
 
 # p_ned = ENU_TO_NED @ p_enu; det = +1 (the x/y swap and the z flip together
@@ -89,3 +90,27 @@ def attitude_enu_flu_to_ned_frd(rotation_enu_flu: np.ndarray) -> tuple[float, fl
     roll = math.atan2(r[2, 1], r[2, 2])
     yaw = math.atan2(r[1, 0], r[0, 0])
     return roll, pitch, yaw
+
+
+def attitude_quaternion_ned_frd_to_enu_flu(q_ned_frd: object) -> np.ndarray:
+    """R_enu_flu (3x3) from PX4's ATTITUDE_QUATERNION / VehicleOdometry q: (w, x, y, z) of
+    R_ned_frd (FRD body -> NED)."""
+    return ENU_TO_NED.T @ rotation_from_quaternion(np.asarray(q_ned_frd, dtype=np.float64)) @ FLU_TO_FRD
+
+
+def quaternion_ned_frd_from_enu_flu(rotation_enu_flu: np.ndarray) -> np.ndarray:
+    """PX4's (w, x, y, z) quaternion of R_ned_frd from R_enu_flu (the inverse of the above)."""
+    return quaternion_from_rotation(ENU_TO_NED @ np.asarray(rotation_enu_flu, dtype=np.float64) @ FLU_TO_FRD)
+
+
+def local_origin_in_w(home_geodetic: tuple[float, float, float], home_local_ned: object,
+                      origin_geodetic: tuple[float, float, float]) -> np.ndarray:
+    """Where PX4's local frame starts, in W (ENU at ``origin_geodetic``: deg, deg, m AMSL).
+
+    HOME_POSITION carries home both as ``home_geodetic`` (deg, deg, m) and in the local frame
+    (``home_local_ned``, m): local_origin_w = ENU(home wrt origin, pymap3d) - ENU(home local), so
+    that W = local_origin_w + ned_to_enu(p_local) for every position PX4 reports."""
+    import pymap3d
+
+    home_w = np.array(pymap3d.geodetic2enu(*home_geodetic, *origin_geodetic), dtype=np.float64)
+    return home_w - ned_to_enu(home_local_ned)

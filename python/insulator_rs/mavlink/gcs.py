@@ -6,7 +6,7 @@ as PX4 companion software does, through the autopilot, which forwards it to its 
 
 * **STATUSTEXT** from the companion computer (``MAV_COMP_ID_ONBOARD_COMPUTER``, 191) for each
   phase change (INFO; NOTICE when the mission finishes, WARNING for a hold), each insulator
-  found (NOTICE), each photo (INFO) and an abort (CRITICAL); the flight's other progress lines
+  found (NOTICE), each photo (INFO) and an abort (CRITICAL), a hand-over to the pilot (ALERT), each failed pre-flight check (CRITICAL, ``Preflight Fail: ...``); the flight's other progress lines
   (``message``: the console's lines) at DEBUG, below what a GCS shows by default; texts longer than STATUSTEXT's 50
   characters go in chunks (MAVLink 2 ``id`` / ``chunk_seq``), as PX4 does.
 * A **MAVLink camera** (``MAV_COMP_ID_CAMERA``, 100, camera protocol v2): its own HEARTBEAT
@@ -189,6 +189,13 @@ class MavlinkGcsObserver:
 
     def aborted(self, time_s: float, reason: str) -> None:
         self.statustext(f"Inspection aborted: {reason}", M.MAV_SEVERITY_CRITICAL)
+
+    def handed_over(self, time_s: float, reason: str) -> None:
+        self.statustext(f"HOLD, take over: {reason}", M.MAV_SEVERITY_ALERT)
+
+    def preflight_failed(self, time_s: float, failed: list[tuple[str, str]]) -> None:
+        for name, reason in failed:  # one each, as PX4's own "Preflight Fail: ..."
+            self.statustext(f"Preflight Fail: {name}: {reason}", M.MAV_SEVERITY_CRITICAL)
 
     def message(self, time_s: float, text: str) -> None:
         # the console's progress lines (the events above come as their own STATUSTEXT too)

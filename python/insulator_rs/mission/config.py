@@ -41,6 +41,10 @@ message gives the range and the reason)::
     crossing_clearance = 3.0      # m, optional: height above the safety box when crossing sides
     insulator_length = 2.0        # m, optional: length of the insulator strings (for framing and plausibility)
     confirmations = 4             # optional: localizations within the gate before an insulator is registered
+    battery_reserve = 0.25        # optional: fraction of the pack kept at landing; the vehicle comes back
+                                  # (by the safe route out) before the rest of the plan would touch it
+    photo_retakes = 2             # optional: times a photo the check finds unfit (cut, too small, off
+                                  # centre, blurred, nothing detected) is taken again at its waypoint
 """
 
 from __future__ import annotations
@@ -96,6 +100,15 @@ class InspectionParams:
     # and have a confident box gather 3 each, in a few frames of one pass: with 3 confirmations one
     # was registered now and then. The small scene's short flight still confirms both strings at 4.
     confirmations: int = 4
+    # The fraction of the pack left at landing (flight/reserve.py returns in time to keep it).
+    # 25 %: the share a LiPo keeps above its knee under load, and above the MAVLink client's own
+    # low-battery failsafe (20 %, mavlink/failsafes.py) and PX4's BAT_CRIT_THR (7 %), so the
+    # mission's return comes first.
+    battery_reserve: float = 0.25
+    # A photo judged unfit on itself (perception/photo_check.py) is retaken this many times at
+    # most: each retake re-settles and re-aims (a few seconds of hover); 2 cures a gust or a
+    # settle cut short, and a fault that survives three shots will not go away with a fourth.
+    photo_retakes: int = 2
 
 
 @dataclass(frozen=True)
@@ -231,8 +244,10 @@ def _check_placement(r: _Reader, tower: GeoPoint, neighbours: list[GeoPoint],
         raise r.fail("takeoff.alt", f"height above the tower base {problem}")
 
 
-def parse_mission(data: Any, source: str = "<mission>") -> Mission:
-    """Validate a parsed mission document (a dict) into a :class:`Mission`."""
+def parse_mission(data: Any, source: str = "<mission>", base: Path | None = None) -> Mission:
+    """Validate a parsed mission document (a dict) into a :class:`Mission`; ``source`` names it in
+    errors, ``base`` is the folder its relative paths (the rig file) start from (None: the
+    folder of ``source``, a file's path)."""
     r = _Reader(source)
     if not isinstance(data, dict):
         raise r.fail("<root>", f"expected a table, got {type(data).__name__}")
@@ -273,7 +288,7 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
         if not isinstance(name, str) or not name.strip():
             raise r.fail("vehicle.rig", f"expected a rig file's path or a shipped rig's name, got {name!r}")
         try:
-            rig = load_rig(resolve_rig(name, Path(source).resolve().parent))
+            rig = load_rig(resolve_rig(name, Path(source).resolve().parent if base is None else base))
         except ConfigError as exc:
             raise r.fail("vehicle.rig", str(exc)) from exc
 
@@ -298,6 +313,8 @@ def parse_mission(data: Any, source: str = "<mission>") -> Mission:
                                   default=d.insulator_length, positive=True),
         confirmations=r.integer(insp_t, "inspection", "confirmations",
                                 default=d.confirmations, lo=1),
+        battery_reserve=r.number(insp_t, "inspection", "battery_reserve", default=d.battery_reserve),
+        photo_retakes=r.integer(insp_t, "inspection", "photo_retakes", default=d.photo_retakes, lo=0),
     )
     if inspection.standoff <= inspection.safety_margin:
         raise r.fail("inspection.standoff",

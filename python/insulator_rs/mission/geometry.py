@@ -11,6 +11,7 @@ from insulator_rs.mission.config import Mission
 from insulator_rs.planning.exploration import PathWaypoint, exploration_path
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.safety import SafetyVolumes, safety_volumes
+from insulator_rs.rig import simulator_rig
 
 
 @dataclass(frozen=True)
@@ -30,11 +31,13 @@ class MissionGeometry:
         volumes = safety_volumes(line, max_width=mission.max_width, max_height=mission.max_height,
                                  margin=p.safety_margin)
         takeoff = mission.takeoff_enu()
+        # the passes' spacing follows what the airframe's sensors see (the simulated one's by default)
+        rig = mission.rig if mission.rig is not None else simulator_rig()
         try:
             path = exploration_path(line, volumes, takeoff=takeoff, max_width=mission.max_width,
                                     max_height=mission.max_height, standoff=p.standoff,
                                     pass_spacing=p.pass_spacing,
-                                    crossing_clearance=p.crossing_clearance)
+                                    crossing_clearance=p.crossing_clearance, view=rig.vertical_view())
         except ValueError as exc:
             raise ValueError(f"{mission.source}: {exc}") from exc
         return cls(mission, line, volumes, takeoff, path)

@@ -89,6 +89,20 @@ class Transition:
     reason: str
 
 
+@dataclass(frozen=True)
+class AbortContext:
+    """What the plan said when the mission aborted, for the safe route out
+    (:func:`insulator_rs.planning.abort.plan_abort_route`): ``toward_side`` (+1/-1), the side
+    the vehicle was heading for (the plan's next item on a side; the current side when none),
+    and ``back_to`` (W), where the detour for inspection the vehicle was in left the exploration
+    path (the way back out beside an arm), None outside a detour."""
+
+    reason: str
+    time: float
+    toward_side: int
+    back_to: np.ndarray | None
+
+
 @dataclass
 class InspectionStateMachine:
     """The mission's decision logic, driven by events (no I/O, no clock of its own).
@@ -112,6 +126,7 @@ class InspectionStateMachine:
     # bumped by every change of the plan other than reaching its head: a leg being flown is
     # re-planned when it moves (the loop compares it before and after each tick)
     plan_version: int = 0
+    aborted: AbortContext | None = None  # set by :meth:`abort`
     _held_from: State | None = None
     _remaining: dict[int, int] = field(default_factory=dict)
 
@@ -244,10 +259,35 @@ class InspectionStateMachine:
         self._derive(time, "fault cleared")
 
     def abort(self, reason: str, time: float) -> None:
-        """Unrecoverable fault: stop the mission (the vehicle's own failsafe takes over)."""
+        """Unrecoverable fault: stop the mission. What the plan said about the way out is kept in
+        :attr:`aborted` (the first abort's; the flight then flies the safe route out and lands,
+        or the vehicle's own failsafe has it)."""
+        if self.aborted is None:
+            self.aborted = self.exit_context(reason, time)
         self._set(State.ABORT, time, f"abort: {reason}")
         self.plan = []
         self.plan_version += 1
+
+    def exit_context(self, reason: str, time: float) -> AbortContext:
+        """What an abort now would keep for the safe route out (the battery reserve weighs that
+        route before it decides)."""
+        return AbortContext(reason, time, self._toward_side(), self._detour_start())
+
+    def _toward_side(self) -> int:
+        return next((it.side for it in self.plan if it.side != 0), self.side)
+
+    def _detour_start(self) -> np.ndarray | None:
+        """Where the detour at the plan's head left the path: its RETURN item (immediate policy),
+        else the item visited last before an inspection waypoint (the way the vehicle came)."""
+        if not self.plan or self.plan[0].kind not in (PlanKind.INSPECT, PlanKind.RETURN):
+            return None
+        for it in self.plan:
+            if it.kind == PlanKind.RETURN:
+                return np.array(it.position, dtype=np.float64)
+            if it.kind != PlanKind.INSPECT:
+                break
+        last = next((it for it in reversed(self.visited) if it.side == self.side), None)
+        return None if last is None else np.array(last.position, dtype=np.float64)
 
     def next_leg(self) -> list[PlanItem]:
         """The plan's items flown as one trajectory: from the head up to and including the first

@@ -74,8 +74,12 @@ MIN_LOCALIZATION_POINTS = 10
 # s: LiDAR points stamped this close to a frame's exposure are "of the same instant": one
 # Mid-360 frame (100 ms) on either side, so a scan ending at the exposure pairs whole.
 PAIRING_WINDOW = 0.1
-# Scans kept for pairing (a frame is processed within a few scans of its exposure).
-SCAN_BUFFER = 5
+# s of LiDAR data kept for pairing, behind the newest point: a frame waits up to
+# PAIRING_WAIT past its window for late scans (pairing.py), and its window's points must still
+# be here then, however the scans were cut (a live driver's 100 ms scans, the simulator's
+# windows, a replay's recorded scans). Counting scans instead (5 were kept) lost the window of a
+# frame whose LiDAR came late in small pieces.
+SCAN_KEEP_S = 3.0
 
 
 @dataclass
@@ -113,6 +117,9 @@ class PerceptionCounters:
 
     frames: int = 0
     unpaired: int = 0
+    few_points: int = 0  # boxes with fewer than MIN_POINTS_PER_BOX culled points (no event)
+    accumulating: int = 0  # box events of a track still short of EVENTS_PER_LOCALIZATION
+    tracks: int = 0  # tracks started (a box whose anchor matched none within ASSOCIATION_GATE)
     failures: int = 0
     implausible: int = 0
     not_insulator: int = 0  # refused by the false-find filter (reasons in ``not_insulator``)
@@ -150,7 +157,7 @@ class PerceptionPipeline:
         self.deskew = bool(deskew)
         self.tracks: list[Track] = []
         self.poses = PoseHistory()
-        self.scans: deque[LidarScan] = deque(maxlen=SCAN_BUFFER)
+        self.scans: deque[LidarScan] = deque()
         self.counters = PerceptionCounters()
         # Localizations refused because the cluster does not look like an insulator, by reason.
         self.not_insulator: dict[str, int] = {}
@@ -175,6 +182,9 @@ class PerceptionPipeline:
         """A LiDAR scan with per-point times (kept for pairing with the next frames)."""
         if len(scan):
             self.scans.append(scan)
+            newest = max(s.time_end for s in self.scans)
+            while self.scans and self.scans[0].time_end < newest - SCAN_KEEP_S:
+                self.scans.popleft()
 
     def process(self, frame: CameraFrame, boxes: np.ndarray) -> list[LocalizedInsulator]:
         """One detection event: ``frame`` and its detection ``boxes`` (K, 4 or 5) px, paired with
@@ -186,7 +196,7 @@ class PerceptionPipeline:
         if len(self.poses) == 0:
             self.counters.unpaired += 1
             return []
-        points_w = self._paired_points_w(frame.time) if self.deskew else self._nearest_scan_w(frame.time)
+        points_w = self.paired_points_w(frame.time) if self.deskew else self._nearest_scan_w(frame.time)
         if len(points_w) == 0:
             self.counters.unpaired += 1
             return []
@@ -194,7 +204,7 @@ class PerceptionPipeline:
         self.last_paired = (points_w, T_w_b)  # for a viewer (the replay's Rerun log)
         return self._event_w(boxes, points_w, T_w_b, frame.camera, frame.T_b_c, frame.time)
 
-    def _paired_points_w(self, time: float) -> np.ndarray:
+    def paired_points_w(self, time: float) -> np.ndarray:
         """The buffered scans' points within the pairing window of ``time``, each moved to W with
         the pose at its own time."""
         knots_t, knots_T = self.poses.knots()
@@ -249,6 +259,7 @@ class PerceptionPipeline:
         out = []
         for box, idx in zip(boxes, culled):
             if len(idx) < MIN_POINTS_PER_BOX:
+                self.counters.few_points += 1
                 continue
             pts_w = points_w[idx]
             rng = np.linalg.norm(pts_w - T_w_c[:3, 3], axis=1)
@@ -259,6 +270,7 @@ class PerceptionPipeline:
             track.events.append(pts_w)
             track.views.append((np.asarray(box[:4], dtype=np.float64), T_w_c, camera))
             if len(track.events) < EVENTS_PER_LOCALIZATION:
+                self.counters.accumulating += 1
                 continue
             acc_w = np.vstack(list(track.events))
             acc_b = acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3]
@@ -335,6 +347,7 @@ class PerceptionPipeline:
                 return self.tracks[i]
         track = Track(anchor=anchor)
         self.tracks.append(track)
+        self.counters.tracks += 1
         return track
 
 

@@ -92,11 +92,16 @@ class PerceptionRunner:
             self._detection_event(now)
         return fixes
 
+    @property
+    def waiting(self) -> bool:
+        """Whether frames with boxes still wait for their points."""
+        return bool(self.pairing.pending)
+
     def finish(self, now: float) -> list[LocalizedInsulator]:
-        """A recorded stream has ended at ``now``: the scans there are go in, and every waiting
-        frame with them."""
+        """A recorded stream has ended at ``now``, or the flight stops perceiving: the newest
+        scan goes in, and every waiting frame with it."""
         self._take_scan(self._ask_scan(now))
-        return self._process(self.pairing.drain())
+        return self._process(self.pairing.drain(self.intake.horizon))
 
     # -- internals ------------------------------------------------------------------------
     def _sensor_error(self, exc: SensorError) -> None:

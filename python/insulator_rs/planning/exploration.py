@@ -6,6 +6,14 @@ horizontal passes along the tower's along-extent at heights spaced by
 ``pass_spacing`` to cover its height (a serpentine, upward on the take-off side,
 downward on the other), crosses sides above the safety volumes, and comes back
 over the top to land where it took off. All waypoints are in W.
+
+``pass_spacing`` is an upper bound: given the elevations the camera and the LiDAR both see
+(:meth:`~insulator_rs.rig.SensorRig.vertical_view`), the passes are no further apart than
+the band of heights one pass sees on the line plane, so every height of the tower is in view
+of both sensors on some pass. Mid-360's field of view starts 7 deg below its horizon: a small
+tower's 10 m spacing at 9 m from the plane left the strings at 9-10 m 24-31 deg below the top
+pass and on the bottom row of the camera's image from the lower one (13 localizations a flight
+at 1 Hz, one of its two strings found; 32 and both with the passes the band allows).
 """
 
 from __future__ import annotations
@@ -28,6 +36,9 @@ PATH_CLEARANCE = 1.0
 # of this much, up to MAX_WIDENING.
 WIDENING_STEP = 0.5
 MAX_WIDENING = 30.0
+#: rad kept off each edge of the sensors' shared view: a box cut by the image border is not
+#: one the detector gives reliably, and the LiDAR's edge rings are sparse.
+VIEW_EDGE_MARGIN = math.radians(3.0)
 
 
 class PlanKind(str, Enum):
@@ -79,14 +90,26 @@ def crossing_route(line: LineFrame, volumes: SafetyVolumes, a: np.ndarray, b: np
     return [np.array([a[0], a[1], max(z, a[2])]), np.array([b[0], b[1], max(z, b[2])])]
 
 
-def pass_heights(max_height: float, pass_spacing: float) -> list[float]:
+def view_band(view: tuple[float, float], distance: float) -> float:
+    """Height (m) of the band a pass sees at ``distance`` (m) ahead, between the elevations
+    ``view`` (rad, down < up) less VIEW_EDGE_MARGIN at each edge."""
+    down, up = view[0] + VIEW_EDGE_MARGIN, view[1] - VIEW_EDGE_MARGIN
+    if not down < up:
+        raise ValueError(f"view: the sensors' shared view {math.degrees(view[0]):.1f}..{math.degrees(view[1]):.1f} "
+                         f"deg is narrower than its edge margins")
+    return distance * (math.tan(up) - math.tan(down))
+
+
+def pass_heights(max_height: float, pass_spacing: float, band: float | None = None) -> list[float]:
     """Heights (m, ascending) of the horizontal passes: from the tower top down in steps of
-    ``pass_spacing``, the lowest no lower than MIN_PASS_HEIGHT."""
+    ``pass_spacing``, or of ``band`` (m, :func:`view_band`) where that is less, the lowest no
+    lower than MIN_PASS_HEIGHT."""
+    step = pass_spacing if band is None else min(pass_spacing, band)
     heights = []
     z = max_height
     while z >= MIN_PASS_HEIGHT - 1e-9:
         heights.append(z)
-        z -= pass_spacing
+        z -= step
     if not heights:
         heights = [max(max_height, MIN_PASS_HEIGHT)]
     return sorted(heights)
@@ -94,8 +117,12 @@ def pass_heights(max_height: float, pass_spacing: float) -> list[float]:
 
 def exploration_path(line: LineFrame, volumes: SafetyVolumes, *, takeoff: np.ndarray,
                      max_width: float, max_height: float, standoff: float, pass_spacing: float,
-                     crossing_clearance: float, along_extent: float | None = None) -> list[PathWaypoint]:
+                     crossing_clearance: float, along_extent: float | None = None,
+                     view: tuple[float, float] | None = None) -> list[PathWaypoint]:
     """The exploration path from ``takeoff`` (W) round both sides and back.
+
+    ``view`` (rad, down < up): the elevations the camera and LiDAR both see ahead of a level
+    body; the passes are then spaced no wider than the band it covers on the line plane.
 
     ``along_extent`` (m) is the half-length of each pass along the line (default:
     half the maximum width plus the standoff's quarter, so the passes see the
@@ -111,7 +138,7 @@ def exploration_path(line: LineFrame, volumes: SafetyVolumes, *, takeoff: np.nda
     widening = 0.0
     while widening <= MAX_WIDENING:
         path = _path_at(line, volumes, takeoff, max_width / 2 + standoff + widening, max_width,
-                        max_height, standoff, pass_spacing, crossing_clearance, along_extent)
+                        max_height, standoff, pass_spacing, crossing_clearance, along_extent, view)
         if volumes.polyline_clear(np.array([w.position for w in path]), inflate=PATH_CLEARANCE):
             return path
         widening += WIDENING_STEP
@@ -121,10 +148,11 @@ def exploration_path(line: LineFrame, volumes: SafetyVolumes, *, takeoff: np.nda
 
 def _path_at(line: LineFrame, volumes: SafetyVolumes, takeoff: np.ndarray, lateral: float,
              max_width: float, max_height: float, standoff: float, pass_spacing: float,
-             crossing_clearance: float, along_extent: float | None) -> list[PathWaypoint]:
+             crossing_clearance: float, along_extent: float | None,
+             view: tuple[float, float] | None) -> list[PathWaypoint]:
     """The exploration path with its passes ``lateral`` m from the line plane."""
     half_len = max_width / 2 + standoff / 4 if along_extent is None else along_extent
-    heights = pass_heights(max_height, pass_spacing)
+    heights = pass_heights(max_height, pass_spacing, None if view is None else view_band(view, lateral))
     first = line.side(takeoff)
     a_take = float(takeoff @ line.along)
     start_a = -half_len if a_take <= 0 else half_len  # start the passes at the nearer end

@@ -250,6 +250,19 @@ def braking_segment(position: np.ndarray, velocity: np.ndarray, fraction: float,
     return c, T
 
 
+def _segment_end(coeffs: np.ndarray, duration: float) -> np.ndarray:
+    """Where a segment (3, N_COEFF coefficients, ascending powers) ends after ``duration`` s."""
+    return np.array([np.polyval(coeffs[k][::-1], duration) for k in range(3)])
+
+
+def stop_trajectory(position: np.ndarray, velocity: np.ndarray, a_max: np.ndarray | float) -> MinSnapTrajectory:
+    """The smooth straight stop from ``velocity`` (m/s) at ``position`` (W) to rest, along the
+    velocity's own line, within ``a_max`` (:func:`braking_segment` to zero speed)."""
+    coeffs, T = braking_segment(position, velocity, 0.0, a_max)
+    p0 = np.asarray(position, dtype=np.float64).reshape(3)
+    return _with_prefix(p0, coeffs, T, None, _segment_end(coeffs, T))
+
+
 def _limits(v_max: np.ndarray | float, a_max: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     vm = np.broadcast_to(np.asarray(v_max, dtype=np.float64), (3,))
     am = np.broadcast_to(np.asarray(a_max, dtype=np.float64), (3,))
@@ -360,7 +373,7 @@ def _plan_moving_start(p: np.ndarray, vm: np.ndarray, am: np.ndarray, vs: np.nda
                 found.append(plan_from(p, vs))
                 continue
             coeffs, T = braking_segment(p[0], vs, s, am)
-            end = np.array([np.polyval(coeffs[k][::-1], T) for k in range(3)])
+            end = _segment_end(coeffs, T)
             if volumes is not None:
                 for box in volumes.boxes:
                     if bool(box.segments_intersect(p[0], end)):

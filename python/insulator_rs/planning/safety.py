@@ -44,6 +44,13 @@ class OrientedBox:
         q = np.abs(self.to_local(points_w))
         return np.all(q <= self.half_extents + inflate, axis=-1)
 
+    def footprint_distance(self, points_w: np.ndarray) -> np.ndarray:
+        """Horizontal distance (m) of each W point (..., 3) from the box's footprint (its
+        outline seen from above; 0 over it). The box's third axis is vertical, so a point
+        this far from the footprint is as far from the box at every height."""
+        q = np.abs(self.to_local(points_w)[..., :2]) - self.half_extents[:2]
+        return np.hypot(np.maximum(q[..., 0], 0.0), np.maximum(q[..., 1], 0.0))
+
     def segments_intersect(self, p0: np.ndarray, p1: np.ndarray, inflate: float = 0.0) -> np.ndarray:
         """Whether each segment p0[i] -> p1[i] ((..., 3) each, W) touches the box grown by ``inflate``.
 
@@ -96,6 +103,12 @@ class SafetyVolumes:
         for box in self.boxes:
             inside |= box.contains(points_w, inflate)
         return ~inside
+
+    def footprint_distance(self, points_w: np.ndarray) -> np.ndarray:
+        """Horizontal distance (m) of each W point (..., 3) from the nearest box's footprint
+        (0 over one): a point at a positive distance can descend to the ground without
+        touching a box."""
+        return np.min([box.footprint_distance(points_w) for box in self.boxes], axis=0)
 
     def segments_clear(self, p0: np.ndarray, p1: np.ndarray, inflate: float = 0.0) -> np.ndarray:
         """True for each straight segment p0[i] -> p1[i] (W) that touches no box (exact)."""

@@ -17,7 +17,9 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.geodesy import LineFrame
+from insulator_rs.inspection_camera import InspectionCamera
 from insulator_rs.perception.photo_quality import DEFAULT_DIAMETER, MAX_GSD_MM
+from insulator_rs.planning.framing import frame_string
 from insulator_rs.planning.safety import SafetyVolumes
 
 # Fraction of the field of view the insulator may fill (the rest is margin for the localization error).
@@ -41,6 +43,11 @@ class InspectionWaypoint:
     side: int
     # mm/px the photo camera resolves on the insulator from here (None: no camera given).
     planned_gsd_mm: float | None = None
+    # the inspection camera's focal length (px, mean of fx and fy) for this shot; None: the
+    # camera's only one (no dedicated inspection camera)
+    focal_px: float | None = None
+    tile: int = 0  # which of the string's overlapping tiles (0-based) this shot frames
+    tiles: int = 1
 
 
 def aim(position: np.ndarray, target: np.ndarray) -> tuple[float, float]:
@@ -75,7 +82,8 @@ def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: 
                          volumes: SafetyVolumes, count: int, inspection_distance: float,
                          insulator_length: float, fov: float, fan: float = math.radians(60.0),
                          side: int | None = None, camera: ir.CameraModel | None = None,
-                         max_gsd_mm: float = MAX_GSD_MM) -> list[InspectionWaypoint]:
+                         max_gsd_mm: float = MAX_GSD_MM,
+                         inspection: InspectionCamera | None = None) -> list[InspectionWaypoint]:
     """``count`` viewpoints for the insulator at ``center`` with unit ``axis`` (W).
 
     ``fan`` (rad) is the angle spanned by the viewpoints round the axis; ``side``
@@ -84,8 +92,14 @@ def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: 
     ``inspection_distance``, the safety minimum), which gives the finest GSD the camera can get
     with the whole string; each waypoint carries that GSD (``planned_gsd_mm``; above
     ``max_gsd_mm`` the camera cannot reach the inspection's GSD with the string whole, and the
-    photo records say so). Without it, ``fov`` (rad) frames the string as before. Raises
-    ValueError on a bad argument.
+    photo records say so). Without it, ``fov`` (rad) frames the string as before.
+
+    With a dedicated ``inspection`` camera (a zoom on a gimbal) the shots are framed by
+    :func:`~insulator_rs.planning.framing.frame_string` instead: each viewpoint of the fan
+    becomes one waypoint per tile, square-on to its tile at the closest safe distance, with the
+    focal length that makes the tile fill the planned share of the frame from where it ends up
+    (pushed out of a safety volume, it zooms in), and the gimbal pitch within its limits.
+    Raises ValueError on a bad argument.
     """
     c = np.asarray(center, dtype=np.float64).reshape(3)
     u = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -103,6 +117,10 @@ def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: 
         e1 = np.array([0.0, 0.0, 1.0]) - u[2] * u
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(u, e1)
+    if inspection is not None:
+        return _framed_waypoints(c, u, e1, e2, out, s, insulator_id=insulator_id, volumes=volumes, count=count,
+                                 fan=fan, inspection_distance=inspection_distance, length=insulator_length,
+                                 camera=inspection, max_gsd_mm=max_gsd_mm)
     if camera is None:
         r = viewing_distance(insulator_length, fov, inspection_distance)
         gsd = None
@@ -111,18 +129,47 @@ def inspection_waypoints(center: np.ndarray, axis: np.ndarray, *, insulator_id: 
         gsd = 1000.0 * r / (0.5 * (camera.fx + camera.fy))
         if not math.isfinite(max_gsd_mm) or max_gsd_mm <= 0:
             raise ValueError(f"max_gsd_mm: must be finite and > 0, got {max_gsd_mm}")
-    angles = [0.0] if count == 1 else list(np.linspace(-fan / 2, fan / 2, count))
     result = []
-    for theta in angles:
-        direction = math.cos(theta) * e1 + math.sin(theta) * e2
-        p = c + r * direction
-        pushed = 0.0
-        while not volumes.points_clear(p[None], inflate=PUSH_CLEARANCE)[0]:
-            p = p + PUSH_STEP * out
-            pushed += PUSH_STEP
-            if pushed > 100.0:
-                raise ValueError("center: no viewpoint outside the safety volumes within 100 m")
+    for direction in _fan(e1, e2, count, fan):
+        p = _pushed_clear(c + r * direction, out, volumes)
         yaw, pitch = aim(p, c)
         result.append(InspectionWaypoint(p, yaw, pitch, c.copy(), insulator_id, s,
                                          None if gsd is None else gsd * float(np.linalg.norm(p - c)) / r))
+    return result
+
+
+def _fan(e1: np.ndarray, e2: np.ndarray, count: int, fan: float) -> list[np.ndarray]:
+    """``count`` unit directions fanned over ``fan`` rad about ``e1``, in the plane of e1, e2."""
+    angles = [0.0] if count == 1 else list(np.linspace(-fan / 2, fan / 2, count))
+    return [math.cos(t) * e1 + math.sin(t) * e2 for t in angles]
+
+
+def _pushed_clear(p: np.ndarray, out: np.ndarray, volumes: SafetyVolumes) -> np.ndarray:
+    """``p`` pushed along ``out`` until it is PUSH_CLEARANCE clear of every safety volume."""
+    pushed = 0.0
+    while not volumes.points_clear(p[None], inflate=PUSH_CLEARANCE)[0]:
+        p = p + PUSH_STEP * out
+        pushed += PUSH_STEP
+        if pushed > 100.0:
+            raise ValueError("center: no viewpoint outside the safety volumes within 100 m")
+    return p
+
+
+def _framed_waypoints(c: np.ndarray, u: np.ndarray, e1: np.ndarray, e2: np.ndarray, out: np.ndarray, side: int,
+                      *, insulator_id: int, volumes: SafetyVolumes, count: int, fan: float,
+                      inspection_distance: float, length: float, camera: InspectionCamera,
+                      max_gsd_mm: float) -> list[InspectionWaypoint]:
+    """The dedicated inspection camera's waypoints (see :func:`inspection_waypoints`)."""
+    framing = frame_string(c, u, length, camera, max_gsd_mm=max_gsd_mm)
+    r = framing.distance(camera, inspection_distance)
+    result = []
+    for direction in _fan(e1, e2, count, fan):
+        for k, tile in enumerate(framing.tiles):
+            p = _pushed_clear(tile.target + r * direction, out, volumes)
+            yaw, pitch = aim(p, tile.target)
+            pitch = camera.gimbal.clamp(pitch, 0.0)[0]
+            distance = float(np.linalg.norm(p - tile.target))
+            focal = framing.focal_px(camera, distance)
+            result.append(InspectionWaypoint(p, yaw, pitch, tile.target.copy(), insulator_id, side,
+                                             1000.0 * distance / focal, focal, k, len(framing.tiles)))
     return result

@@ -62,4 +62,14 @@ class FlightObserver(Protocol):
 
     def aborted(self, time_s: float, reason: str) -> None: ...
 
+    def handed_over(self, time_s: float, reason: str) -> None:
+        """The mission found no safe way on: the vehicle holds in the autopilot's mode and the
+        pilot must take over (``reason``: why)."""
+        ...
+
+    def preflight_failed(self, time_s: float, failed: list[tuple[str, str]]) -> None:
+        """The pre-flight gate refused to arm: ``failed`` holds (check name, reason) of every
+        check that failed."""
+        ...
+
     def message(self, time_s: float, text: str) -> None: ...

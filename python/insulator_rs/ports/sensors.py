@@ -18,6 +18,7 @@ frame C, extrinsics ``T_b_l``/``T_b_c`` (4x4 float64, ``p_b = T_b_x @ p_x``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -84,6 +85,31 @@ class PoseStamped:
     T_w_b: np.ndarray
 
 
+@dataclass(frozen=True)
+class StreamStatus:
+    """One sensor stream as the pre-flight gate sees it (:mod:`insulator_rs.flight.preflight`).
+
+    ``name``: the sensor ("camera", "lidar"). ``delivered``: data it has delivered so far (frames,
+    scans). ``newest``: the vehicle-clock stamp (s) of its newest datum at or before the time
+    asked, None when there is none. ``unstamped``: data dropped for want of a vehicle-clock stamp.
+    ``error``: why the sensor could not deliver, if it could not (a render that failed).
+    """
+
+    name: str
+    delivered: int
+    newest: float | None
+    unstamped: int = 0
+    error: str | None = None
+
+
+def sensor_streams(sensors: object, now: float) -> list[StreamStatus] | None:
+    """The streams of ``sensors`` at vehicle time ``now`` (an adapter's optional
+    ``streams(now)``, which consumes nothing: the flight's data stay the flight's), or None for
+    an adapter that cannot say."""
+    streams: Callable[[float], list[StreamStatus]] | None = getattr(sensors, "streams", None)
+    return None if not callable(streams) else list(streams(now))
+
+
 @runtime_checkable
 class Sensors(Protocol):
     """A source of timestamped camera frames and LiDAR scans (vehicle clock).
@@ -99,14 +125,15 @@ class Sensors(Protocol):
         ...
 
     def lidar_scan(self, now: float) -> LidarScan | None:
-        """The newest complete LiDAR scan ending at or before ``now``; a live source may return
-        its last few complete scans merged (a caller polling slower than the scan rate then
-        loses no point; callers keep the points newer than those they already have)."""
+        """The newest complete LiDAR scan ending at or before ``now``; a live source returns
+        every complete scan since the last call, merged (a caller polling slower than the scan
+        rate then loses no point; callers keep the points newer than those they already have)."""
         ...
 
-    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
         """The inspection photo at ``now`` with the camera at ``T_b_c`` (gimbal aimed);
-        full resolution."""
+        ``camera``: the full-resolution intrinsics of the inspection camera at the zoom the shot
+        was framed for (None: its only lens). The frame says the intrinsics it was taken with."""
         ...
 
     def health(self) -> dict[str, object]:

@@ -18,7 +18,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from insulator_rs.poses import pose_from_yaw
+from insulator_rs.poses import pose_from_quaternion, pose_from_yaw
 
 
 class FlightMode(str, Enum):
@@ -44,9 +44,22 @@ def wrap_angle(angle: float) -> float:
 class VehicleState:
     """A snapshot of the vehicle as the mission sees it.
 
-    ``position``/``velocity`` are (3,) float64 in W (ENU, m and m/s); ``yaw`` is
-    the heading of the body x axis from W's x (east) axis, counter-clockwise, rad.
-    ``time`` is the vehicle clock in seconds (simulated time in the simulator).
+    ``position``/``velocity`` are (3,) float64 in W (ENU, m and m/s). ``attitude`` is the unit
+    quaternion (w, x, y, z) of R_w_b, the rotation from the body (FLU: x forward, y left, z up)
+    to W, as the autopilot estimates it (PX4's NED/FRD is converted at the MAVLink boundary);
+    ``angular_velocity`` (3,) the body rates in B (rad/s). ``yaw`` is the heading of that
+    attitude (the Z-Y-X Euler yaw: from W's x (east), counter-clockwise, rad), kept for the
+    mission's setpoints. ``time`` is the vehicle clock in seconds (simulated time in the
+    simulator); the attitude and the rates are of that time.
+
+    ``attitude`` None: an adapter that knows no attitude (a vehicle that reports a heading
+    only); :attr:`T_w_b` is then level at ``yaw`` and :attr:`has_attitude` is False. Every
+    adapter of this package reports the attitude.
+
+    ``battery_fraction``: the charge left in the pack as the autopilot estimates it (0..1;
+    MAVLink's BATTERY_STATUS / SYS_STATUS ``battery_remaining`` / 100), None when the vehicle
+    does not know it (no battery message yet, or PX4's -1: no estimate). Nobody may read a
+    missing charge as a full one: the battery reserve then makes no decision and says so.
     """
 
     time: float
@@ -56,15 +69,22 @@ class VehicleState:
     armed: bool
     mode: str
     landed: bool
-    battery_fraction: float = 1.0
+    battery_fraction: float | None = None
     healthy: bool = True
     fault: str | None = field(default=None)
+    attitude: np.ndarray | None = None
+    angular_velocity: np.ndarray | None = None
+
+    @property
+    def has_attitude(self) -> bool:
+        return self.attitude is not None
 
     @property
     def T_w_b(self) -> np.ndarray:
-        """The body pose in W (4x4) as the port reports it: a level body at ``yaw`` (the
-        airframe's roll and pitch are not in the port yet: the airframe issue)."""
-        return pose_from_yaw(self.position, self.yaw)
+        """The body pose in W (4x4): the full attitude (roll, pitch, yaw) at ``position``."""
+        if self.attitude is None:
+            return pose_from_yaw(self.position, self.yaw)
+        return pose_from_quaternion(self.position, self.attitude)
 
 
 @runtime_checkable
@@ -93,4 +113,63 @@ class Vehicle(Protocol):
 
     def land(self) -> None: ...
 
+    def hold(self) -> None:
+        """Hold position in the autopilot's own mode (PX4 HOLD: AUTO_LOITER) and stop taking
+        setpoints: the hand-over to the pilot when the mission has no safe way to go on."""
+        ...
+
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class ParameterStore(Protocol):
+    """An autopilot's own parameters (PX4's names), as a vehicle that has them exposes them on
+    its ``parameters`` attribute (a vehicle without, the in-process simulator, has None there).
+
+    ``read`` returns the value the autopilot reports (an int for an integer parameter, a float
+    otherwise); ``set`` returns the value the autopilot reports after the set, verified equal.
+    Both raise ``insulator_rs.exceptions.ParameterError`` naming the parameter when it is missing,
+    unanswered or refused. ``ground_station`` is whether a ground station's HEARTBEAT has reached
+    the vehicle's link within ``wait`` s (PX4 refuses to arm with a data-link-loss action and no
+    ground station)."""
+
+    def read(self, name: str) -> int | float: ...
+
+    def set(self, name: str, value: int | float) -> int | float: ...
+
+    def ground_station(self, wait: float) -> bool: ...
+
+
+GPS_3D_FIX = 3  # MAVLink GPS_FIX_TYPE_3D_FIX: the least fix a flight may start on (DGPS, RTK above it)
+
+
+@dataclass(frozen=True)
+class NavigationStatus:
+    """What an autopilot says of its global position, as the pre-flight gate reads it.
+
+    ``gps_fix_type``: MAVLink's GPS_FIX_TYPE of the newest GPS_RAW_INT (0 no GPS, 1 no fix,
+    2 2D, 3 3D, 4 DGPS, 5/6 RTK), None when none came. ``satellites``: its satellites visible.
+    ``global_position``: (lat deg, lon deg, alt m AMSL) of the newest GLOBAL_POSITION_INT (PX4
+    publishes it only while its estimator has a global position), None before one. ``home``:
+    (lat, lon, alt AMSL) of HOME_POSITION, None while the autopilot has set no home."""
+
+    gps_fix_type: int | None
+    satellites: int | None
+    global_position: tuple[float, float, float] | None
+    home: tuple[float, float, float] | None
+
+
+def vehicle_navigation(vehicle: object) -> NavigationStatus | None:
+    """The vehicle's global navigation status (an adapter's optional ``navigation()``: an
+    autopilot's), None for a vehicle without one (the in-process simulator)."""
+    navigation = getattr(vehicle, "navigation", None)
+    if not callable(navigation):
+        return None
+    status = navigation()
+    return status if isinstance(status, NavigationStatus) else None
+
+
+def vehicle_parameters(vehicle: object) -> ParameterStore | None:
+    """The vehicle's parameter store, or None when it has none (or not that interface)."""
+    store = getattr(vehicle, "parameters", None)
+    return store if isinstance(store, ParameterStore) else None

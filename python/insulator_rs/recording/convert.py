@@ -30,6 +30,7 @@ from insulator_rs.exceptions import BagError
 from insulator_rs.mavlink.frames import ENU_TO_NED, FLU_TO_FRD, ned_to_enu
 from insulator_rs.recording import types as T
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
+from insulator_rs.poses import quaternion_from_rotation, rotation_from_quaternion
 
 _store = T.typestore()
 _types = _store.types
@@ -61,25 +62,7 @@ def _header(t: float, frame_id: str) -> Any:
 
 
 # -- rotations (w, x, y, z quaternions, as ROS and PX4 store them) -----------------------------
-def quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) of a rotation matrix (Shepperd's method, w >= 0)."""
-    R = np.asarray(R, dtype=np.float64)
-    tr = np.trace(R)
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(R)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + R[i, i] - R[j, j] - R[k, k], 1e-300))
-        q = [0.0, 0.0, 0.0, 0.0]
-        q[0] = (R[k, j] - R[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (R[j, i] + R[i, j]) / s
-        q[1 + k] = (R[k, i] + R[i, k]) / s
-    qa = np.array(q)
-    qa /= np.linalg.norm(qa)
-    return -qa if qa[0] < 0 else qa
+quat_from_matrix = quaternion_from_rotation  # (w, x, y, z), w >= 0: poses.py is the one home
 
 
 def matrix_from_quat(q: ArrayLike, name: str) -> np.ndarray:
@@ -89,10 +72,7 @@ def matrix_from_quat(q: ArrayLike, name: str) -> np.ndarray:
     n = float(np.linalg.norm(qa))
     if not (math.isfinite(n) and abs(n - 1.0) < 1e-3):
         raise BagError(f"{name}: not a unit quaternion (norm {n:.6g})")
-    w, x, y, z = qa / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return rotation_from_quaternion(qa)
 
 
 # -- LiDAR --------------------------------------------------------------------------------------
@@ -159,9 +139,11 @@ def pointcloud2_points(msg: Any, topic: str) -> tuple[np.ndarray, np.ndarray, np
     if time_name is None:
         return points, np.full(n, stamp), intensity
     raw = column(time_name).astype(np.float64)
-    med = float(np.median(raw))
+    # absolute times hold the stamp near their first point (livox_ros_driver2) or their middle;
+    # a live flight's scan may span seconds (every scan since the flight last asked), so both
+    first, med = float(np.min(raw)), float(np.median(raw))
     for scale in (1e-9, 1.0):
-        if abs(med * scale - stamp) <= TIME_FIELD_MATCH:
+        if min(abs(first * scale - stamp), abs(med * scale - stamp)) <= TIME_FIELD_MATCH:
             return points, raw * scale, intensity
     integer = fields[time_name].datatype not in (7, 8)
     scale = 1e-9 if integer or abs(med) > 1e3 else 1.0

@@ -43,7 +43,18 @@ class FlightMetadata:
                          else yaml.safe_load(self.mission_text))
         except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
             raise ConfigError(f"{source}: cannot parse: {exc}") from exc
-        return parse_mission(data, source)
+        return parse_mission(data, source, base=self.mission_folder(recording))
+
+    def mission_folder(self, recording: Path) -> Path:
+        """Where the recorded mission's relative paths (its rig file, and the rig's calibration
+        files) start: the folder the mission was flown from when it is still there (a replay on
+        the vehicle, or of a copied flight folder), else the recording's own folder (the rig
+        files copied beside the recording)."""
+        if self.mission_source and Path(self.mission_source).is_absolute():  # older recordings: relative
+            flown_from = Path(self.mission_source).parent
+            if flown_from.is_dir():
+                return flown_from
+        return Path(recording).resolve().parent
 
 
 def mcap_file(path: Path) -> Path | None:

@@ -233,7 +233,8 @@ class FlightBag:
                 t = value.time
             else:
                 t = C.from_stamp(msg.header.stamp)
-            self._check_stamp(topic, t, ns * 1e-9, previous, offsets)
+            if topic != self.lidar_topic:  # a scan is checked by its newest point, below
+                self._check_stamp(topic, t, ns * 1e-9, previous, offsets)
             if topic == tp.camera_info:
                 camera = C.camera_from_info(msg, topic)
                 continue
@@ -248,6 +249,9 @@ class FlightBag:
                     pts, times, inten = C.custom_msg_points(msg, topic)
                 if len(times) and not np.all(np.isfinite(times)):
                     raise BagError(f"{self.path}: {topic} at t={t:.3f} s: non-finite per-point times")
+                # A scan's pace is its newest point: its header stamp is its first, and a live
+                # flight's scan may hold every scan since the last one it asked for (seconds)
+                self._check_stamp(topic, float(times.max()) if len(times) else t, ns * 1e-9, previous, offsets)
                 window_end = None
                 if self.scan_windows:
                     window_end = max(ns * 1e-9, float(times.max())) if len(times) else ns * 1e-9

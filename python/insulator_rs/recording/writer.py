@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
@@ -174,8 +175,8 @@ class RecordingSensors:
             self.recorder.scan(scan, self._T_b_c)
         return scan
 
-    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
-        return self.inner.photo(now, T_b_c)
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
+        return self.inner.photo(now, T_b_c, camera)
 
     def health(self) -> dict[str, object]:
         return {**self.inner.health(), "recorded_messages": dict(self.recorder.counts)}
@@ -223,6 +224,9 @@ class RecordingVehicle:
 
     def land(self) -> None:
         self.inner.land()
+
+    def hold(self) -> None:
+        self.inner.hold()
 
     def close(self) -> None:
         self.inner.close()

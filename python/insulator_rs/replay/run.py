@@ -34,6 +34,7 @@ from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.poses import tilt_of
 from insulator_rs.ports.detector import BoxDetector, detector_name
 from insulator_rs.recording.reader import FlightBag
 from insulator_rs.replay.player import RecordingPlayer
@@ -45,6 +46,9 @@ from insulator_rs.rig import simulator_rig
 from insulator_rs.tracking.registry import InsulatorRegistry
 
 RERUN_FILE = "replay.rrd"
+# A recorded pose tilted less than this is level to the float: a yaw-only recording (a real
+# airframe in flight is never within 1e-6 rad of level for a whole flight).
+LEVEL_TILT_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,7 @@ class ReplayRun:
         self.status = "running"
         self.error: str | None = None
         self.t0: float | None = None
+        self.poses_level = 0  # recorded poses with no roll or pitch at all
         self.t_last = 0.0
         self.wall = 0.0
 
@@ -135,6 +140,7 @@ class ReplayRun:
         self.t_last = self.player.time
         pose = self.vehicle.pose()
         if pose is not None and pose is not before:  # a new recorded pose: the history, the path
+            self.poses_level += bool(tilt_of(pose.T_w_b) < LEVEL_TILT_RAD)
             self.runner.add_pose(pose)
             self.report.log_pose(pose.time - self.t0, st.position, st.yaw, "replay")
             if self.rerun is not None:
@@ -156,7 +162,8 @@ class ReplayRun:
             topics={"lidar": self.bag.lidar_topic, "image": self.bag.image_topic, "odometry": self.bag.odometry_topic},
             deskew=self.settings.deskew, poses=c["poses"], scans=c["scans"], frames=c["frames"],
             wall_time_s=self.wall, speed_vs_real_time=duration / self.wall if self.wall > 0 else None,
-            rerun=RERUN_FILE if self.rerun is not None else None)
+            rerun=RERUN_FILE if self.rerun is not None else None,
+            attitude="yaw-only" if c["poses"] > 0 and self.poses_level == c["poses"] else "full")
         return RunSummary(run="replay", status=self.status, error=self.error, detector=detector_name(self.detector),
                           method=self.settings.method, flight_time_s=duration,
                           perception=perception_record(self.runner),

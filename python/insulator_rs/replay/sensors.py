@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from insulator_rs._core import CameraModel
 from insulator_rs.ports.sensors import CameraFrame, LidarScan
 from insulator_rs.replay.player import RecordingPlayer
 
@@ -54,7 +55,7 @@ class ReplaySensors:
                          np.concatenate([np.asarray(s.times, dtype=np.float64) for s in ready]),
                          ready[-1].T_b_l, intensity, window_end=max(s.covered_until for s in ready))
 
-    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
         return None
 
     def health(self) -> dict[str, object]:

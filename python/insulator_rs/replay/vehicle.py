@@ -8,11 +8,10 @@ is the latest recorded pose at that time. A replay flies nothing: every command 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from insulator_rs.exceptions import CommandRejected
+from insulator_rs.poses import quaternion_from_rotation, yaw_of
 from insulator_rs.ports.sensors import PoseStamped
 from insulator_rs.ports.vehicle import VehicleState
 from insulator_rs.replay.player import RecordingPlayer
@@ -45,8 +44,8 @@ class ReplayVehicle:
         prev = self._previous
         if prev is not None and pose.time > prev.time:  # the recorded positions' difference
             velocity = (pose.T_w_b[:3, 3] - prev.T_w_b[:3, 3]) / (pose.time - prev.time)
-        return VehicleState(now, pose.T_w_b[:3, 3].copy(), velocity, math.atan2(R[1, 0], R[0, 0]),
-                            armed=True, mode=REPLAY_MODE, landed=False)
+        return VehicleState(now, pose.T_w_b[:3, 3].copy(), velocity, yaw_of(R),
+                            armed=True, mode=REPLAY_MODE, landed=False, attitude=quaternion_from_rotation(R))
 
     def advance(self, dt: float) -> VehicleState:
         """To the recording's next datum (``dt`` is not used: the recording sets the pace)."""
@@ -73,6 +72,9 @@ class ReplayVehicle:
 
     def land(self) -> None:
         self._refuse("land")
+
+    def hold(self) -> None:
+        self._refuse("hold")
 
     def close(self) -> None:
         pass

@@ -13,7 +13,9 @@ a replay's alike (``insulator-rs report DIR`` rewrites it):
 * per insulator: WGS-84 position, side, observations, and its photos as thumbnails (JPEG,
   embedded as ``data:`` URIs, so the page shows them even when copied alone) linking to the
   full photos in ``images/``, with each photo's quality figures (GSD, frame share, whole,
-  blur, fit for inspection).
+  blur, fit for inspection) and its check on the photo itself (perception/photo_check.py: the
+  attempt, the detected span and offset, the sharpness, the verdict; a retaken photo is listed
+  with its retakes).
 
 Nothing is fetched at viewing time: no external style sheet, font, script or image. A
 missing ``summary.json`` or ``inspection.geojson``, or one that is not what a report writes,
@@ -262,6 +264,22 @@ def _quality_reasons(q: Mapping[str, Any] | None) -> list[str]:
     return out or ["not fit for inspection"]
 
 
+def _check_reasons(check: Any) -> list[str]:
+    """Why the photo's own check (perception/photo_check.py) found it unfit, in words (empty when
+    fit or not checked)."""
+    if not isinstance(check, Mapping) or check.get("fit"):
+        return []
+    out = [str(r) for r in check.get("reasons") or []] or ["unfit"]
+    if check.get("error"):
+        out.append(str(check["error"]))
+    return out
+
+
+def _photo_fit(p: Mapping[str, Any]) -> bool:
+    """Fit for inspection by its figures and, where it was checked on itself, by its check."""
+    return bool((p.get("quality") or {}).get("fit_for_inspection")) and not _check_reasons(p.get("check"))
+
+
 def _pct(v: Any) -> str:
     x = _number(v)
     return "–" if x is None else f"{100 * x:.1f} %"
@@ -311,6 +329,23 @@ figcaption{font-size:12px}
 """
 
 
+def _battery_fact(battery: Any, abort: Any) -> str | None:
+    """The battery line: the charge at take-off and last, the reserve, what an early return left
+    (summary.json ``battery``, ``abort.left``); None for a summary without one."""
+    if not isinstance(battery, dict):
+        return None
+    if not battery.get("known"):
+        return str(battery.get("note") or "no charge reported")
+    text = (f"{_num(battery.get('fraction_at_takeoff'), '.0%')} at take-off, {_num(battery.get('fraction_last'), '.1%')}"
+            f" last (reserve {_num(battery.get('reserve'), '.0%')})")
+    left = abort.get("left") if isinstance(abort, dict) and battery.get("reason") else None
+    if isinstance(left, dict):
+        text += (f"; came back early, leaving {len(left.get('insulators_uninspected') or [])} insulators "
+                 f"uninspected, {left.get('inspection_waypoints', 0)} inspection waypoints and "
+                 f"{_num(left.get('exploration_left_m'), '.0f', ' m')} of the exploration path")
+    return text
+
+
 def _status_class(status: str) -> str:
     return status.split(":")[0].strip().split()[0] if status.strip() else "unknown"
 
@@ -343,8 +378,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     for ins in insulators:
         mine = by_ins.get(ins["id"], [])
         ins["_photos"] = mine
-        ins["_verdict"] = ("fit" if any((p.get("quality") or {}).get("fit_for_inspection") for p in mine)
-                           else "unfit" if mine else "none")
+        ins["_verdict"] = ("fit" if any(_photo_fit(p) for p in mine) else "unfit" if mine else "none")
 
     # the map from the GeoJSON: points in the order the writer puts them, matched by kind
     pts = {k: _local(np.vstack([f["coords"] for f in features if f["kind"] == k and f["type"] == "Point"]), base)
@@ -379,7 +413,11 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     # summary figures
     status = str(s.get("status", "unknown"))
     skipped = s.get("inspections_skipped") or []
-    fit_photos = sum(1 for p in photos if (p.get("quality") or {}).get("fit_for_inspection"))
+    fit_photos = sum(1 for p in photos if _photo_fit(p))
+    checks_v = s.get("photo_checks")
+    checks: dict[str, Any] = checks_v if isinstance(checks_v, dict) else {}
+    checked_out = {w.get("insulator_id"): w for w in checks.get("insulators_without_fit_photo") or []
+                   if isinstance(w, dict)}
     no_fit = [i for i in insulators if i["_verdict"] != "fit"]
     e = html.escape
     title = f"Insulator inspection — {s.get('scene') or Path(str(s.get('mission') or folder.name)).stem}"
@@ -395,6 +433,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
              ("skipped", len(skipped), "inspections skipped"),
              ("photos", len(photos), "photos"),
              ("fit", fit_photos, "photos fit for inspection"),
+             ("retakes", checks.get("retakes", 0), "photos retaken (checked unfit)"),
              ("flight-time", _duration(_number(s.get("flight_time_s"))), "flight time"),
              ("distance", _num(s.get("distance_m"), ".0f", " m"), "flown")]
     for key, value, label in cards:
@@ -410,6 +449,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     fs = s.get("failsafe")
     if isinstance(fs, dict):
         facts.append(("failsafe", f"{fs.get('reason')}; action: {fs.get('action')}"))
+    facts.append(("battery", _battery_fact(s.get("battery"), s.get("abort"))))
     for k, v in facts:
         if v is not None:
             parts.append(f"<tr><th>{e(k)}</th><td>{e(str(v))}</td></tr>")
@@ -433,6 +473,11 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
                 n = len(ins["_photos"])
                 why = (f"{n} photo{'s' if n > 1 else ''}, none fit; the finest: "
                        + ", ".join(_quality_reasons(best.get("quality"))))
+            out = checked_out.get(ins["id"])
+            if out is not None and out.get("photos"):
+                why += "; checked on the photos: " + ", ".join(
+                    f"{r} ({k}x)" for r, k in (out.get("reasons") or {}).items())
+                why += "".join(f"; detector error: {err}" for err in out.get("errors") or [])
             parts.append(f'<tr><td><a href="#insulator-{e(str(ins["id"]))}">{e(str(ins["id"]))}</a></td>'
                          f"<td>{e(why)}</td></tr>")
         parts.append("</table>")
@@ -497,7 +542,7 @@ def _photos_html(folder: Path, photos: Sequence[Mapping[str, Any]], report: Html
             thumb, size, problem = _thumbnail(target)
         href = quote(rel)
         q = ph.get("quality") if isinstance(ph.get("quality"), dict) else None
-        reasons = _quality_reasons(q)
+        reasons = _quality_reasons(q) + [f"checked: {r}" for r in _check_reasons(ph.get("check"))]
         verdict = '<span class="fit">fit for inspection</span>' if not reasons else \
             f'<span class="unfit">not fit: {e(", ".join(reasons))}</span>'
         if thumb is not None:
@@ -517,6 +562,14 @@ def _photos_html(folder: Path, photos: Sequence[Mapping[str, Any]], report: Html
                      ("span / area of frame", f"{_pct(q.get('span_share'))} / {_pct(q.get('frame_share'))}"),
                      ("whole in frame", _yes(q.get("whole_in_frame"))),
                      ("motion blur", _num(q.get("motion_blur_px"), ".2f", " px"))]
+        c = ph.get("check") if isinstance(ph.get("check"), dict) else None
+        if c is not None:
+            off = [f"{100 * float(o):+.1f} %" if _number(o) is not None else "open" for o in c.get("offset") or []]
+            rows += [("checked on the photo", e(f"attempt {ph.get('attempt', 1)}: "
+                                                + ("fit" if c.get("fit") else "unfit: " + ", ".join(_check_reasons(c))))),
+                     ("detected span / offset", e(f"{_pct(c.get('span_share'))} (needs {_pct(c.get('min_span'))}) / "
+                                                  + (", ".join(off) or "–"))),
+                     ("sharpness (Laplacian var.)", _num(c.get("sharpness"), ".0f"))]
         table = "".join(f"<tr><th>{k}</th><td>{v}</td></tr>" for k, v in rows)
         out.append(f'<figure class="photo" id="{_anchor(ph)}" data-file="{e(rel)}">{img}'
                    f"<figcaption>{verdict}<table>{table}</table></figcaption></figure>")

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.report.jsonfile import jsonable
+from insulator_rs.timesync import TimesyncRecord
 
 
 @dataclass
@@ -42,6 +43,8 @@ class PerceptionRecord:
     frames_detected: int = 0  # frames run through the detector
     localizations: int = 0
     pairing_short: int = 0  # frames paired before the scans covered their whole window
+    # the frames' waits for their points and how short of their window they went (FramePairing.timing)
+    pairing_timing: dict[str, float | None] = field(default_factory=dict)
     sensor_errors: int = 0
     counters: dict[str, int] = field(default_factory=dict)  # PerceptionCounters
     refused_not_insulator: dict[str, int] = field(default_factory=dict)
@@ -65,6 +68,29 @@ class FlightDetails:
     photo_camera: dict[str, Any] | None
     inspection_waypoints: list[dict[str, Any]]
     transitions: list[dict[str, Any]]
+    # an abort: its reason and flight time, the way out (route case, landing point in W and
+    # WGS-84, side) or why the vehicle was left holding for the pilot; None when none
+    abort: dict[str, Any] | None = None
+    # how the companion knew vehicle time: source timesync / telemetry / none, offset_s,
+    # drift_ppm, rtt_ms (median), exchanges, rejected (insulator_rs.timesync.TimesyncRecord)
+    timesync: TimesyncRecord = field(default_factory=TimesyncRecord)
+    # the battery reserve (flight/reserve.py): the reserve kept at landing, whether the vehicle
+    # reported its charge (known; a note when no decision was possible), the charge at take-off
+    # and last (at touchdown after a landing), the fitted consumption (per_s, per_m), the latest
+    # weighing and the one at the decision to return (needed vs available, the routes); None
+    # for a flight before this field
+    battery: dict[str, Any] | None = None
+    # the autopilot's own failsafes set for the tower (a PX4 vehicle; None otherwise):
+    # ground_station (NAV_DLL_ACT set only with one), restore (restored / not restored: why), and
+    # per parameter its name, why, old, set, restored values and error (flight/autopilot_setup.py)
+    px4_parameters: dict[str, Any] | None = None
+    # the pre-flight gate before arming (flight/preflight.py): passed, and per check its name,
+    # outcome (passed / failed / not_applicable) and reason; None when the flight never got to it
+    preflight: dict[str, Any] | None = None
+    # every photo checked on itself (perception/photo_check.py; flight/photos.py check_summary):
+    # photos, fit, retakes, the detector's cost per check, and the insulators found without a fit
+    # photo with why (their checks' reasons counted, the detector's errors); None before this field
+    photo_checks: dict[str, Any] | None = None
 
 
 @dataclass
@@ -80,6 +106,10 @@ class ReplayDetails:
     wall_time_s: float
     speed_vs_real_time: float | None
     rerun: str | None
+    # "full": the recorded poses carry the airframe's roll and pitch; "yaw-only": every pose is
+    # level (a recording from before the vehicle port reported the attitude): the replay then
+    # takes the body as level, as the flight did
+    attitude: str = "full"
 
 
 @dataclass
@@ -115,7 +145,8 @@ class RunSummary:
             "run": self.run, "status": self.status, "error": self.error, "detector": self.detector,
             "method": self.method, "flight_time_s": self.flight_time_s,
             "detection_events": p.detection_events, "frames_detected": p.frames_detected,
-            "localizations": p.localizations, "pairing_short": p.pairing_short, "sensor_errors": p.sensor_errors,
+            "localizations": p.localizations, "pairing_short": p.pairing_short,
+            "pairing_timing": dict(p.pairing_timing), "sensor_errors": p.sensor_errors,
             "perception": dict(p.counters), "refused_not_insulator": dict(p.refused_not_insulator),
             "sensors_health": self.sensors_health,
         }

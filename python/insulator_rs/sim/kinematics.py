@@ -6,8 +6,13 @@ Two layers:
   velocity feed-forward and/or yaw or yaw rate) with a proportional position
   loop whose speed is capped so that the vehicle can always stop within its
   acceleration limit, then limits horizontal/vertical velocity and
-  acceleration and the yaw rate. No attitude dynamics: a multirotor flying
-  slowly near an insulator is well described by its translational kinematics.
+  acceleration and the yaw rate. The attitude is a multirotor's: the body z axis points
+  along the thrust the controller asks for (the acceleration minus gravity, plus the drag it
+  fights), limited to PX4's tilt (MPC_TILTMAX_AIR) and followed with a first-order lag;
+  the heading is the yaw loop's. Wind (``sim/wind.py``: a mean plus seeded Dryden
+  turbulence) acts through a linear drag on the airspeed; the position controller knows
+  its own velocity, not the wind, so the wind pushes the vehicle and the velocity loop
+  fights it back: in a steady wind it hovers leaning atan(k w / g) into it.
 * ``KinematicVehicle``: the autopilot around it, with PX4's flight modes and
   rules (offboard needs a setpoint stream, offboard-loss failsafe after
   ``COM_OF_LOSS_T``, auto-disarm on the ground after ``COM_DISARM_LAND``,
@@ -31,8 +36,10 @@ import numpy as np
 
 from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsafe
 from insulator_rs.validation import as_finite, as_vector3, require_non_negative, require_positive
-from insulator_rs.poses import interpolate_poses, pose_from_yaw
+from insulator_rs.planning.energy import NOMINAL_DRAIN_PER_M, NOMINAL_DRAIN_PER_S
+from insulator_rs.poses import interpolate_poses, quaternion_from_rotation, yaw_of
 from insulator_rs.ports.vehicle import FlightMode, VehicleState, wrap_angle
+from insulator_rs.sim.wind import WindField, WindSpec
 
 # Integration step: the model is sub-stepped so that ``advance`` with a large
 # dt stays accurate (the position loop gain times this step is << 1).
@@ -46,6 +53,13 @@ TAKEOFF_REACHED_M = 0.3
 # frame is cast along the true path of its 0.1 s, which may lie a few seconds back when the
 # vehicle runs ahead of a sensor render (the simulated PX4 flies on in wall time).
 TRUE_TRACK_SAMPLES = 1000
+GRAVITY = 9.80665  # m/s^2
+# Linear drag of the airframe on its airspeed (1/s, acceleration per m/s): a 1.5 kg quad of the
+# Mid-360 class leans 7 degrees into a 5 m/s wind and 14 degrees into 10 m/s (atan(k w / g)), as
+# multirotors of that size do (5-15 degrees at 5-10 m/s).
+LINEAR_DRAG_PER_S = 0.25
+# The thrust must keep at least this share of gravity upward (a free-fall command is not flown).
+MIN_VERTICAL_THRUST = 0.1 * GRAVITY
 
 
 @dataclass(frozen=True)
@@ -63,11 +77,17 @@ class MotionLimits:
     max_vertical_acceleration: float = 6.0
     max_yaw_rate: float = math.radians(90.0)
     position_gain: float = 1.5
+    max_tilt: float = math.radians(45.0)  # PX4 MPC_TILTMAX_AIR
+    attitude_time_constant: float = 0.15  # s: the attitude loop's first-order lag
+    drag: float = LINEAR_DRAG_PER_S  # 1/s
 
     def __post_init__(self) -> None:
         for name in ("max_horizontal_speed", "max_vertical_speed", "max_horizontal_acceleration",
-                     "max_vertical_acceleration", "max_yaw_rate", "position_gain"):
+                     "max_vertical_acceleration", "max_yaw_rate", "position_gain", "attitude_time_constant"):
             require_positive(getattr(self, name), name)
+        require_non_negative(self.drag, "drag")
+        if not 0.0 < self.max_tilt < math.pi / 2:
+            raise ValueError(f"max_tilt must be in (0, pi/2) rad, got {self.max_tilt!r}")
 
 
 @dataclass(frozen=True)
@@ -97,10 +117,16 @@ class AutopilotParameters:
     m/s; land_speed [MPC_LAND_SPEED] m/s; return_altitude [RTL_RETURN_ALT] m
     above home; takeoff_altitude [MIS_TAKEOFF_ALT] m above home, when a takeoff
     names none; battery_critical [BAT_CRIT_THR] fraction (below it: RTL, and
-    arming is refused); battery_drain_per_s: fraction of a full battery used
-    per armed second (1/1200: a 20 min flight); battery_floor [SIM_BAT_MIN_PCT]:
-    the simulated charge never drains below it (PX4 SITL's 50 %, so that long
-    simulated missions meet no battery failsafe unless a test sets the charge).
+    arming is refused).
+
+    The pack (``KinematicVehicle.battery_fraction``) drains while armed with time and with
+    distance, as a multirotor's does: ``battery_drain_per_s`` [1 / SIM_BAT_DRAIN] the hover
+    power (1/1500: a 25 minute hover endurance, the class of a 1.5 kg quadrotor carrying a
+    Mid-360 and a gimbal on a 4S 5 Ah pack) and ``battery_drain_per_m`` per metre flown (5e-5:
+    13 J of a 266 kJ pack per metre, the climbs, accelerations and drag of the passes above the
+    hover power; a 1 m/s pass costs 7 % more than hovering). ``battery_floor``
+    [SIM_BAT_MIN_PCT]: the charge never drains below it; 0 here, the whole pack (PX4 SIH's
+    default of 50 % keeps SITL missions clear of battery failsafes, and would hide the reserve).
     """
 
     offboard_loss_timeout: float = 1.0
@@ -112,13 +138,15 @@ class AutopilotParameters:
     return_altitude: float = 60.0
     takeoff_altitude: float = 2.5
     battery_critical: float = 0.07
-    battery_drain_per_s: float = 1.0 / 1200.0
-    battery_floor: float = 0.5
+    battery_drain_per_s: float = NOMINAL_DRAIN_PER_S
+    battery_drain_per_m: float = NOMINAL_DRAIN_PER_M
+    battery_floor: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_timeout", "takeoff_speed", "land_speed", "takeoff_altitude"):
             require_positive(getattr(self, name), name)
-        for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude", "battery_drain_per_s"):
+        for name in ("disarm_land_delay", "preflight_disarm_delay", "return_altitude", "battery_drain_per_s",
+                     "battery_drain_per_m"):
             require_non_negative(getattr(self, name), name)
         if self.offboard_loss_mode not in ("POSCTL", "HOLD", "LAND", "RTL"):
             raise ValueError(f"offboard_loss_mode must be POSCTL, HOLD, LAND or RTL, got {self.offboard_loss_mode!r}")
@@ -163,15 +191,51 @@ def _position_correction(error: np.ndarray, gain: float, max_acceleration: float
     return error * (speed / distance)
 
 
+def attitude_from_thrust(thrust_direction: np.ndarray, yaw: float) -> np.ndarray:
+    """R_w_b (3x3) whose z axis is ``thrust_direction`` (unit, W) and whose Z-Y-X yaw is ``yaw``
+    (the yaw loop's heading is kept exactly; roll and pitch tilt the thrust)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    z = Rz.T @ thrust_direction  # the thrust in the heading frame
+    roll = -math.asin(max(-1.0, min(1.0, float(z[1]))))
+    pitch = math.atan2(float(z[0]), float(z[2]))
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return Rz @ Ry @ Rx
+
+
+def limit_tilt(thrust: np.ndarray, max_tilt: float) -> np.ndarray:
+    """The specific thrust (W, m/s^2) with its vertical part kept at least MIN_VERTICAL_THRUST
+    and its horizontal part cut so that it tilts at most ``max_tilt`` rad from vertical (PX4's
+    position controller keeps the vertical thrust and limits the tilt)."""
+    out = np.array(thrust, dtype=np.float64)
+    out[2] = max(out[2], MIN_VERTICAL_THRUST)
+    horizontal = float(np.hypot(out[0], out[1]))
+    limit = out[2] * math.tan(max_tilt)
+    if horizontal > limit:
+        out[:2] *= limit / horizontal
+    return out
+
+
 @dataclass
 class MultirotorModel:
-    """True kinematic state of the multirotor (W frame) and its tracking law."""
+    """True state of the multirotor (W frame): position, velocity, heading, attitude R_w_b and
+    body rates; its tracking law; the wind it flies in (None: still air)."""
 
     limits: MotionLimits = field(default_factory=MotionLimits)
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     yaw: float = 0.0
     ground_z: float = 0.0
+    wind: WindField | None = None
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    thrust_direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    wind_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        self.rotation = attitude_from_thrust(self.thrust_direction, self.yaw)
 
     def desired_velocity(self, setpoint: Setpoint) -> np.ndarray:
         """Velocity command for ``setpoint`` before the acceleration limit (m/s, W)."""
@@ -200,30 +264,60 @@ class MultirotorModel:
         while remaining > 1e-12:
             h = min(MAX_INTEGRATION_STEP_S, remaining)
             remaining -= h
+            wind = self._wind_step(h)
             if setpoint is None:
                 self.velocity = np.zeros(3)
+                self._attitude_step(h, np.array([0.0, 0.0, 1.0]))
                 continue
-            self._substep(h, setpoint)
+            self._substep(h, setpoint, wind)
 
-    def _substep(self, h: float, setpoint: Setpoint) -> None:
+    def _wind_step(self, h: float) -> np.ndarray:
+        if self.wind is None:
+            return self.wind_velocity
+        airspeed = float(np.linalg.norm(self.velocity - self.wind.mean))
+        self.wind_velocity = self.wind.step(h, float(self.position[2] - self.ground_z), airspeed)
+        return self.wind_velocity
+
+    def _substep(self, h: float, setpoint: Setpoint, wind: np.ndarray) -> None:
         lim = self.limits
         change = self.desired_velocity(setpoint) - self.velocity
         change[:2] = _clamp_norm(change[:2], lim.max_horizontal_acceleration * h)
         change[2] = float(np.clip(change[2], -lim.max_vertical_acceleration * h,
                                   lim.max_vertical_acceleration * h))
-        new_velocity = self.velocity + change
+        # The thrust the controller asks for: the acceleration it wants, gravity, and the drag
+        # of its own velocity (it knows its velocity, not the wind); tilt-limited as PX4's.
+        drag_known = lim.drag * self.velocity
+        thrust = limit_tilt(change / h + drag_known + np.array([0.0, 0.0, GRAVITY]), lim.max_tilt)
+        airborne = bool(self.position[2] > self.ground_z + 1e-6)
+        drag = lim.drag * (self.velocity - wind) if airborne else drag_known
+        acceleration = thrust - np.array([0.0, 0.0, GRAVITY]) - drag
+        new_velocity = self.velocity + acceleration * h
         self.position = self.position + 0.5 * (self.velocity + new_velocity) * h
         self.velocity = new_velocity
+        grounded = False
         if self.position[2] <= self.ground_z and self.velocity[2] <= 0.0:
             # Ground contact: no sinking, no sliding.
             self.position[2] = self.ground_z
             self.velocity = np.zeros(3)
+            grounded = True
         max_turn = lim.max_yaw_rate * h
         if setpoint.yaw is not None:
             error = wrap_angle(setpoint.yaw - self.yaw)
             self.yaw = wrap_angle(self.yaw + float(np.clip(error, -max_turn, max_turn)))
         elif setpoint.yaw_rate is not None:
             self.yaw = wrap_angle(self.yaw + float(np.clip(setpoint.yaw_rate * h, -max_turn, max_turn)))
+        self._attitude_step(h, np.array([0.0, 0.0, 1.0]) if grounded else thrust / np.linalg.norm(thrust))
+
+    def _attitude_step(self, h: float, thrust_direction: np.ndarray) -> None:
+        """The body z axis follows ``thrust_direction`` with the attitude loop's first-order lag;
+        the heading is the yaw loop's. Updates R_w_b and the body rates."""
+        alpha = 1.0 - math.exp(-h / self.limits.attitude_time_constant)
+        z = self.thrust_direction + alpha * (thrust_direction - self.thrust_direction)
+        self.thrust_direction = z / np.linalg.norm(z)
+        previous = self.rotation
+        self.rotation = attitude_from_thrust(self.thrust_direction, self.yaw)
+        d = previous.T @ self.rotation  # ~ I + [w h]x for a small step
+        self.angular_velocity = np.array([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]]) / (2.0 * h)
 
     def on_ground(self) -> bool:
         """Landed: within LANDED_HEIGHT_M of the ground and slower than LANDED_SPEED_MPS."""
@@ -267,21 +361,26 @@ class KinematicVehicle:
         noise: OdometryNoise | None = None,
         seed: int | None = 0,
         clock: SimClock | None = None,
+        wind: WindSpec | None = None,
+        ground_z: float | None = None,
     ) -> None:
         position = as_vector3(start_position, "start_position")
         self.model = MultirotorModel(
             limits=limits or MotionLimits(),
             position=position,
             yaw=wrap_angle(as_finite(start_yaw, "start_yaw")),
-            ground_z=float(position[2]),
+            ground_z=float(position[2]) if ground_z is None else as_finite(ground_z, "ground_z"),
+            wind=None if wind is None or wind.speed == 0.0 else WindField(wind),
         )
+        self.wind = wind or WindSpec()
         self.params = params or AutopilotParameters()
         self.noise = noise or OdometryNoise()
         self.clock = clock or SimClock()
         self.home = position.copy()
         self.armed = False
         self.mode = FlightMode.HOLD
-        self.battery_fraction = 1.0
+        # the pack's charge (see AutopilotParameters); None: no battery monitor (PX4's -1)
+        self.battery_fraction: float | None = 1.0
         self.fault: str | None = None
         self.position_valid = True
         self._rng = np.random.default_rng(seed)
@@ -297,9 +396,9 @@ class KinematicVehicle:
         self._has_taken_off = False
         self._closed = False
         self._pending_failsafe: VehicleFailsafe | None = None
-        # (time, true position, true yaw) after each integration step, for the simulated sensors
-        self.true_track: deque[tuple[float, np.ndarray, float]] = deque(maxlen=TRUE_TRACK_SAMPLES)
-        self.true_track.append((self.clock.now, position.copy(), self.model.yaw))
+        # (time, true T_w_b) after each integration step, for the simulated sensors
+        self.true_track: deque[tuple[float, np.ndarray]] = deque(maxlen=TRUE_TRACK_SAMPLES)
+        self.true_track.append((self.clock.now, self.true_T_w_b()))
 
     # -- Vehicle protocol ------------------------------------------------------
 
@@ -309,13 +408,15 @@ class KinematicVehicle:
         model = self.model
         position = model.position + self._gps_offset
         velocity = model.velocity.copy()
-        yaw = model.yaw
+        R = model.rotation
         if self.noise.position > 0.0:
             position = position + self._rng.normal(0.0, self.noise.position, 3)
         if self.noise.velocity > 0.0:
             velocity = velocity + self._rng.normal(0.0, self.noise.velocity, 3)
-        if self.noise.yaw > 0.0:
-            yaw = wrap_angle(yaw + float(self._rng.normal(0.0, self.noise.yaw)))
+        if self.noise.yaw > 0.0:  # a heading error: the estimate turned about W's vertical
+            e = float(self._rng.normal(0.0, self.noise.yaw))
+            R = np.array([[math.cos(e), -math.sin(e), 0.0], [math.sin(e), math.cos(e), 0.0], [0.0, 0.0, 1.0]]) @ R
+        yaw = yaw_of(R)
         return VehicleState(
             time=self.clock.now,
             position=position,
@@ -327,6 +428,8 @@ class KinematicVehicle:
             battery_fraction=self.battery_fraction,
             healthy=self.fault is None and self.position_valid,
             fault=self.fault,
+            attitude=quaternion_from_rotation(R),
+            angular_velocity=model.angular_velocity.copy(),
         )
 
     def arm(self) -> None:
@@ -336,7 +439,7 @@ class KinematicVehicle:
             return
         if not self.position_valid:
             raise CommandRejected("arm", "no valid position estimate")
-        if self.battery_fraction <= self.params.battery_critical:
+        if self.battery_fraction is not None and self.battery_fraction <= self.params.battery_critical:
             raise CommandRejected("arm", f"battery critical ({self.battery_fraction:.0%})")
         if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():
             raise CommandRejected("arm", "offboard mode without a setpoint stream")
@@ -431,25 +534,30 @@ class KinematicVehicle:
             h = min(MAX_INTEGRATION_STEP_S, remaining)
             remaining -= h
             self._autopilot_step(h)
-            self.true_track.append((self.clock.now, self.model.position.copy(), self.model.yaw))
+            self.true_track.append((self.clock.now, self.true_T_w_b()))
         self.raise_pending_failsafe()
         return self.state()
 
-    def true_pose_at(self, time: float) -> tuple[np.ndarray, float]:
-        """The true (position, yaw) at ``time`` (s), interpolated over the last integration steps
-        (clamped to the oldest/newest kept): where simulated sensors were at that instant."""
+    def true_T_w_b(self) -> np.ndarray:
+        """The airframe's true pose now (4x4: full attitude, no odometry noise, no GPS glitch)."""
+        T = np.eye(4)
+        T[:3, :3] = self.model.rotation
+        T[:3, 3] = self.model.position
+        return T
+
+    def true_pose_at(self, time: float) -> np.ndarray:
+        """The true T_w_b (4x4, full attitude) at ``time`` (s), interpolated over the last
+        integration steps (clamped to the oldest/newest kept): where simulated sensors were at
+        that instant."""
         times = np.fromiter((s[0] for s in self.true_track), float, len(self.true_track))
         k = int(np.searchsorted(times, time))
         if k <= 0 or k >= len(times):
-            _, position, yaw = self.true_track[0 if k <= 0 else -1]
-            return position.copy(), yaw
-        (t0, p0, y0), (t1, p1, y1) = self.true_track[k - 1], self.true_track[k]
+            return self.true_track[0 if k <= 0 else -1][1].copy()
+        (t0, T0), (t1, T1) = self.true_track[k - 1], self.true_track[k]
         if not t1 > t0:
-            return p1.copy(), y1
-        # poses.py interpolates (linear in position, geodesic in rotation: here the yaw's shorter way)
-        T = interpolate_poses(np.array([t0, t1]), np.stack([pose_from_yaw(p0, y0), pose_from_yaw(p1, y1)]),
-                              np.array([time]))[0]
-        return T[:3, 3].copy(), math.atan2(T[1, 0], T[0, 0])
+            return T1.copy()
+        # poses.py interpolates (linear in position, geodesic in rotation)
+        return interpolate_poses(np.array([t0, t1]), np.stack([T0, T1]), np.array([time]))[0]
 
     def raise_pending_failsafe(self) -> None:
         """Raise the failsafe that fired since the last call, if any (once each)."""
@@ -462,6 +570,10 @@ class KinematicVehicle:
         self._check_open()
         self._switch(FlightMode.LAND)
 
+    def hold(self) -> None:
+        """Switch to AUTO_LOITER where the vehicle is (refused without a position estimate, as in PX4)."""
+        self.set_mode(FlightMode.HOLD)
+
     def return_to_launch(self) -> None:
         """Switch to AUTO_RTL: climb to RTL altitude, fly home, land."""
         self.set_mode(FlightMode.RTL)
@@ -469,6 +581,13 @@ class KinematicVehicle:
     def close(self) -> None:
         """Release the vehicle; later calls raise VehicleError."""
         self._closed = True
+
+    def set_wind(self, wind: WindSpec) -> None:
+        """Fly in ``wind`` from now on (a mean plus seeded Dryden turbulence; speed 0: still air)."""
+        self.wind = wind
+        self.model.wind = None if wind.speed == 0.0 else WindField(wind)
+        if self.model.wind is None:
+            self.model.wind_velocity = np.zeros(3)
 
     # -- fault injection -------------------------------------------------------
 
@@ -560,9 +679,10 @@ class KinematicVehicle:
         p = self.params
         now = self.clock.advance(h)
         if self.armed:
-            if self.battery_fraction > p.battery_floor:
-                self.battery_fraction = max(p.battery_floor, self.battery_fraction - p.battery_drain_per_s * h)
-            if (self.battery_fraction <= p.battery_critical and not self.landed
+            if self.battery_fraction is not None and self.battery_fraction > p.battery_floor:
+                used = (p.battery_drain_per_s + p.battery_drain_per_m * float(np.linalg.norm(self.model.velocity))) * h
+                self.battery_fraction = max(p.battery_floor, self.battery_fraction - used)
+            if (self.battery_fraction is not None and self.battery_fraction <= p.battery_critical and not self.landed
                     and self.mode not in (FlightMode.RTL, FlightMode.LAND)):
                 self._failsafe(FlightMode.RTL, f"battery critical ({self.battery_fraction:.0%})")
             if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():

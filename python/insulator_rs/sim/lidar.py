@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from insulator_rs.poses import PoseTrack, check_pose
-from insulator_rs.rig import simulator_rig
+from insulator_rs.rig import MID360_VERTICAL_FOV_DEG, simulator_rig
 from insulator_rs.sim.camera_render import check_outside
 from insulator_rs.sim.mesh import Mesh
 
@@ -55,6 +55,7 @@ AZIMUTH_RATE_HZ = 10.0
 ELEVATION_RATE_RATIO = 50.0 + math.sqrt(2.0)
 #: Poses sampled per frame from a callable trajectory (interpolated in between).
 POSE_SAMPLES_PER_FRAME = 21
+POSE_SAMPLE_SPACING = 0.005  # s: (21 - 1) samples over the Mid-360's 100 ms frame
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,8 @@ class Mid360:
 
     def __init__(self, T_b_l: ArrayLike | None = None, *, point_rate: float = 200_000.0,
                  frame_rate: float = 10.0, min_range: float = 0.1, max_range: float = 40.0,
-                 range_noise: float = 0.02, fov_down_deg: float = -7.0, fov_up_deg: float = 52.0,
+                 range_noise: float = 0.02, fov_down_deg: float = MID360_VERTICAL_FOV_DEG[0],
+                 fov_up_deg: float = MID360_VERTICAL_FOV_DEG[1],
                  grazing_start_deg: float = 65.0, grazing_end_deg: float = 88.0) -> None:
         self.T_b_l = check_pose("T_b_l", default_T_b_l() if T_b_l is None else T_b_l)
         self.point_rate = _positive("point_rate", point_rate)
@@ -204,7 +206,10 @@ class Mid360:
 def _pose_track(trajectory: Trajectory, t_start: float, t_end: float) -> PoseTrack:
     """The frame's body poses, sampled from a callable or given as a start/end pair."""
     if callable(trajectory):
-        knots_t = np.linspace(t_start, t_end, POSE_SAMPLES_PER_FRAME)
+        # one sample per 5 ms, as POSE_SAMPLES_PER_FRAME over a 100 ms frame (the SITL sensor
+        # head renders 20 ms slices: 21 samples each were a fifth of its LiDAR's cost)
+        n = max(2, min(POSE_SAMPLES_PER_FRAME, math.ceil((t_end - t_start) / POSE_SAMPLE_SPACING - 1e-9) + 1))
+        knots_t = np.linspace(t_start, t_end, n)
         knots_T = np.stack([check_pose(f"trajectory({time:.4f})", trajectory(float(time)))
                             for time in knots_t])
         return PoseTrack(knots_t, knots_T)

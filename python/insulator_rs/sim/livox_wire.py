@@ -30,11 +30,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from insulator_rs._core import CameraModel
 from insulator_rs.drivers.livox import LivoxMid360, wait_for
-from insulator_rs.ports.sensors import CameraFrame, LidarScan, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, Sensors, StreamStatus, sensor_streams
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.livox_emitter import DOTS_PER_PACKET, Faults, LivoxEmitter, SensorClock, send
 from insulator_rs.sim.mesh import Mesh
+from insulator_rs.sim.sensors import PROBE_SEED_OFFSET, standing
 
 #: The airframe's pose T_w_b (4x4) at a vehicle time (s): the simulator's pose sources.
 PoseSource = Callable[[float], np.ndarray]
@@ -134,6 +136,20 @@ class WireLidar:
             wait_for(lambda: self.driver.received() >= self._sent, 5.0, poll=0.0002)
         return self.driver.lidar_scan(now)
 
+    def streams(self, now: float) -> list[StreamStatus]:
+        """The LiDAR at ``now`` for the pre-flight gate. This simulated sensor streams only as the
+        caller's ``now`` advances: sending its datagrams for a probe would start the stream and the
+        driver's clock map early, and the flight would differ (measured: one frame more short of
+        points on the small scene). As :class:`~insulator_rs.sim.sensors.SimulatedSensors` does,
+        a probe scan rendered at ``now`` on its landing gear, outside the stream's frames and
+        seeds, stands for it; the driver behind the wire is not probed."""
+        try:
+            self.stream.lidar.scan(self.stream.mesh, standing(self.stream.pose), now - self.stream.lidar.frame_period,
+                                   seed=self.stream.seed + PROBE_SEED_OFFSET)
+        except ValueError as exc:
+            return [StreamStatus("lidar", self.stream.frames, None, error=str(exc))]
+        return [StreamStatus("lidar", self.stream.frames + 1, now)]
+
     def health(self) -> dict[str, object]:
         return {f"lidar_{k}": v for k, v in self.driver.health().items()}
 
@@ -155,8 +171,12 @@ class SplitSensors:
     def lidar_scan(self, now: float) -> LidarScan | None:
         return self.lidar.lidar_scan(now)
 
-    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
-        return self.cameras.photo(now, T_b_c)
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
+        return self.cameras.photo(now, T_b_c, camera)
+
+    def streams(self, now: float) -> list[StreamStatus]:
+        cameras = sensor_streams(self.cameras, now) or []
+        return [s for s in cameras if s.name != "lidar"] + self.lidar.streams(now)
 
     def health(self) -> dict[str, object]:
         return {**self.cameras.health(), **self.lidar.health()}

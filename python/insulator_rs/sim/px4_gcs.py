@@ -54,6 +54,7 @@ class GcsLink:
         self.forwarded_to_gcs = 0
         self.forwarded_to_onboard = 0
         self.forward_dropped = 0
+        self.last_heartbeat: float | None = None  # wall time of a ground station's last HEARTBEAT
         self._buffered = 0
         self._last_drain = time.monotonic()
 
@@ -100,6 +101,8 @@ class GcsLink:
             self._parser.buf_index = 0
             self._parser.expected_length = M.HEADER_LEN_V1 + 2
             for msg in messages:
+                if msg.get_type() == "HEARTBEAT" and msg.type == M.MAV_TYPE_GCS:
+                    self.last_heartbeat = time.monotonic()  # PX4's data link: a GCS is there
                 if msg.get_type() != "BAD_DATA" and forwarded(msg, system_id, component_id):
                     self.forwarded_to_onboard += 1
                     out.append(bytes(msg.get_msgbuf()))

@@ -21,9 +21,8 @@ read real sensors, and it reads nothing of the client:
   published (the render time is predicted), JPEG-encoded and served as an MJPEG stream
   (``multipart/x-mixed-replace``, what IP cameras serve and OpenCV's FFmpeg backend reads).
 
-``--attitude yaw`` (default) renders with the body level at PX4's heading, as the flight
-loop's pose model has it (position and yaw); ``full`` adds PX4's roll and pitch (what a
-rigidly mounted sensor would see: the loop does not yet correct for tilt).
+The body is rendered at PX4's full attitude (roll, pitch and heading: what a rigidly mounted
+sensor sees), always: the flight's pose model is full attitude too (ATTITUDE_QUATERNION).
 
 Not part of the onboard package's dependency graph: nothing onboard imports this.
 """
@@ -39,6 +38,7 @@ import sys
 import threading
 import time
 from collections import deque
+from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -53,6 +53,13 @@ from insulator_rs.sim.livox_emitter import SensorClock, send
 from insulator_rs.sim.livox_wire import LidarStream
 from insulator_rs.timesync import TelemetryClock
 
+#: s: a camera image whose render missed its publication instant by more than this is dropped.
+CAMERA_LATE_S = 0.015
+#: s: the camera's latency, exposure to publication, held fixed as a real camera's is: an image
+#: is rendered at PX4's newest pose (known, not extrapolated) and published this long after it.
+#: It is the ``[camera] latency_s`` a calibration of this camera gives (the live SITL rig says so).
+#: It covers the render's p90 on a loaded 2-core box (320 x 240: 60-180 ms).
+CAMERA_LATENCY_S = 0.25
 #: PX4 SITL's GCS link listens on this UDP port + instance.
 PX4_GCS_PORT = 18570
 #: Pose samples kept (s of 50 Hz telemetry).
@@ -64,15 +71,8 @@ MAV_CMD_REQUEST_MESSAGE = 512
 MSG_LOCAL_POSITION_NED, MSG_ATTITUDE, MSG_HOME_POSITION = 32, 30, 242
 
 
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _body_rotation(yaw_enu: float, roll: float, pitch: float, full: bool) -> np.ndarray:
-    """R_w_b (ENU world, FLU body): level at the heading, or with PX4's roll and pitch too."""
-    if not full:
-        return _rot_z(yaw_enu)
+def _body_rotation(yaw_enu: float, roll: float, pitch: float) -> np.ndarray:
+    """R_w_b (ENU world, FLU body) from PX4's roll, pitch and heading."""
     return attitude_ned_frd_to_enu_flu(roll, pitch, yaw_enu_to_ned(yaw_enu))
 
 
@@ -98,16 +98,61 @@ def _between(ta: float, tb: float, pa: np.ndarray, pb: np.ndarray, Ra: np.ndarra
     return interpolate_poses(np.array([ta, tb]), np.stack([Ta, Tb]), np.array([t]))[0]
 
 
+#: A crystal's stamps are continuous: the head's map of PX4 time to host time is refitted as
+#: telemetry comes, and its corrections are slewed in at most this rate (s per s). Applied at
+#: once, a refit's step of a millisecond read as two lost datagrams per ms (the driver counts a
+#: gap in the stamps as loss): 2 and 7 in two SITL flights.
+CRYSTAL_SLEW = 1e-3
+
+
+@dataclass(frozen=True)
+class HostCrystalClock(SensorClock):
+    """The LiDAR's clock as a real one runs: its own crystal against the host's (``sensor =
+    (1 + drift) * host + offset``), not against PX4's clock, which in SITL's lockstep stops
+    whenever a loaded box starves it. Shots are rendered at PX4's times and stamped at the
+    host instants the head's clock map gives them (``telemetry``), carried along the map's
+    rate and corrected at most :data:`CRYSTAL_SLEW` s per s (continuous stamps)."""
+
+    telemetry: TelemetryClock | None = None
+    _last: list[float] = field(default_factory=list)  # the newest (vehicle, host) stamped
+
+    def _clock(self) -> TelemetryClock:
+        if self.telemetry is None:
+            raise InsulatorError("HostCrystalClock: no telemetry clock")
+        return self.telemetry
+
+    def _host(self, t_vehicle: float | np.ndarray) -> np.ndarray:
+        t = np.asarray(t_vehicle, np.float64)
+        target = self._clock().to_host(t)
+        if not self._last:
+            self._last[:] = [float(np.max(t)), float(np.max(target))]
+            return target
+        tv0, h0 = self._last
+        rate = 1.0 + self._clock().sync.fit.drift  # host s per vehicle s
+        predicted = h0 + (t - tv0) * rate
+        room = CRYSTAL_SLEW * np.abs(t - tv0)
+        host = predicted + np.clip(target - predicted, -room, room)
+        k = int(np.argmax(t))
+        if float(np.ravel(t)[k]) > tv0:
+            self._last[:] = [float(np.ravel(t)[k]), float(np.ravel(host)[k])]
+        return host
+
+    def sensor_ns(self, t_vehicle: float | np.ndarray) -> np.ndarray:
+        return super().sensor_ns(self._host(t_vehicle))
+
+    def to_vehicle(self, sensor_s: float | np.ndarray) -> np.ndarray:
+        return self._clock().to_vehicle(super().to_vehicle(sensor_s))
+
+
 class Px4PoseFeed:
     """PX4's pose estimate in W from its GCS link (see the module docstring).
 
     ``origin``: W's origin (lat, lon deg, alt m AMSL): the mission's tower base."""
 
-    def __init__(self, connection: str, origin: tuple[float, float, float], *, full_attitude: bool = False) -> None:
+    def __init__(self, connection: str, origin: tuple[float, float, float]) -> None:
         from pymavlink import mavutil
 
         self.origin = origin
-        self.full_attitude = full_attitude
         # component id of a camera (100): a payload, not a second ground station
         self.link = mavutil.mavlink_connection(connection, source_system=1, source_component=100)
         self._lock = threading.Lock()
@@ -197,10 +242,10 @@ class Px4PoseFeed:
     def _rotation(self, att: list[Any], t: float) -> np.ndarray:
         if len(att) == 1:  # past the newest sample: carried along its yaw rate
             ta, yaw, roll, pitch, rate = att[0]
-            return _body_rotation(yaw + rate * (t - ta), roll, pitch, self.full_attitude)
+            return _body_rotation(yaw + rate * (t - ta), roll, pitch)
         (ta, ya, ra, pa, _), (tb, yb, rb, pb, _) = att
-        Ra = _body_rotation(ya, ra, pa, self.full_attitude)
-        Rb = _body_rotation(yb, rb, pb, self.full_attitude)
+        Ra = _body_rotation(ya, ra, pa)
+        Rb = _body_rotation(yb, rb, pb)
         return _between(ta, tb, np.zeros(3), np.zeros(3), Ra, Rb, t)[:3, :3]
 
     def close(self) -> None:
@@ -278,6 +323,8 @@ class SensorHead:
 
         self.feed = feed
         self.clock = TelemetryClock(feed.newest_time)
+        sensor_clock = sensor_clock or SensorClock()
+        sensor_clock = HostCrystalClock(offset_s=sensor_clock.offset_s, drift=sensor_clock.drift, telemetry=self.clock)
         # 20 ms slices rendered once over: PX4's pose of the past, interpolated (at most a
         # telemetry period carried forward), sent a render time late
         self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
@@ -294,6 +341,8 @@ class SensorHead:
                          threading.Thread(target=self._camera, name="head-camera", daemon=True)]
         self.datagrams = 0
         self.images = 0
+        self.camera_late = 0  # images dropped: their render missed the exposure instant
+        self._log_lock = threading.Lock()  # the LiDAR and camera threads both log
         self.render_ms: deque[float] = deque(maxlen=50)
         self.errors: list[str] = []
         self.log = log  # a text file: one JSON line per camera image and per LiDAR send (timing)
@@ -301,7 +350,8 @@ class SensorHead:
 
     def _log(self, **record: object) -> None:
         if self.log is not None:
-            self.log.write(json.dumps(record) + "\n")
+            with self._log_lock:
+                self.log.write(json.dumps(record) + "\n")
 
     def start(self) -> SensorHead:
         self.clock.start()
@@ -317,11 +367,16 @@ class SensorHead:
             return None
 
     def _lidar(self) -> None:
+        next_clock_log = 0.0
         while not self._stop.is_set():
             now = self._now()
             if now is None or not self.feed.ready():
                 time.sleep(0.01)
                 continue
+            if self.log is not None and time.monotonic() >= next_clock_log:
+                # PX4's clock against the host's: where lockstep under load stops PX4
+                next_clock_log = time.monotonic() + 0.2
+                self._log(kind="clock", host=time.monotonic(), px4=self.feed.newest_time(), estimate=now)
             try:
                 for arrival, chunk in self.stream.due(now):
                     self.datagrams += send(chunk, self._sock, self.lidar_to)
@@ -332,15 +387,19 @@ class SensorHead:
             time.sleep(0.002)
 
     def _camera(self) -> None:
-        render_s = 0.1  # predicted render + encode time (s), learnt as it goes
+        # An image is exposed at PX4's newest pose and published CAMERA_LATENCY_S later, as a real
+        # camera's frames leave at a steady latency after exposure. Rendered (as before) at the
+        # pose predicted for its publication instant, the image of a vehicle braking at a
+        # waypoint was extrapolated along the velocity by the render time (0.1-0.5 s on a loaded
+        # box): the string beside the climb came out 0.24-0.29 m low in the live soak.
         while not self._stop.is_set():
             now = self._now()
             if now is None or not self.feed.ready():
                 time.sleep(0.01)
                 continue
             t0 = time.monotonic()
-            exposure = now + render_s  # the vehicle time the frame will be published at
             try:
+                exposure = min(now, self.feed.newest_time())
                 frame = self.camera.render(self.mesh, self.feed.pose(exposure), seed=self.seed + self.images,
                                            time=exposure)
                 ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(frame.rgb[:, :, ::-1]),
@@ -349,15 +408,20 @@ class SensorHead:
                 self._error(f"camera: {exc}")
                 time.sleep(self.period)
                 continue
-            spent = time.monotonic() - t0
-            render_s = 0.7 * render_s + 0.3 * spent
-            self.render_ms.append(spent * 1e3)
-            while (now := self._now()) is not None and now < exposure and not self._stop.is_set():
+            self.render_ms.append((time.monotonic() - t0) * 1e3)
+            publish_at = exposure + CAMERA_LATENCY_S
+            while (now := self._now()) is not None and now < publish_at and not self._stop.is_set():
                 time.sleep(0.001)
-            if ok:
+            if now is not None and now - publish_at > CAMERA_LATE_S:
+                # the render outlasted the camera's latency: dropped, not served late (served, its
+                # arrival stamp would be off by the miss: measured up to 125 ms at p99 under load)
+                self.camera_late += 1
+                self._log(kind="camera_late", exposure=exposure, now=now)
+            elif ok:
                 self.server.publish(jpeg.tobytes())
                 self.images += 1
-                self._log(kind="camera", exposure=exposure, published=now, mean=float(frame.rgb.mean()))
+                self._log(kind="camera", exposure=exposure, published=now, host=time.monotonic(),
+                          mean=float(frame.rgb.mean()))
             self._stop.wait(max(0.0, self.period - (time.monotonic() - t0)))
 
     def _error(self, text: str) -> None:
@@ -366,8 +430,9 @@ class SensorHead:
             print(f"sensor head: {text}", file=sys.stderr, flush=True)
 
     def stats(self) -> dict[str, object]:
-        return {"lidar_frames": self.stream.frames, "datagrams": self.datagrams, "camera_images": self.images,
+        return {"lidar_frames": self.stream.frames, "datagrams": self.datagrams, "camera_images": self.images, "camera_late_dropped": self.camera_late,
                 "camera_render_ms": round(float(np.mean(self.render_ms)), 1) if self.render_ms else None,
+                "camera_render_p90_ms": round(float(np.percentile(self.render_ms, 90)), 1) if self.render_ms else None,
                 "lidar_late_ms_p50_p99": [round(float(np.percentile(self.lidar_late_s, q)) * 1e3, 1) for q in (50, 99)]
                 if self.lidar_late_s else None,
                 "pose_messages": self.feed.messages, "errors": len(self.errors)}
@@ -397,8 +462,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=3.0, help="camera frames per second")
     parser.add_argument("--clock-offset", type=float, default=1234.5, help="LiDAR clock offset (s)")
     parser.add_argument("--clock-drift-ppm", type=float, default=25.0, help="LiDAR clock drift (ppm)")
-    parser.add_argument("--attitude", choices=("yaw", "full"), default="yaw",
-                        help="render level at PX4's heading (the loop's pose model) or with its roll and pitch")
     parser.add_argument("--log", type=Path, default=None, help="timing log (JSON lines) of every image and send")
     parser.add_argument("--ready-timeout", type=float, default=60.0, help="s to wait for PX4's pose")
     args = parser.parse_args(argv)
@@ -410,8 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     tower = load_tower(args.scene)
     mission = load_mission(args.mission)
     rig = mission.rig if mission.rig is not None else simulator_rig()
-    feed = Px4PoseFeed(args.px4, (mission.tower.lat, mission.tower.lon, mission.tower.alt),
-                       full_attitude=args.attitude == "full").start()
+    feed = Px4PoseFeed(args.px4, (mission.tower.lat, mission.tower.lon, mission.tower.alt)).start()
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())

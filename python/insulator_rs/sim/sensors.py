@@ -1,7 +1,8 @@
 """The simulator's :class:`~insulator_rs.ports.sensors.Sensors` adapter: camera and Mid-360 rendered
 from the scene.
 
-The sensors ride on the airframe's TRUE pose, which only the simulator knows: the wiring
+The sensors ride on the airframe's TRUE pose (full attitude: tilted along its thrust, leaning
+into the wind), which only the simulator knows: the wiring
 hands in a ``pose`` callable (see :func:`kinematic_true_pose`, :func:`simulated_px4_true_pose`)
 returning T_w_b at a vehicle time. Against an outside autopilot (a PX4 SITL with
 ``--sim-sensors``) there is no truth to ask, and :func:`reported_pose` renders at the pose
@@ -10,10 +11,14 @@ the autopilot reports.
 * ``detection_frame(now)``: the detection camera (the rig's lens, scaled), no shadows.
 * ``lidar_scan(now)``: one Mid-360 frame over ``[now - 0.1 s, now]``, each shot cast from
   the true pose at its own time, points in L at their own time, as the driver delivers them.
-* ``photo(now, T_b_c)``: the full-resolution inspection camera, aimed by the gimbal.
+* ``photo(now, T_b_c, camera)``: the inspection camera (the rig's ``[inspection_camera]``, or
+  the detection camera's lens in a rig without one) at the zoom asked for, aimed by the gimbal,
+  rendered at ``photo_scale`` of its resolution with the intrinsics scaled to match
+  (:func:`~insulator_rs.rig.scaled_camera`): the frame's ``camera`` is what was rendered. A full
+  12 MP frame costs about 30 s of ray casting on one core; tests render at 0.2.
 
 Frames are stamped ``now`` (the vehicle clock the flight loop gives). The ground truth of
-each rendered detection frame (its insulators' boxes) stays here, for the simulator-side
+each rendered detection frame and photo (its insulators' boxes) stays here, for the simulator-side
 :class:`~insulator_rs.sim.ground_truth_detector.GroundTruthDetector` only.
 """
 
@@ -25,40 +30,59 @@ from typing import Any
 
 import numpy as np
 
+from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import SensorError
-from insulator_rs.poses import pose_from_yaw
 from insulator_rs.rig import SensorRig, scaled_camera
-from insulator_rs.ports.sensors import CameraFrame, LidarScan
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, StreamStatus
 from insulator_rs.sim.camera_render import Camera, Lighting
 from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.mesh import Mesh
 from insulator_rs.ports.vehicle import Vehicle
 
+#: m a multirotor's sensors stand above its body origin's ground pose on the landing gear (the
+#: pre-flight probe's pose: the simulated airframe's body origin sits on the ground)
+LANDING_GEAR_HEIGHT = 0.2
+#: the pre-flight probe's seed offset: clear of the flight's frames (seed + n), scans (seed +
+#: 100 000 + n) and photos (seed + 200 000 + n)
+PROBE_SEED_OFFSET = 900_000
 #: T_w_b (4x4) of the airframe at a vehicle time (s), at or shortly before now.
 PoseSource = Callable[[float], np.ndarray]
+
+
+def standing(pose: PoseSource) -> PoseSource:
+    """``pose`` raised by LANDING_GEAR_HEIGHT: where a pre-flight probe renders the sensors of
+    an airframe on the ground."""
+    def on_gear(time: float) -> np.ndarray:
+        T = np.array(pose(time), dtype=np.float64)
+        T[2, 3] += LANDING_GEAR_HEIGHT
+        return T
+    return on_gear
 
 
 def kinematic_true_pose(vehicle: KinematicVehicle) -> PoseSource:
     """The in-process airframe's true pose (no odometry noise, no GPS glitch) at a time."""
     def pose(time: float) -> np.ndarray:
-        return pose_from_yaw(*vehicle.true_pose_at(time))
+        return vehicle.true_pose_at(time)
     return pose
 
 
 def simulated_px4_true_pose(simulator: Any) -> PoseSource:
     """The true pose of the airframe our simulated PX4 flies (read under its lock) at a time."""
     def pose(time: float) -> np.ndarray:
-        return pose_from_yaw(*simulator.with_vehicle(lambda v: v.true_pose_at(time)))
+        T: np.ndarray = simulator.with_vehicle(lambda v: v.true_pose_at(time))
+        return T
     return pose
 
 
 def reported_pose(vehicle: Vehicle) -> PoseSource:
-    """The pose an outside autopilot reports (a SITL has no other truth to give), carried back
-    to an earlier time along its reported velocity."""
+    """The pose an outside autopilot reports (a SITL has no other truth to give), full attitude,
+    carried back to an earlier time along its reported velocity."""
     def pose(time: float) -> np.ndarray:
         st = vehicle.state()
-        return pose_from_yaw(st.position - st.velocity * (st.time - time), st.yaw)
+        T = st.T_w_b
+        T[:3, 3] = st.position - st.velocity * (st.time - time)
+        return T
     return pose
 
 
@@ -67,22 +91,31 @@ class SimulatedSensors:
 
     ``detect_scale``/``photo_scale``: resolution of the detection and inspection images as a
     fraction of the rig camera's. Everything rendered is seeded from ``seed``.
+    ``camera_latency_s``: a late camera: the detection frame handed out at ``now`` was exposed
+    ``camera_latency_s`` earlier (rendered at that instant's pose) and is stamped ``now``, as a
+    driver that stamps arrivals stamps it (what ``insulator-rs calibrate time-offset`` finds).
     """
 
     def __init__(self, mesh: Mesh, pose: PoseSource, rig: SensorRig, *, detect_scale: float = 0.25,
-                 photo_scale: float = 1.0, seed: int = 0) -> None:
+                 photo_scale: float = 1.0, seed: int = 0, camera_latency_s: float = 0.0) -> None:
         for name, value in (("detect_scale", detect_scale), ("photo_scale", photo_scale)):
             if not (math.isfinite(value) and 0 < value <= 1):
                 raise ValueError(f"{name}: must be in (0, 1], got {value}")
+        if not (math.isfinite(camera_latency_s) and 0 <= camera_latency_s <= 0.5):
+            raise ValueError(f"camera_latency_s: must be in [0, 0.5] s, got {camera_latency_s}")
+        self.camera_latency_s = float(camera_latency_s)
         self.mesh = mesh
         self.pose = pose
         self.rig = rig
         self.detection_camera = Camera(scaled_camera(rig.camera, detect_scale), rig.T_b_c)
-        self.photo_model = scaled_camera(rig.camera, photo_scale)
-        self.lidar = Mid360(rig.T_b_l)
+        self.photo_scale = float(photo_scale)
+        self.photo_model = scaled_camera(rig.inspection_camera().camera, photo_scale)  # at the widest zoom
+        self.lidar = Mid360(rig.T_b_l, fov_down_deg=rig.lidar_fov_deg[0], fov_up_deg=rig.lidar_fov_deg[1])
         self.seed = seed
         self.counts = {"detection_frames": 0, "scans": 0, "photos": 0, "errors": 0}
         self.truth: dict[int, dict[int, tuple[float, float, float, float]]] = {}  # id(image) -> boxes
+        self.photo_image: np.ndarray | None = None
+        self.photo_truth: dict[int, tuple[float, float, float, float]] = {}
         self.last_error: str | None = None
 
     def _fail(self, what: str, exc: ValueError) -> SensorError:
@@ -91,11 +124,12 @@ class SimulatedSensors:
         return SensorError(f"simulated {what}: {exc}")
 
     def detection_frame(self, now: float) -> CameraFrame | None:
-        T_w_b = self.pose(now)
+        exposure = now - self.camera_latency_s
+        T_w_b = self.pose(exposure)
         n = self.counts["detection_frames"] = self.counts["detection_frames"] + 1
         try:
             frame = self.detection_camera.render(self.mesh, T_w_b, lighting=Lighting(shadows=False),
-                                                 seed=self.seed + n, time=now)
+                                                 seed=self.seed + n, time=exposure)
         except ValueError as exc:  # the camera inside geometry
             raise self._fail("camera", exc) from exc
         image = np.ascontiguousarray(frame.rgb[:, :, ::-1])
@@ -111,26 +145,60 @@ class SimulatedSensors:
             raise self._fail("LiDAR", exc) from exc
         return LidarScan(scan.points_l, scan.timestamps, self.lidar.T_b_l, window_end=now)
 
-    def photo(self, now: float, T_b_c: np.ndarray) -> CameraFrame | None:
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
         T_w_b = self.pose(now)
         n = self.counts["photos"] = self.counts["photos"] + 1
+        model = self.photo_model if camera is None else scaled_camera(camera, self.photo_scale)
         try:
-            frame = Camera(self.photo_model, T_b_c).render(self.mesh, T_w_b, seed=self.seed + 200_000 + n,
-                                                           time=now)
+            frame = Camera(model, T_b_c).render(self.mesh, T_w_b, seed=self.seed + 200_000 + n, time=now)
         except ValueError as exc:
             raise self._fail("photo camera", exc) from exc
-        return CameraFrame(now, np.ascontiguousarray(frame.rgb[:, :, ::-1]), self.photo_model,
-                           np.asarray(T_b_c, dtype=np.float64))
+        image = np.ascontiguousarray(frame.rgb[:, :, ::-1])
+        # only the latest photo's (what its check asks), held by the image itself: a freed image's
+        # id() is reused by the next array, and a detection frame must never pass for the photo
+        self.photo_image, self.photo_truth = image, dict(frame.boxes)
+        return CameraFrame(now, image, model, np.asarray(T_b_c, dtype=np.float64))
 
     def ground_truth_boxes(self, image: np.ndarray) -> dict[int, tuple[float, float, float, float]]:
-        """The true insulator boxes of a detection image this simulator rendered (the latest)."""
-        boxes = self.truth.get(id(image))
+        """The true insulator boxes of a detection image or a photo this simulator rendered (the
+        latest of each)."""
+        boxes = self.photo_truth if self.is_photo(image) else self.truth.get(id(image))
         if boxes is None:
-            raise ValueError("image: not the latest detection frame of this simulator (no ground truth for it)")
+            raise ValueError("image: not the latest detection frame or photo of this simulator (no ground truth for it)")
         return boxes
+
+    def streams(self, now: float) -> list[StreamStatus]:
+        """The pre-flight view of the camera and the Mid-360 at ``now``. The simulator renders on
+        demand, so a stream here is a probe: one detection frame and one scan rendered at the
+        airframe's pose of ``now`` (as the flight's own asks would be), on a seed of their own and
+        outside ``counts``, so the flight's frames, their noise and a recording are as without
+        the probe. A render that fails (the camera inside geometry) is the stream's error. The
+        simulated airframe stands with its body origin on the ground, its camera in the ground
+        plane; a real one stands on its landing gear: the probe renders from
+        LANDING_GEAR_HEIGHT above the pose."""
+        out = []
+        on_gear = standing(self.pose)
+        T_w_b = on_gear(now - self.camera_latency_s)
+        try:
+            self.detection_camera.render(self.mesh, T_w_b, lighting=Lighting(shadows=False), seed=self.seed + PROBE_SEED_OFFSET,
+                                         time=now - self.camera_latency_s)
+            out.append(StreamStatus("camera", self.counts["detection_frames"] + 1, now))
+        except ValueError as exc:
+            out.append(StreamStatus("camera", self.counts["detection_frames"], None, error=str(exc)))
+        try:
+            self.lidar.scan(self.mesh, on_gear, now - self.lidar.frame_period, seed=self.seed + PROBE_SEED_OFFSET)
+            out.append(StreamStatus("lidar", self.counts["scans"] + 1, now))
+        except ValueError as exc:
+            out.append(StreamStatus("lidar", self.counts["scans"], None, error=str(exc)))
+        return out
+
+    def is_photo(self, image: np.ndarray) -> bool:
+        """Whether ``image`` is the latest inspection photo this simulator rendered."""
+        return image is self.photo_image
 
     def health(self) -> dict[str, object]:
         return {"source": "simulator", **self.counts, "last_error": self.last_error}
 
     def close(self) -> None:
         self.truth = {}
+        self.photo_image, self.photo_truth = None, {}

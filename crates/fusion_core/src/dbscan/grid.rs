@@ -4,25 +4,34 @@
 //! of one cell are within `eps` of each other. That gives, without listing neighbourhoods:
 //! - core points: a cell holding at least `min_points` points makes all of them core with no
 //!   distance test; a point of a sparser cell counts neighbours in the 5x5x5 block of cells
-//!   around it and stops at `min_points`;
+//!   around it (adjacent cells first) and stops at `min_points`;
 //! - clusters: all core points of a cell are connected, so union-find runs on cells; two cells
-//!   are joined as soon as one pair of their core points is within `eps` (face/edge/corner
-//!   neighbours first, so dense clouds are joined before the costlier far cells are tried);
+//!   are joined as soon as one pair of their core points is within `eps` (adjacent cells
+//!   first, so dense clouds are joined before the costlier outer-shell pairs are tried);
 //! - border points: the smallest cluster label among their core neighbours, which is the cluster
 //!   that reaches them first in scikit-learn's expansion order (clusters are expanded one after
 //!   another in the order of their first core point).
 //!
-//! Cells are found by sorting packed integer cell keys (21 bits per axis); a sweep finds the
-//! occupied neighbour (x, y) columns once per column and the z window inside each with forward-only
-//! cursors, so listing the neighbour cells of every cell costs O(1) amortised. Repeated points need
-//! no deduplication: they share a cell, and a crowded cell is core wholesale. Worst case left: two
-//! crowded cells whose points are all just over `eps` apart cost |A| x |B| distance tests once.
+//! Cells are found by sorting packed integer cell keys (21 bits per axis). One sweep over the
+//! sorted cells lists every pair of occupied cells within two cells of each other once (struct
+//! `Sweep`: forward-only cursors, so empty space costs nothing), and every pass below walks
+//! that pair table: the cost follows the occupied cells and their occupied neighbours, never
+//! the volume. (Each pass used to re-run a 25-cursor sweep over the 5x5x5 block, five sweeps
+//! in all; on sparse tower-scale clouds, where most cells hold a point or three,
+//! that was most of the time: 630 ns a point at 10k points over 60 m.) Core counting goes
+//! through each pair once and credits both sides. Repeated points need no deduplication: they
+//! share a cell, and a crowded cell is core wholesale. Worst case left: two crowded cells whose
+//! points are all just over `eps` apart cost |A| x |B| distance tests once.
 //! Clouds whose extent needs more than 2^21 cells per axis return `None` (the parent module
 //! then cuts the cloud at gaps wider than eps and grids each part).
 //!
-//! Measured (criterion, loaded 2-core machine, same sitting): 3,000 line-cluster points 0.95 ms
-//! (kd-tree 2.30 ms), 100,000 points 39 ms (kd-tree 161 ms), 1,000,000 points 0.37 s, 30,000
-//! points in a 0.3 m cube 2.2 ms (kd-tree ~21 s).
+//! Measured on the sparse tower clouds of `benches/dbscan_tower.rs` (eps 0.3, min_points 5,
+//! best of 60 calls, old and new build alternated in one sitting on the loaded 2-core
+//! machine): 10k / 30k / 65k points 518 / 292 / 180 ns a point with the per-pass sweeps,
+//! 232 / 177 / 121 with the pair table. Dense clouds got faster too (same way, best of 30:
+//! the kernels bench's line clusters at 3k / 10k / 100k points 263 / 307 / 552 ns a point
+//! before, 141 / 173 / 401 after; 30,000 points in a 0.3 m cube 1.63 ms before, 0.64 ms
+//! after, where the kd-tree took ~21 s).
 
 use super::clustering::{Clustering, NOISE};
 
@@ -45,22 +54,57 @@ fn pack(x: u64, y: u64, z: u64) -> u64 {
 }
 
 #[inline]
-fn unpack(k: u64) -> [i64; 3] {
-    let mask = (1u64 << AXIS_BITS) - 1;
-    [(k >> (2 * AXIS_BITS)) as i64, ((k >> AXIS_BITS) & mask) as i64, (k & mask) as i64]
-}
-
-/// True when cell `key` is `here` or one of its 26 adjacent cells.
-#[inline]
-fn within_one(here: [i64; 3], key: u64) -> bool {
-    let there = unpack(key);
-    (0..3).all(|a| (here[a] - there[a]).abs() <= 1)
-}
-
-#[inline]
 fn dist2(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     let (x, y, z) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
     x * x + y * y + z * z
+}
+
+/// Calls `f(packed cell key, input index)` for every point, sorted by cell and, inside a cell,
+/// by input index.
+///
+/// When the cell coordinates (each at most `max_cell(axis)`) and the index fit one u64
+/// together, which they do for any cloud a UAV scans (a 100 m cloud at eps 0.3 needs 10 bits
+/// an axis), the sort runs on plain u64s: faster than on (key, index) pairs and half the
+/// memory, and on sparse clouds the sort and the fresh pages it touches were the largest
+/// single cost. Otherwise it sorts the pairs. (radsort, the radix sort crate, was measured
+/// here: slower than std's sort on 64-bit keys at these sizes, 15 against 10 ns an element.)
+fn for_each_by_cell(
+    coords: &[[f64; 3]],
+    cell: impl Fn(&[f64; 3]) -> [u64; 3],
+    max_cell: impl Fn(usize) -> u64,
+    mut f: impl FnMut(u64, u32),
+) {
+    let bits = |v: u64| u64::BITS - v.leading_zeros();
+    let axis_bits = [bits(max_cell(0)), bits(max_cell(1)), bits(max_cell(2))];
+    let index_bits = bits(coords.len() as u64);
+    if axis_bits.iter().sum::<u32>() + index_bits > u64::BITS {
+        let mut keyed: Vec<(u64, u32)> = coords
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let [x, y, z] = cell(p);
+                (pack(x, y, z), i as u32)
+            })
+            .collect();
+        keyed.sort_unstable();
+        keyed.into_iter().for_each(|(k, i)| f(k, i));
+        return;
+    }
+    let [_, by, bz] = axis_bits;
+    let mut packed: Vec<u64> = coords
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let [x, y, z] = cell(p);
+            ((((x << by) | y) << bz | z) << index_bits) | i as u64
+        })
+        .collect();
+    packed.sort_unstable();
+    let low = |v: u64, b: u32| v & ((1u64 << b) - 1);
+    for v in packed {
+        let (i, c) = (low(v, index_bits), v >> index_bits);
+        f(pack(c >> (by + bz), low(c >> bz, by), low(c, bz)), i as u32);
+    }
 }
 
 /// Points sorted by cell, with the cell table.
@@ -99,19 +143,22 @@ impl Grid {
             return None;
         }
         // Cell coordinate: floor((x - lo) / side) + PAD, in range by the check above.
-        let cell = |v: f64, a: usize| ((v - lo[a]) * inv).floor() as u64 + PAD;
-        let mut keyed: Vec<(u64, u32)> =
-            coords.iter().enumerate().map(|(i, p)| (pack(cell(p[0], 0), cell(p[1], 1), cell(p[2], 2)), i as u32)).collect();
-        keyed.sort_unstable();
-        let mut keys = Vec::new();
+        // v >= lo, so truncation is floor (and avoids a libm call per coordinate).
+        let cell = |v: f64, a: usize| ((v - lo[a]) * inv) as u64 + PAD;
+        let n = coords.len();
+        let (mut pts, mut order) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let mut keys: Vec<u64> = Vec::new();
         let mut starts = Vec::new();
-        for (s, &(k, _)) in keyed.iter().enumerate() {
+        let cell_of = |p: &[f64; 3]| [cell(p[0], 0), cell(p[1], 1), cell(p[2], 2)];
+        for_each_by_cell(coords, cell_of, |a| ((hi[a] - lo[a]) * inv) as u64 + PAD, |k, i| {
             if keys.last() != Some(&k) {
                 keys.push(k);
-                starts.push(s);
+                starts.push(order.len());
             }
-        }
-        starts.push(keyed.len());
+            pts.push(coords[i as usize]);
+            order.push(i);
+        });
+        starts.push(n);
         let mut col_keys = Vec::new();
         let mut col_starts = Vec::new();
         let mut cell_col = Vec::with_capacity(keys.len());
@@ -123,8 +170,6 @@ impl Grid {
             cell_col.push((col_keys.len() - 1) as u32);
         }
         col_starts.push(keys.len());
-        let pts = keyed.iter().map(|&(_, i)| coords[i as usize]).collect();
-        let order = keyed.iter().map(|&(_, i)| i).collect();
         Some(Grid { pts, order, keys, starts, col_keys, col_starts, cell_col })
     }
 
@@ -133,65 +178,170 @@ impl Grid {
     }
 }
 
-/// Visits, for cells in increasing order, the occupied cells within `reach` cells on every
-/// axis (the cell itself included). The occupied neighbour (x, y) columns are found once per
-/// column with one forward-only cursor per (dx, dy); inside each of them a forward-only z
-/// cursor finds the cells of the z window, so empty columns cost nothing per cell.
+/// Cells within `REACH` cells on every axis whose points can be within eps of each other.
+const REACH: i64 = 2;
+
+/// Lists, for cells in increasing order, their forward neighbours (occupied cells with a
+/// larger index within `REACH` cells on every axis), adjacent ones (the 26 around the cell)
+/// first. Cells come in increasing (x, y, z) key order, so the forward neighbours of a cell in
+/// column (x, y) lie in columns (x, y..=y+2) and (x+1..=x+2, y-2..=y+2): a window of one
+/// sorted-column row per dx. One forward-only cursor per row finds the occupied columns of
+/// its window, and inside each a forward-only z cursor finds the cells of the z window, so a
+/// sweep costs O(occupied cells + occupied columns): empty space costs nothing. (The sweep
+/// used to keep one cursor per (dx, dy) column of the 5x5 block, 25 of them: on sparse
+/// clouds, where nearly every cell is its own column, stepping them was most of the time.)
 struct Sweep {
-    reach: i64,
-    /// Column-key offsets of the (dx, dy) neighbour columns.
-    offsets: Vec<i64>,
-    /// Forward-only cursors into `Grid::col_keys`, one per offset.
-    col_cursors: Vec<usize>,
+    /// Forward-only cursors into `Grid::col_keys` for the rows x+1 and x+2.
+    row_cursors: [usize; REACH as usize],
     /// Column of the previous call, if any.
     column: Option<usize>,
-    /// Occupied neighbour columns of `column`: (column key, z cursor into cells, column end).
-    near: Vec<(u64, usize, usize)>,
+    /// Occupied neighbour columns of `column`: (column key, z cursor into cells, column end,
+    /// whether the column is adjacent: |dx| <= 1 and |dy| <= 1).
+    near: Vec<(u64, usize, usize, bool)>,
 }
 
 impl Sweep {
-    fn new(reach: i64) -> Sweep {
-        let mut offsets = Vec::new();
-        for dx in -reach..=reach {
-            for dy in -reach..=reach {
-                offsets.push((dx << AXIS_BITS) + dy);
-            }
-        }
-        let col_cursors = vec![0; offsets.len()];
-        Sweep { reach, offsets, col_cursors, column: None, near: Vec::new() }
+    fn new() -> Sweep {
+        Sweep { row_cursors: [0; REACH as usize], column: None, near: Vec::new() }
     }
 
-    /// Neighbour cells of `cell` into `out`; calls must come in increasing `cell` order.
-    fn neighbours(&mut self, grid: &Grid, cell: usize, out: &mut Vec<usize>) {
+    /// Collects the occupied columns with keys up to `last`, from cursor `cur` on; `mid` is
+    /// the key of the window's middle column (dy = 0) and `dx` the window's row offset.
+    fn columns_in(&mut self, grid: &Grid, cur: usize, last: u64, mid: u64, dx: i64) {
+        let n = grid.col_keys.len();
+        let mut q = cur;
+        while q < n && grid.col_keys[q] <= last {
+            let ck = grid.col_keys[q];
+            let adjacent = dx <= 1 && ck.abs_diff(mid) <= 1;
+            self.near.push((ck, grid.col_starts[q], grid.col_starts[q + 1], adjacent));
+            q += 1;
+        }
+    }
+
+    /// Forward neighbours of `cell` into `out` (cleared), adjacent cells first; returns how
+    /// many are adjacent. Calls must come in increasing `cell` order.
+    fn neighbours(&mut self, grid: &Grid, cell: usize, out: &mut Vec<u32>) -> usize {
         out.clear();
         let col = grid.cell_col[cell] as usize;
         if self.column != Some(col) {
             self.column = Some(col);
             self.near.clear();
-            let key = grid.col_keys[col] as i64;
+            let key = grid.col_keys[col];
+            // Own row: this column and the next two y's (y + 2 stays inside the row by PAD).
+            self.columns_in(grid, col, key + REACH as u64, key, 0);
             let n = grid.col_keys.len();
-            for (off, cur) in self.offsets.iter().zip(self.col_cursors.iter_mut()) {
-                // PAD keeps x + dx and y + dy in range: no carries between the fields.
-                let want = (key + off) as u64;
-                while *cur < n && grid.col_keys[*cur] < want {
-                    *cur += 1;
+            for dx in 1..=REACH {
+                // PAD keeps x + dx and y - 2 in range: no borrow between the fields.
+                let first = key + ((dx as u64) << AXIS_BITS) - REACH as u64;
+                let mut cur = self.row_cursors[dx as usize - 1];
+                while cur < n && grid.col_keys[cur] < first {
+                    cur += 1;
                 }
-                if *cur < n && grid.col_keys[*cur] == want {
-                    self.near.push((want, grid.col_starts[*cur], grid.col_starts[*cur + 1]));
-                }
+                self.row_cursors[dx as usize - 1] = cur;
+                self.columns_in(grid, cur, first + 2 * REACH as u64, first + REACH as u64, dx);
             }
         }
         let z = (grid.keys[cell] & ((1 << AXIS_BITS) - 1)) as i64;
-        for (ck, zc, end) in &mut self.near {
-            let lo = (*ck << AXIS_BITS) | (z - self.reach) as u64;
-            let hi = (*ck << AXIS_BITS) | (z + self.reach) as u64;
+        let mut far_from = out.len();
+        for (ck, zc, end, adjacent) in &mut self.near {
+            let lo = (*ck << AXIS_BITS) | (z - REACH) as u64;
+            let hi = (*ck << AXIS_BITS) | (z + REACH) as u64;
             while *zc < *end && grid.keys[*zc] < lo {
                 *zc += 1;
             }
             let mut q = *zc;
             while q < *end && grid.keys[q] <= hi {
-                out.push(q);
+                if q > cell {
+                    out.push(q as u32);
+                    // Keep adjacent cells in front: swap this one into the adjacent block.
+                    if *adjacent && (grid.keys[q] & ((1 << AXIS_BITS) - 1)).abs_diff(z as u64) <= 1 {
+                        let last = out.len() - 1;
+                        out.swap(far_from, last);
+                        far_from += 1;
+                    }
+                }
                 q += 1;
+            }
+        }
+        far_from
+    }
+}
+
+/// Most forward-neighbour entries kept in the table (u32 each: 64 MiB). Real scans (surfaces
+/// and wires) have a dozen or so per cell; a solid volume with one point per cell has up to 62.
+/// Beyond the budget the sweep is re-run for each pass instead, so memory stays O(N).
+pub(crate) const TABLE_BUDGET: usize = 16 << 20;
+
+/// The pairs of neighbour cells, each once (from the lower-index cell), adjacent pairs
+/// apart from the outer-shell ones. Built by one sweep and kept while it fits the budget; the
+/// passes of the clustering then cost one step per pair instead of a sweep each.
+enum Pairs {
+    /// `list[start[c]..near_end[c]]` are c's adjacent forward neighbours,
+    /// `list[near_end[c]..start[c + 1]]` its outer-shell ones.
+    Stored { start: Vec<u32>, near_end: Vec<u32>, list: Vec<u32> },
+    /// Over budget: each pass sweeps again.
+    Swept,
+}
+
+/// Which pairs a pass visits: adjacent cells, outer-shell cells, or all.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Shell {
+    Adjacent,
+    Outer,
+    All,
+}
+
+impl Pairs {
+    fn build(grid: &Grid, budget: usize) -> Pairs {
+        let n_cells = grid.n_cells();
+        let mut sweep = Sweep::new();
+        let mut buf = Vec::new();
+        let mut start = Vec::with_capacity(n_cells + 1);
+        let mut near_end = Vec::with_capacity(n_cells);
+        let mut list = Vec::new();
+        for c in 0..n_cells {
+            start.push(list.len() as u32);
+            let adjacent = sweep.neighbours(grid, c, &mut buf);
+            if list.len() + buf.len() > budget {
+                return Pairs::Swept;
+            }
+            near_end.push((list.len() + adjacent) as u32);
+            list.extend_from_slice(&buf);
+        }
+        start.push(list.len() as u32);
+        Pairs::Stored { start, near_end, list }
+    }
+
+    /// Calls `f(a, b)` for every pair of neighbour cells in `shell`, `a < b`, in increasing `a`.
+    fn visit(&self, grid: &Grid, shell: Shell, mut f: impl FnMut(usize, usize)) {
+        match self {
+            Pairs::Stored { start, near_end, list } => {
+                for a in 0..grid.n_cells() {
+                    let (s, m, e) = (start[a] as usize, near_end[a] as usize, start[a + 1] as usize);
+                    let range = match shell {
+                        Shell::Adjacent => s..m,
+                        Shell::Outer => m..e,
+                        Shell::All => s..e,
+                    };
+                    for &b in &list[range] {
+                        f(a, b as usize);
+                    }
+                }
+            }
+            Pairs::Swept => {
+                let mut sweep = Sweep::new();
+                let mut buf = Vec::new();
+                for a in 0..grid.n_cells() {
+                    let adjacent = sweep.neighbours(grid, a, &mut buf);
+                    let range = match shell {
+                        Shell::Adjacent => 0..adjacent,
+                        Shell::Outer => adjacent..buf.len(),
+                        Shell::All => 0..buf.len(),
+                    };
+                    for &b in &buf[range] {
+                        f(a, b as usize);
+                    }
+                }
             }
         }
     }
@@ -214,56 +364,69 @@ impl Sets {
 /// Grid DBSCAN on finite points (see the module docs); `None` when the extent is too large
 /// for the grid. Labels follow the public `dbscan`'s contract exactly.
 pub(crate) fn dbscan_grid(coords: &[[f64; 3]], eps: f64, min_points: usize) -> Option<Clustering> {
+    dbscan_grid_with_budget(coords, eps, min_points, TABLE_BUDGET)
+}
+
+/// [`dbscan_grid`] with the pair table's budget given (tests force the re-sweeping path).
+pub(crate) fn dbscan_grid_with_budget(coords: &[[f64; 3]], eps: f64, min_points: usize, budget: usize) -> Option<Clustering> {
     if coords.is_empty() {
         return Some(Clustering::empty());
     }
+    if min_points > coords.len() {
+        // No point has that many neighbours: all noise (and min_points fits a u32 below).
+        return Some(Clustering { labels: vec![NOISE; coords.len()], core: vec![false; coords.len()] });
+    }
     let grid = Grid::build(coords, eps)?;
+    let pairs = Pairs::build(&grid, budget);
     let eps2 = eps * eps;
     let n_cells = grid.n_cells();
     let cell_pts = |c: usize| grid.starts[c]..grid.starts[c + 1];
-    let mut buf: Vec<usize> = Vec::new();
 
-    // 1. Core points (flags in sorted order). Same-cell points are all within eps; the other
-    // neighbours are counted in the 27 adjacent cells first, then the outer shell, stopping
-    // at min_points.
-    let mut core = vec![false; grid.pts.len()];
-    let mut count: Vec<usize> = (0..n_cells).flat_map(|c| std::iter::repeat_n(cell_pts(c).len(), cell_pts(c).len())).collect();
-    for reach in [1i64, 2] {
-        let mut sweep = Sweep::new(reach);
-        for c in 0..n_cells {
-            let own = cell_pts(c);
-            if own.len() >= min_points {
-                core[own].fill(true);
-                continue;
-            }
-            if own.clone().all(|i| core[i]) {
-                continue;
-            }
-            sweep.neighbours(&grid, c, &mut buf);
-            let here = unpack(grid.keys[c]);
-            for i in own {
-                if count[i] >= min_points {
-                    core[i] = true;
-                    continue;
-                }
-                let p = &grid.pts[i];
-                'cells: for &nb in &buf {
-                    if nb == c || (reach == 2 && within_one(here, grid.keys[nb])) {
-                        continue;
-                    }
-                    for q in &grid.pts[cell_pts(nb)] {
-                        if dist2(p, q) <= eps2 {
-                            count[i] += 1;
-                            if count[i] >= min_points {
-                                break 'cells;
-                            }
-                        }
-                    }
-                }
-                core[i] = count[i] >= min_points;
-            }
+    // 1. Core points (sorted order). Same-cell points are all within eps, so every point starts
+    // with its cell's size; each pair of cells then adds its pairs within eps to both sides,
+    // adjacent cells first so most points are settled before the outer shell is tried. A point
+    // stops counting at min_points, a cell once all its points have (`pending`).
+    let mut count: Vec<u32> = vec![0; grid.pts.len()];
+    // Counts stop at min_points, which is at most the number of points (checked above): a u32.
+    let min_points = min_points as u32;
+    let mut pending: Vec<u32> = vec![0; n_cells];
+    for (c, p) in pending.iter_mut().enumerate() {
+        let own = cell_pts(c);
+        let size = own.len() as u32;
+        count[own].fill(size);
+        if size < min_points {
+            *p = size;
         }
     }
+    for shell in [Shell::Adjacent, Shell::Outer] {
+        pairs.visit(&grid, shell, |a, b| {
+            if pending[a] == 0 && pending[b] == 0 {
+                return;
+            }
+            for i in cell_pts(a) {
+                let p = &grid.pts[i];
+                for j in cell_pts(b) {
+                    let open_i = count[i] < min_points;
+                    let open_j = count[j] < min_points;
+                    if !(open_i || open_j) || dist2(p, &grid.pts[j]) > eps2 {
+                        continue;
+                    }
+                    if open_i {
+                        count[i] += 1;
+                        pending[a] -= u32::from(count[i] == min_points);
+                    }
+                    if open_j {
+                        count[j] += 1;
+                        pending[b] -= u32::from(count[j] == min_points);
+                    }
+                }
+                if pending[a] == 0 && pending[b] == 0 {
+                    return;
+                }
+            }
+        });
+    }
+    let core: Vec<bool> = count.iter().map(|&k| k >= min_points).collect();
     // Core points of each cell, contiguous (cells are small unless dense, and dense cells are
     // all core, so this is cheap).
     let mut core_pts: Vec<u32> = Vec::new();
@@ -275,7 +438,9 @@ pub(crate) fn dbscan_grid(coords: &[[f64; 3]], eps: f64, min_points: usize) -> O
     core_starts.push(core_pts.len());
     let cores_of = |c: usize| &core_pts[core_starts[c]..core_starts[c + 1]];
 
-    // 2. Clusters: union cells with a pair of core points within eps. Near cells first.
+    // 2. Clusters: union cells with a pair of core points within eps. Adjacent cells first:
+    // in dense clouds they join almost everything, so the costlier outer-shell pairs mostly
+    // find their cells already in one set and are not tested.
     let linked = |a: usize, b: usize| {
         cores_of(a).iter().any(|&i| {
             let p = &grid.pts[i as usize];
@@ -283,93 +448,79 @@ pub(crate) fn dbscan_grid(coords: &[[f64; 3]], eps: f64, min_points: usize) -> O
         })
     };
     let mut sets = Sets((0..n_cells as u32).collect());
-    for reach in [1i64, 2] {
-        let mut sweep = Sweep::new(reach);
-        for c in 0..n_cells {
-            if cores_of(c).is_empty() {
-                continue;
+    for shell in [Shell::Adjacent, Shell::Outer] {
+        pairs.visit(&grid, shell, |a, b| {
+            if cores_of(a).is_empty() || cores_of(b).is_empty() {
+                return;
             }
-            sweep.neighbours(&grid, c, &mut buf);
-            let here = unpack(grid.keys[c]);
-            for &nb in &buf {
-                if nb <= c || cores_of(nb).is_empty() {
-                    continue;
-                }
-                if reach == 2 && within_one(here, grid.keys[nb]) {
-                    continue; // done in the reach-1 pass
-                }
-                let (ra, rb) = (sets.find(c), sets.find(nb));
-                if ra != rb && linked(c, nb) {
-                    let (lo, hi) = (ra.min(rb), ra.max(rb));
-                    sets.0[hi] = lo as u32;
-                }
+            let (ra, rb) = (sets.find(a), sets.find(b));
+            if ra != rb && linked(a, b) {
+                let (lo, hi) = (ra.min(rb), ra.max(rb));
+                sets.0[hi] = lo as u32;
             }
-        }
+        });
     }
 
-    // 3. Number clusters by their first core point in input order.
-    let mut labels = vec![NOISE; grid.pts.len()];
-    let mut cell_of = vec![0u32; grid.pts.len()];
+    // 3. Number clusters by their first core point in input order. Points of a cell are sorted
+    // by input index, so a cell's first core point is its earliest; each set takes the earliest
+    // of its cells' and the sets are ranked by it. (Walking all points in input order instead
+    // was a random access per point.)
+    let mut first = vec![u32::MAX; n_cells];
     for c in 0..n_cells {
-        cell_of[cell_pts(c)].fill(c as u32);
+        if let Some(&s) = cores_of(c).first() {
+            let root = sets.find(c);
+            first[root] = first[root].min(grid.order[s as usize]);
+        }
     }
-    let mut sorted_pos = vec![0u32; grid.pts.len()];
-    for (s, &i) in grid.order.iter().enumerate() {
-        sorted_pos[i as usize] = s as u32;
-    }
+    let mut ranked: Vec<(u32, u32)> =
+        first.iter().enumerate().filter(|&(_, &f)| f != u32::MAX).map(|(root, &f)| (f, root as u32)).collect();
+    ranked.sort_unstable();
     let mut root_label = vec![UNSET; n_cells];
-    let mut next = 0i32;
-    for &s in &sorted_pos {
-        let s = s as usize;
-        if !core[s] {
-            continue;
-        }
-        let root = sets.find(cell_of[s] as usize);
-        if root_label[root] == UNSET {
-            root_label[root] = next;
-            next += 1;
-        }
-        labels[s] = root_label[root];
+    for (label, &(_, root)) in ranked.iter().enumerate() {
+        root_label[root as usize] = label as i32;
     }
+    let mut labels = vec![NOISE; grid.pts.len()];
     let mut cell_label = vec![UNSET; n_cells];
-    for (c, l) in cell_label.iter_mut().enumerate() {
+    for c in 0..n_cells {
         if !cores_of(c).is_empty() {
-            *l = root_label[sets.find(c)];
+            cell_label[c] = root_label[sets.find(c)];
+            for &s in cores_of(c) {
+                labels[s as usize] = cell_label[c];
+            }
         }
     }
 
     // 4. Border points: smallest label among core neighbours (scikit-learn's expansion order).
-    let mut sweep = Sweep::new(2);
-    for c in 0..n_cells {
-        let own = cell_pts(c);
-        if own.clone().all(|i| core[i]) {
-            continue;
-        }
-        sweep.neighbours(&grid, c, &mut buf);
-        for i in own {
-            if core[i] {
-                continue;
-            }
-            let p = &grid.pts[i];
-            let mut best = cell_label[c]; // UNSET when the cell has no core point
-            for &nb in &buf {
-                if cell_label[nb] < best
-                    && nb != c
-                    && cores_of(nb).iter().any(|&j| dist2(p, &grid.pts[j as usize]) <= eps2)
-                {
-                    best = cell_label[nb];
-                }
-            }
-            if best != UNSET {
-                labels[i] = best;
+    // A border point starts with its own cell's label (UNSET without core points there); each
+    // pair of cells offers each side's label to the other side's non-core points.
+    for (c, &l) in cell_label.iter().enumerate() {
+        for i in cell_pts(c) {
+            if !core[i] {
+                labels[i] = l;
             }
         }
     }
+    let all_core = |c: usize| cores_of(c).len() == cell_pts(c).len();
+    let offer = |from: usize, to: usize, labels: &mut [i32]| {
+        let l = cell_label[from];
+        if l == UNSET || all_core(to) {
+            return;
+        }
+        for i in cell_pts(to) {
+            if !core[i] && l < labels[i] && cores_of(from).iter().any(|&j| dist2(&grid.pts[i], &grid.pts[j as usize]) <= eps2) {
+                labels[i] = l;
+            }
+        }
+    };
+    pairs.visit(&grid, Shell::All, |a, b| {
+        offer(a, b, &mut labels);
+        offer(b, a, &mut labels);
+    });
 
     let mut out = vec![NOISE; labels.len()];
     let mut core_out = vec![false; labels.len()];
     for (s, &i) in grid.order.iter().enumerate() {
-        out[i as usize] = labels[s];
+        out[i as usize] = if labels[s] == UNSET { NOISE } else { labels[s] };
         core_out[i as usize] = core[s];
     }
     Some(Clustering { labels: out, core: core_out })

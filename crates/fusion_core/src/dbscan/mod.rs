@@ -127,9 +127,15 @@ pub fn n_clusters(labels: &[i32]) -> usize {
     labels.iter().copied().max().map_or(0, |m| usize::try_from(m + 1).unwrap_or(0))
 }
 
+/// The benches' tower-scale cloud generator, shared so tests check what the benches time.
+#[cfg(test)]
+#[path = "../../benches/tower.rs"]
+mod tower;
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use grid::dbscan_grid_with_budget;
     use kdtree::{dbscan_with_budget, NEIGHBOUR_BUDGET};
     use proptest::prelude::*;
     use std::collections::HashMap;
@@ -354,6 +360,25 @@ mod tests {
     }
 
     #[test]
+    fn wide_cloud_sorts_key_index_pairs() {
+        // Clumps at the corners of a 250 km cube: 21 bits of cell coordinate per axis, so the
+        // keys and the index no longer fit one u64 and the grid sorts (key, index) pairs; no
+        // gap along an axis is cut since the clumps are chained by points on the diagonals.
+        let mut pts = Vec::new();
+        for k in 0..64u32 {
+            let t = f64::from(k) / 63.0 * 2.5e5;
+            for corner in [[t, t, t], [t, 2.5e5 - t, t], [0.0, 0.0, t]] {
+                pts.extend((0..4).map(|j| [corner[0] + 0.05 * f64::from(j), corner[1], corner[2]]));
+            }
+        }
+        for (eps, mp) in [(0.3, 3), (0.3, 5), (0.5, 1)] {
+            let grid = dbscan_grid(&pts, eps, mp).expect("fits the grid's 21-bit keys");
+            assert_eq!(grid, dbscan_kdtree(&pts, eps, mp));
+        }
+        assert_equivalent(&pts, 0.3, 3);
+    }
+
+    #[test]
     fn one_far_point_changes_nothing_else() {
         // A dense clump (cells far above min_points) plus one stray return 1e7 m away: the same
         // labels as without it (that cloud used to take the kd-tree: 34 s at 60,000 points).
@@ -391,10 +416,40 @@ mod tests {
         assert_equivalent(&pts, 0.1 + 1e-9, 3);
     }
 
+    /// The bench's sparse tower-scale clouds (lattice + conductors over ~60 m, most cells holding
+    /// fewer than 5 points): the grid gives the kd-tree's labels exactly, with the pair table
+    /// stored and with it over budget (every pass re-sweeps), at eps 0.3 and localize's 0.5.
+    #[test]
+    fn tower_clouds_match_kdtree_stored_and_swept() {
+        for (n, seed) in [(10_000, 7), (3_000, 1)] {
+            let pts = tower::tower_cloud(n, seed);
+            for (eps, mp) in [(0.3, 5), (0.5, 5), (0.15, 3), (0.3, 1)] {
+                let want = dbscan_kdtree(&pts, eps, mp);
+                assert!(n_clusters(&want.labels) > 1 && (mp == 1 || want.labels.contains(&NOISE)));
+                assert_eq!(dbscan_grid(&pts, eps, mp).as_ref(), Some(&want), "n {n} eps {eps} min {mp}");
+                assert_eq!(dbscan_grid_with_budget(&pts, eps, mp, 0).as_ref(), Some(&want));
+            }
+        }
+        assert_equivalent(&tower::tower_cloud(1_500, 3), 0.3, 5);
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Sparse tower-like clouds of any size and seed, any eps/min_points: grid (stored pair
+        /// table, and a table budget that runs out part-way) equals the kd-tree exactly.
+        #[test]
+        fn tower_clouds_grid_matches_kdtree(
+            n in 0usize..2_500, seed in 0u64..1_000, eps in 0.05f64..1.0, min_points in 1usize..12,
+            budget in prop::sample::select(vec![0usize, 100, 5_000, grid::TABLE_BUDGET]),
+        ) {
+            let pts = tower::tower_cloud(n, seed);
+            let want = dbscan_kdtree(&pts, eps, min_points);
+            prop_assert_eq!(dbscan_grid_with_budget(&pts, eps, min_points, budget), Some(want));
+        }
+
         /// The grid and the kd-tree give identical labels (border rule included) on clouds with
-        /// clumps denser than min_points per cell, ties and duplicates.
+        /// clumps denser than min_points per cell, ties and duplicates; also with the pair
+        /// table over budget (every pass re-sweeps).
         #[test]
         fn grid_matches_kdtree(
             pts in prop::collection::vec(prop::array::uniform3(0i32..40), 0..400),
@@ -402,8 +457,9 @@ mod tests {
             eps in prop::sample::select(vec![0.1, 0.2, 0.3, 0.5]), min_points in 1usize..12,
         ) {
             let pts: Vec<[f64; 3]> = pts.iter().map(|p| p.map(|v| f64::from(v) * scale)).collect();
-            let grid = dbscan_grid(&pts, eps, min_points);
-            prop_assert_eq!(grid, Some(dbscan_kdtree(&pts, eps, min_points)));
+            let want = Some(dbscan_kdtree(&pts, eps, min_points));
+            prop_assert_eq!(&dbscan_grid(&pts, eps, min_points), &want);
+            prop_assert_eq!(&dbscan_grid_with_budget(&pts, eps, min_points, 50), &want);
         }
 
         /// Random clouds on a coarse grid (exact ties and duplicates) and continuous ones.

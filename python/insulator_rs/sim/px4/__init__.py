@@ -22,9 +22,12 @@ and the rules, and the MAVLink surface of PX4:
 * SET_POSITION_TARGET_LOCAL_NED with PX4's type_mask semantics (ignored fields
   become NaN = not controlled on that axis; yaw or yaw rate or hold);
 * telemetry at configurable rates (SET_MESSAGE_INTERVAL changes them):
-  LOCAL_POSITION_NED, ATTITUDE, GLOBAL_POSITION_INT (pymap3d from a geodetic
+  LOCAL_POSITION_NED, ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT (pymap3d from a geodetic
   origin), HOME_POSITION, EXTENDED_SYS_STATE, SYS_STATUS, BATTERY_STATUS,
   SYSTEM_TIME;
+* TIMESYNC as PX4 v1.16 does it (measured on its SITL): a request (``tc1 = 0``) is answered
+  with ``tc1`` = the vehicle clock in ns and the request's ``ts1``, and it sends requests of
+  its own at 10 Hz;
 * MAVLink 2 signing: with a key, anything not correctly signed is dropped
   (RADIO_STATUS excepted, as PX4 does);
 * fault injection: packet loss, delay, a lost link, a pilot's mode change, a
@@ -37,8 +40,10 @@ in vehicle time, as in PX4 SITL with a speed factor.
 Peers: telemetry goes to ``remote`` if given (as PX4 SITL streams to the
 offboard port) and to every address a valid message came from.
 
-Limitations (kinematic stand-in): roll and pitch are reported as level,
-acceleration setpoints are ignored, GLOBAL_POSITION_INT's alt is the WGS84
+The airframe is the in-process multirotor (``sim/kinematics.py``): its attitude (tilted
+along the thrust, leaning into the wind) goes out on ATTITUDE and ATTITUDE_QUATERNION.
+
+Limitations (kinematic stand-in): acceleration setpoints are ignored, GLOBAL_POSITION_INT's alt is the WGS84
 ellipsoid height of the origin plus the local height.
 """
 

@@ -25,6 +25,7 @@ from insulator_rs.mavlink.signing import configure_signing
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.ports.vehicle import FlightMode
 from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
+from insulator_rs.sim.px4.parameters import Px4Parameters
 from insulator_rs.sim.px4.telemetry import DEFAULT_RATES_HZ, Px4Telemetry
 from insulator_rs.sim.px4_gcs import GcsLink
 from insulator_rs.sim.px4.transport import (LOOP_PERIOD_S, MAX_STEP_VEHICLE_S, UNSIGNED_ALLOWED, LinkFaults,
@@ -85,6 +86,7 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
         signing_key: bytes | None = None,
         seed: int = 0,
         gcs_port: int | None = None,
+        answer_timesync: bool = True,
     ) -> None:
         if not (math.isfinite(time_scale) and 0.0 < time_scale <= 100.0):
             raise ValueError(f"time_scale must be in (0, 100], got {time_scale!r}")
@@ -120,9 +122,13 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
         # No RC transmitter in SITL: PX4 refuses the manual modes over MAVLink. The pilot's
         # switch (``pilot_mode_change``) models a transmitter and bypasses this.
         self.rc_connected = False
+        self.answer_timesync = bool(answer_timesync)  # False: TIMESYNC requests go unanswered (a fault)
         self._command_faults: dict[int, int | None] = {}
         # PX4's GCS link and its forwarding between links (sim/px4_gcs.py), when a port is given
         self.gcs = GcsLink(gcs_port) if gcs_port is not None else None
+        # PX4's parameters (sim/px4/parameters.py): answered as PX4 does, the airframe's honoured
+        self.parameters = Px4Parameters(self._send, lambda: self.vehicle.params,
+                                        lambda params: setattr(self.vehicle, "params", params))
 
     # -- lifecycle ---------------------------------------------------------------
 
@@ -225,6 +231,11 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
             if self._targets_us(msg) and msg.coordinate_frame == M.MAV_FRAME_LOCAL_NED:
                 self.stats.setpoints += 1
                 self.vehicle.command_setpoint(setpoint_from_target_local_ned(msg))
+        elif kind == "TIMESYNC":
+            self._answer_timesync(msg)
+        elif kind in ("PARAM_REQUEST_READ", "PARAM_REQUEST_LIST", "PARAM_SET"):
+            if self._targets_us(msg):
+                self.parameters.handle(msg)
         elif kind == "COMMAND_LONG":
             if self._targets_us(msg):
                 params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
@@ -248,6 +259,9 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
             elif command == M.MAV_CMD_COMPONENT_ARM_DISARM:
                 action = round(p[0])
                 if action == 1:
+                    refusal = None if vehicle.armed else self.parameters.arming_refusal(self._ground_station_age())
+                    if refusal is not None:
+                        raise CommandRejected("arm", refusal)
                     vehicle.arm()
                 elif action == 0:
                     vehicle.disarm(force=round(p[1]) == 21196)  # PX4's magic number
@@ -281,6 +295,11 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
         self.stats.last_ack[command] = result
         self._send(M.MAVLink_command_ack_message(
             command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _ground_station_age(self) -> float | None:
+        """Vehicle s since a ground station's last HEARTBEAT on the GCS link (None: never)."""
+        heard = None if self.gcs is None else self.gcs.last_heartbeat
+        return None if heard is None else (time.monotonic() - heard) * self.time_scale
 
     def _set_mode(self, base_mode: int, main: int, sub: int) -> int:
         """PX4 1.16's answers (measured on the SITL): an unknown main mode or a request

@@ -1,8 +1,10 @@
 """The simulated PX4's telemetry: PX4's onboard-link streams at rates in vehicle time
 (SET_MESSAGE_INTERVAL and REQUEST_MESSAGE change or ask for them), each message built from
 the simulated vehicle's state: HEARTBEAT with PX4's custom_mode, LOCAL_POSITION_NED,
-ATTITUDE, GLOBAL_POSITION_INT (pymap3d from a geodetic origin), HOME_POSITION,
-EXTENDED_SYS_STATE, SYS_STATUS, BATTERY_STATUS, SYSTEM_TIME, AUTOPILOT_VERSION.
+ATTITUDE and ATTITUDE_QUATERNION (the airframe's attitude and body rates, FRD/NED),
+GLOBAL_POSITION_INT (pymap3d from a geodetic origin), HOME_POSITION,
+EXTENDED_SYS_STATE, SYS_STATUS, BATTERY_STATUS, SYSTEM_TIME, AUTOPILOT_VERSION; TIMESYNC both ways (PX4's requests at
+10 Hz, and its answers to the companion's).
 
 A mixin of :class:`insulator_rs.sim.px4.autopilot.SimulatedPx4` (which owns the state).
 """
@@ -17,7 +19,8 @@ import numpy as np
 import pymap3d
 
 from insulator_rs.mavlink import px4_modes
-from insulator_rs.mavlink.frames import enu_to_ned, yaw_enu_to_ned
+from insulator_rs.mavlink.frames import (attitude_enu_flu_to_ned_frd, enu_to_ned, flu_to_frd,
+                                         quaternion_ned_frd_from_enu_flu, yaw_enu_to_ned)
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.ports.vehicle import FlightMode
 from insulator_rs.sim.kinematics import KinematicVehicle
@@ -31,10 +34,13 @@ DEFAULT_RATES_HZ: dict[str, float] = {
     "EXTENDED_SYS_STATE": 2.0,
     "LOCAL_POSITION_NED": 50.0,
     "ATTITUDE": 20.0,
+    "ATTITUDE_QUATERNION": 50.0,
     "GLOBAL_POSITION_INT": 10.0,
+    "GPS_RAW_INT": 1.0,
     "HOME_POSITION": 0.5,
     "BATTERY_STATUS": 1.0,
     "SYSTEM_TIME": 1.0,
+    "TIMESYNC": 10.0,  # PX4's own requests (tc1 = 0, ts1 = its boot time in ns), as v1.16 sends them
 }
 
 
@@ -48,6 +54,8 @@ class Px4Telemetry:
     _next_send: dict[str, float]
     _peers: list[tuple[str, int]]
     _lock: Any
+    stats: Any
+    answer_timesync: bool  # False: an autopilot that never answers TIMESYNC (a fault for the fallback)
 
     def set_rate(self, message: str, rate_hz: float) -> None:
         """Change a telemetry rate (Hz of vehicle time; 0 stops it), as a fault or a test needs."""
@@ -104,14 +112,25 @@ class Px4Telemetry:
             return self._heartbeat()
         if name == "LOCAL_POSITION_NED":
             return M.MAVLink_local_position_ned_message(boot_ms, *pos_ned, *vel_ned)
-        if name == "ATTITUDE":
-            return M.MAVLink_attitude_message(boot_ms, 0.0, 0.0, yaw_ned, 0.0, 0.0, 0.0)
+        if name in ("ATTITUDE", "ATTITUDE_QUATERNION"):
+            R_w_b = state.T_w_b[:3, :3]
+            rates = flu_to_frd(np.zeros(3) if state.angular_velocity is None else state.angular_velocity)
+            if name == "ATTITUDE":
+                return M.MAVLink_attitude_message(boot_ms, *attitude_enu_flu_to_ned_frd(R_w_b), *rates)
+            return M.MAVLink_attitude_quaternion_message(boot_ms, *quaternion_ned_frd_from_enu_flu(R_w_b), *rates,
+                                                         [0.0, 0.0, 0.0, 0.0])
         if name == "GLOBAL_POSITION_INT":
             lat, lon, alt = self._geodetic(state.position)
             return M.MAVLink_global_position_int_message(
                 boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
                 int(round((state.position[2] - v.home[2]) * 1000)),
                 *(int(round(c * 100)) for c in vel_ned), int(round(math.degrees(yaw_ned) % 360 * 100)))
+        if name == "GPS_RAW_INT":  # a 3D fix of 12 satellites, none while the position is lost
+            lat, lon, alt = self._geodetic(state.position)
+            fix, satellites = (M.GPS_FIX_TYPE_3D_FIX, 12) if v.position_valid else (M.GPS_FIX_TYPE_NO_FIX, 0)
+            return M.MAVLink_gps_raw_int_message(
+                int(time.time() * 1e6), fix, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
+                80, 120, int(round(float(np.linalg.norm(state.velocity[:2])) * 100)), 65535, satellites)
         if name == "HOME_POSITION":
             lat, lon, alt = self._geodetic(v.home)
             home_ned = enu_to_ned(v.home)
@@ -126,15 +145,31 @@ class Px4Telemetry:
                        | M.MAV_SYS_STATUS_SENSOR_GPS)
             health = sensors if v.position_valid else sensors & ~M.MAV_SYS_STATUS_SENSOR_GPS
             return M.MAVLink_sys_status_message(
-                sensors, sensors, health, 200, self._voltage_mv(), -1,
-                int(round(state.battery_fraction * 100)), 0, 0, 0, 0, 0, 0)
+                sensors, sensors, health, 200, self._voltage_mv(), -1, _remaining(state.battery_fraction),
+                0, 0, 0, 0, 0, 0)
         if name == "BATTERY_STATUS":
             return M.MAVLink_battery_status_message(
                 0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, 2500,
-                [self._voltage_mv()] + [65535] * 9, -1, -1, -1, int(round(state.battery_fraction * 100)))
+                [self._voltage_mv()] + [65535] * 9, -1, -1, -1, _remaining(state.battery_fraction))
         if name == "SYSTEM_TIME":
             return M.MAVLink_system_time_message(int(time.time() * 1e6), boot_ms)
+        if name == "TIMESYNC":
+            return M.MAVLink_timesync_message(0, self._boot_ns())
         raise ValueError(f"unknown telemetry message {name!r}")
+
+    def _boot_ns(self) -> int:
+        """PX4's ``hrt_absolute_time() * 1000``: the vehicle clock (that of ``time_boot_ms``) in ns."""
+        return int(round(self.vehicle.clock.now * 1e9))
+
+    def _answer_timesync(self, msg: Any) -> None:
+        """PX4 v1.16's ``MavlinkTimesync``: a request (``tc1 == 0``) is answered with ``tc1`` =
+        its time in ns and the request's ``ts1``; an answer to one of its own requests updates
+        its estimate of the companion's clock (counted here, not modelled)."""
+        if msg.tc1 == 0:
+            if self.answer_timesync:
+                self._send(M.MAVLink_timesync_message(self._boot_ns(), msg.ts1))
+        elif msg.tc1 > 0:
+            self.stats.timesync_answers += 1
 
     def _heartbeat(self) -> Any:
         v = self.vehicle
@@ -162,8 +197,10 @@ class Px4Telemetry:
         return M.MAV_LANDED_STATE_IN_AIR
 
     def _voltage_mv(self) -> int:
-        # 4S LiPo: 3.5 V (empty) to 4.2 V (full) per cell, linear in charge.
-        return int(round(4 * (3500 + 700 * self.vehicle.battery_fraction)))
+        # 4S LiPo: 3.5 V (empty) to 4.2 V (full) per cell, linear in charge; UINT16_MAX (MAVLink's
+        # "unknown") without a battery monitor
+        fraction = self.vehicle.battery_fraction
+        return 65535 if fraction is None else int(round(4 * (3500 + 700 * fraction)))
 
     def _geodetic(self, position_enu: np.ndarray) -> tuple[float, float, float]:
         lat, lon, alt = pymap3d.enu2geodetic(*position_enu, *self.origin)
@@ -178,3 +215,9 @@ class Px4Telemetry:
 
     def _send(self, msg: Any) -> None:  # provided by Px4Transport
         raise NotImplementedError
+
+
+def _remaining(fraction: float | None) -> int:
+    """``battery_remaining`` as PX4 fills it: whole percents (PX4's mavlink streams round the
+    battery's ``remaining``), -1 when there is no estimate."""
+    return -1 if fraction is None else int(round(min(max(fraction, 0.0), 1.0) * 100))

@@ -46,6 +46,7 @@ class SimStats:
     rejected_signature: int = 0
     bad_data: int = 0
     setpoints: int = 0
+    timesync_answers: int = 0  # answers to the simulated PX4's own TIMESYNC requests
     commands: dict[str, int] = field(default_factory=dict)
     last_ack: dict[int, int] = field(default_factory=dict)
 

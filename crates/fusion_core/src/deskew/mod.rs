@@ -23,10 +23,12 @@ use nalgebra::{Isometry3, UnitQuaternion};
 use rayon::prelude::*;
 
 use crate::camera::CameraModel;
-use crate::culling::{cull_range, PixelBox, PARALLEL_MIN_POINTS};
+use crate::culling::{PixelBox, PARALLEL_MIN_POINTS};
 use crate::error::{invalid, Result};
 use crate::points::PointCloud;
 use crate::projection::Projector;
+
+mod simd;
 
 /// Below this rotation between two knots (rad) slerp is replaced by a normalised lerp:
 /// the two differ by O(θ³), far below f64 resolution of a point at 100 m.
@@ -266,6 +268,7 @@ fn chunks(n: usize) -> Vec<Range<usize>> {
 
 /// Every point of `points` (L, measured at `times`) re-expressed in L at `t_ref`, with
 /// `T_w_b(t)` interpolated from `stream` (module docstring). Non-finite points stay NaN.
+/// Runs the SIMD path where the CPU has one (the `simd` module), the scalar reference otherwise.
 ///
 /// Errors (naming the argument) when `times` and `points` differ in length, or a point
 /// time or `t_ref` lies outside the pose stream (no extrapolation).
@@ -276,30 +279,13 @@ pub fn deskew<P: PointCloud + Sync + ?Sized>(
     t_ref: f64,
     t_b_l: &Isometry3<f64>,
 ) -> Result<Vec<[f64; 3]>> {
-    check_inputs(points, times, stream)?;
-    let motion = Motion::new(stream, t_ref, t_b_l)?;
-    let mut out = vec![[f64::NAN; 3]; points.len()];
-    let ranges = chunks(points.len());
-    let mut parts: Vec<(Range<usize>, &mut [[f64; 3]])> = Vec::with_capacity(ranges.len());
-    let mut rest: &mut [[f64; 3]] = &mut out;
-    for r in ranges {
-        let (head, tail) = rest.split_at_mut(r.len());
-        parts.push((r, head));
-        rest = tail;
-    }
-    parts.into_par_iter().for_each(|(r, slice)| {
-        let mut k = r.clone().next().map_or(0, |i| motion.start_segment(times[i]));
-        let start = r.start;
-        points.for_each_point_in(r, |i, p| {
-            slice[i - start] = motion.apply(p, times[i], &mut k);
-        });
-    });
-    Ok(out)
+    Ok(fused(points, times, stream, t_ref, t_b_l, None, Path::Simd)?.0)
 }
 
 /// Deskew (as [`deskew`]) fused with projection and box culling (as
 /// [`crate::points_in_boxes`] on the deskewed cloud) in one pass: returns the deskewed
-/// cloud and, per box, the ascending indices of the points inside it.
+/// cloud and, per box, the ascending indices of the points inside it. Runs the SIMD path
+/// where the CPU has one (the `simd` module), the scalar reference otherwise.
 #[allow(clippy::too_many_arguments)]
 pub fn deskew_points_in_boxes<P: PointCloud + Sync + ?Sized>(
     points: &P,
@@ -310,26 +296,72 @@ pub fn deskew_points_in_boxes<P: PointCloud + Sync + ?Sized>(
     t_c_l: &Isometry3<f64>,
     cam: &CameraModel,
     boxes: &[PixelBox],
-) -> Result<(Vec<[f64; 3]>, Vec<Vec<usize>>)> {
-    cam.validate()?;
-    for b in boxes {
-        if !(b.x1.is_finite() && b.y1.is_finite() && b.x2.is_finite() && b.y2.is_finite())
-            || b.x2 <= b.x1
-            || b.y2 <= b.y1
-        {
-            return Err(invalid("boxes", format!("needs finite corners with x2 > x1 and y2 > y1, got {b:?}")));
+) -> Result<CloudAndLists> {
+    fused(points, times, stream, t_ref, t_b_l, Some((t_c_l, cam, boxes)), Path::Simd)
+}
+
+/// [`deskew_points_in_boxes`] on the scalar reference path only, whatever the CPU: the
+/// reference of the SIMD path's parity tests and the other side of its benchmark.
+#[allow(clippy::too_many_arguments)]
+pub fn deskew_points_in_boxes_scalar<P: PointCloud + Sync + ?Sized>(
+    points: &P,
+    times: &[f64],
+    stream: &PoseStream,
+    t_ref: f64,
+    t_b_l: &Isometry3<f64>,
+    t_c_l: &Isometry3<f64>,
+    cam: &CameraModel,
+    boxes: &[PixelBox],
+) -> Result<CloudAndLists> {
+    fused(points, times, stream, t_ref, t_b_l, Some((t_c_l, cam, boxes)), Path::Scalar)
+}
+
+/// The deskewed cloud and, per box, the ascending indices of its points inside the box.
+type CloudAndLists = (Vec<[f64; 3]>, Vec<Vec<usize>>);
+
+/// Which implementation of the per-chunk kernel to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Path {
+    /// [`simd::fused_chunk`]: SIMD where pulp finds an instruction set, scalar otherwise.
+    Simd,
+    /// [`simd::scalar_chunk`] only.
+    Scalar,
+}
+
+/// The camera, its pose and the boxes of a fused call.
+type CullArgs<'a> = (&'a Isometry3<f64>, &'a CameraModel, &'a [PixelBox]);
+
+fn fused<P: PointCloud + Sync + ?Sized>(
+    points: &P,
+    times: &[f64],
+    stream: &PoseStream,
+    t_ref: f64,
+    t_b_l: &Isometry3<f64>,
+    cull: Option<CullArgs<'_>>,
+    path: Path,
+) -> Result<CloudAndLists> {
+    let mut setup = None;
+    if let Some((t_c_l, cam, boxes)) = cull {
+        cam.validate()?;
+        for b in boxes {
+            if !(b.x1.is_finite() && b.y1.is_finite() && b.x2.is_finite() && b.y2.is_finite())
+                || b.x2 <= b.x1
+                || b.y2 <= b.y1
+            {
+                return Err(invalid("boxes", format!("needs finite corners with x2 > x1 and y2 > y1, got {b:?}")));
+            }
         }
+        let union = PixelBox {
+            x1: boxes.iter().map(|b| b.x1).fold(f64::INFINITY, f64::min).max(0.0),
+            y1: boxes.iter().map(|b| b.y1).fold(f64::INFINITY, f64::min).max(0.0),
+            x2: boxes.iter().map(|b| b.x2).fold(f64::NEG_INFINITY, f64::max).min(f64::from(cam.width)),
+            y2: boxes.iter().map(|b| b.y2).fold(f64::NEG_INFINITY, f64::max).min(f64::from(cam.height)),
+        };
+        setup = Some((Projector::new(t_c_l, cam), boxes, union));
     }
     check_inputs(points, times, stream)?;
     let motion = Motion::new(stream, t_ref, t_b_l)?;
-    let projector = Projector::new(t_c_l, cam);
-    let union = PixelBox {
-        x1: boxes.iter().map(|b| b.x1).fold(f64::INFINITY, f64::min).max(0.0),
-        y1: boxes.iter().map(|b| b.y1).fold(f64::INFINITY, f64::min).max(0.0),
-        x2: boxes.iter().map(|b| b.x2).fold(f64::NEG_INFINITY, f64::max).min(f64::from(cam.width)),
-        y2: boxes.iter().map(|b| b.y2).fold(f64::NEG_INFINITY, f64::max).min(f64::from(cam.height)),
-    };
-    let any_box = union.x2 > union.x1 && union.y2 > union.y1;
+    let n_boxes = setup.as_ref().map_or(0, |s| s.1.len());
     let mut out = vec![[f64::NAN; 3]; points.len()];
     let ranges = chunks(points.len());
     let mut parts: Vec<(Range<usize>, &mut [[f64; 3]])> = Vec::with_capacity(ranges.len());
@@ -339,31 +371,28 @@ pub fn deskew_points_in_boxes<P: PointCloud + Sync + ?Sized>(
         parts.push((r, head));
         rest = tail;
     }
-    // Per chunk: deskew into the output, then cull that cache-hot slice (the culling loop of
-    // `points_in_boxes`, measured faster than interleaving both per point).
+    // Per chunk: deskew, project and cull the chunk while it is in cache.
     let lists: Vec<Vec<Vec<usize>>> = parts
         .into_par_iter()
-        .map(|(r, slice)| {
-            let mut k = r.clone().next().map_or(0, |i| motion.start_segment(times[i]));
-            let start = r.start;
-            points.for_each_point_in(r, |i, p| {
-                slice[i - start] = motion.apply(p, times[i], &mut k);
+        .map(|(range, slice)| {
+            let cull = setup.as_ref().and_then(|(projector, boxes, union)| {
+                (union.x2 > union.x1 && union.y2 > union.y1).then_some(simd::Cull { projector, boxes, union })
             });
-            if !any_box {
-                return vec![Vec::new(); boxes.len()];
+            let chunk = simd::FusedChunk { points, times, range, motion: &motion, cull, out: slice };
+            let lists = match path {
+                Path::Simd => simd::fused_chunk(chunk),
+                Path::Scalar => simd::scalar_chunk(chunk),
+            };
+            // No box on the image: every list empty.
+            if lists.len() == n_boxes {
+                lists
+            } else {
+                vec![Vec::new(); n_boxes]
             }
-            let local: &[[f64; 3]] = slice;
-            let mut lists = cull_range(local, 0..local.len(), &projector, boxes, &union);
-            for list in &mut lists {
-                for i in list.iter_mut() {
-                    *i += start;
-                }
-            }
-            lists
         })
         .collect();
     let mut merged: Vec<Vec<usize>> =
-        (0..boxes.len()).map(|k| Vec::with_capacity(lists.iter().map(|c| c[k].len()).sum())).collect();
+        (0..n_boxes).map(|k| Vec::with_capacity(lists.iter().map(|c| c[k].len()).sum())).collect();
     for part in lists {
         for (list, chunk) in merged.iter_mut().zip(part) {
             list.extend(chunk);

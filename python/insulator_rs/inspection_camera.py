@@ -1,0 +1,83 @@
+"""The inspection camera: a zoom (or fixed-lens) camera on a 3-axis gimbal, apart from the
+detection camera (the paper flew a GoPro on a gimbal beside its Basler detection camera).
+
+Its calibration is taken at the widest zoom. At a focal length ``f`` px (the mean of fx and
+fy) the intrinsics are the calibration's with fx and fy scaled by ``f / f_min`` about the same
+principal point and the same distortion coefficients: a zoom lens keeps its optical centre
+within a few pixels and its distortion shrinks as it zooms in, so keeping the widest's
+coefficients errs on the side of more distortion (the simulator's lens has none).
+
+The gimbal stabilises roll and pitch (the camera stays level whatever the airframe's tilt), is
+aimed in pitch and in yaw relative to the body heading, within :class:`GimbalLimits`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from insulator_rs._core import CameraModel
+
+#: A focal length (px) asked of a zoom lens may stray this far (relative) outside its range and
+#: be clamped silently: rounding, not a wish the lens cannot meet.
+FOCAL_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class GimbalLimits:
+    """The gimbal's range (rad): ``pitch`` (down negative) and ``yaw`` (relative to the body
+    heading, counter-clockwise seen from above), each (min, max)."""
+
+    pitch: tuple[float, float] = (-math.pi / 2, math.pi / 2)
+    yaw: tuple[float, float] = (0.0, 0.0)
+
+    def clamp(self, pitch: float, yaw: float) -> tuple[float, float]:
+        """``pitch``/``yaw`` (rad) brought inside the limits."""
+        return (min(max(pitch, self.pitch[0]), self.pitch[1]), min(max(yaw, self.yaw[0]), self.yaw[1]))
+
+
+@dataclass(frozen=True)
+class InspectionCamera:
+    """``camera``: full-resolution intrinsics at the widest zoom; ``T_b_c``: the camera at zero
+    gimbal angles on a level body (4x4, p_b = T_b_c @ p_c); ``focal_px``: the zoom range (min,
+    max) of the mean focal length in px (min == max: a fixed lens); ``gimbal``: its limits;
+    ``make``/``model``/``pixel_pitch_um``: what the EXIF says (None where not given);
+    ``dedicated``: False when the rig has no ``[inspection_camera]`` and the detection camera
+    stands in, fixed lens and pitch-only gimbal, as before there was one."""
+
+    camera: CameraModel
+    T_b_c: np.ndarray
+    focal_px: tuple[float, float]
+    gimbal: GimbalLimits = field(default_factory=GimbalLimits)
+    make: str | None = None
+    model: str | None = None
+    pixel_pitch_um: float | None = None
+    dedicated: bool = True
+
+    @property
+    def zoom(self) -> bool:
+        return self.focal_px[1] > self.focal_px[0]
+
+    def clamp_focal(self, focal_px: float) -> float:
+        """``focal_px`` brought inside the zoom range."""
+        return min(max(float(focal_px), self.focal_px[0]), self.focal_px[1])
+
+    def at_focal(self, focal_px: float) -> CameraModel:
+        """Full-resolution intrinsics at the mean focal length ``focal_px`` (see the module
+        docstring); ValueError outside the zoom range."""
+        lo, hi = self.focal_px
+        if not (math.isfinite(focal_px) and lo * (1 - FOCAL_TOLERANCE) <= focal_px <= hi * (1 + FOCAL_TOLERANCE)):
+            raise ValueError(f"focal_px: {focal_px!r} px is outside the zoom range [{lo:.1f}, {hi:.1f}] px")
+        c = self.camera
+        k = self.clamp_focal(focal_px) / (0.5 * (c.fx + c.fy))
+        return CameraModel(c.fx * k, c.fy * k, c.cx, c.cy, c.width, c.height, dist=[float(d) for d in c.dist])
+
+    def focal_length_mm(self, focal_px: float) -> float | None:
+        """The focal length in mm (px x pixel pitch), None where the pixel pitch is not given."""
+        return None if self.pixel_pitch_um is None else float(focal_px) * self.pixel_pitch_um * 1e-3
+
+    def exif(self, focal_px: float) -> dict[str, object]:
+        """The EXIF camera fields of a photo taken at ``focal_px``: make, model, focal length (mm)."""
+        return {"make": self.make, "model": self.model, "focal_length_mm": self.focal_length_mm(focal_px)}
