@@ -5,11 +5,16 @@
 //! (`packet.crc32: ...`, `command.sof: ...`); bad arguments stay `ValueError`. No
 //! protocol logic lives here.
 
-use std::net::Ipv4Addr;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
+use std::os::fd::BorrowedFd;
 use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use livox_mid360::control::{self, CommandFrame, ConfigAck, DiscoveryAck, WorkMode};
-use livox_mid360::{parse_packet, Accepted, AssemblerConfig, PacketError, ScanAssembler};
+use livox_mid360::{
+    parse_packet, Accepted, AssemblerConfig, ImuSample, LivoxReceiver as Receiver, PacketError, ReceiverConfig, Scan,
+    ScanAssembler,
+};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -82,6 +87,23 @@ impl LivoxScan {
     }
 }
 
+fn scan_to_py(py: Python<'_>, scan: Scan) -> PyResult<LivoxScan> {
+    let p = scan.points;
+    let n = p.times_ns.len();
+    let xyz = Array2::from_shape_vec((n, 3), p.xyz).map_err(|e| PyRuntimeError::new_err(format!("LivoxScan.points: {e}")))?;
+    Ok(LivoxScan {
+        points: frozen_array(xyz.into_pyarray(py))?,
+        times_ns: frozen_array(p.times_ns.into_pyarray(py))?,
+        reflectivity: frozen_array(p.reflectivity.into_pyarray(py))?,
+        tag: frozen_array(p.tag.into_pyarray(py))?,
+        start_ns: scan.start_ns,
+        end_ns: scan.end_ns,
+        packets: scan.packets,
+        partial: scan.partial,
+        n,
+    })
+}
+
 /// Datagrams in (point-cloud and IMU ports), 10 Hz scans out; every fault counted.
 #[pyclass(frozen, module = "insulator_rs._core")]
 pub struct LivoxScanAssembler {
@@ -108,17 +130,7 @@ impl LivoxScanAssembler {
         keep_zero_points: bool,
         max_queued_scans: usize,
     ) -> PyResult<Self> {
-        if max_queued_scans == 0 {
-            return Err(PyValueError::new_err("max_queued_scans: must be >= 1, got 0"));
-        }
-        let config = AssemblerConfig {
-            frame_period_ns: seconds_to_ns("frame_period_s", frame_period_s, false)?,
-            reorder_grace_ns: seconds_to_ns("reorder_grace_s", reorder_grace_s, true)?,
-            resync_gap_ns: seconds_to_ns("resync_gap_s", resync_gap_s, false)?,
-            keep_zero_points,
-            max_queued_scans,
-            ..AssemblerConfig::default()
-        };
+        let config = assembler_config(frame_period_s, reorder_grace_s, resync_gap_s, keep_zero_points, max_queued_scans)?;
         Ok(Self { inner: Mutex::new(ScanAssembler::new(config)) })
     }
 
@@ -136,40 +148,14 @@ impl LivoxScanAssembler {
 
     /// The oldest finished scan, or None.
     fn pop_scan(&self, py: Python<'_>) -> PyResult<Option<LivoxScan>> {
-        let Some(scan) = self.lock()?.pop_scan() else { return Ok(None) };
-        let p = scan.points;
-        let n = p.times_ns.len();
-        let xyz = Array2::from_shape_vec((n, 3), p.xyz)
-            .map_err(|e| PyRuntimeError::new_err(format!("LivoxScan.points: {e}")))?;
-        Ok(Some(LivoxScan {
-            points: frozen_array(xyz.into_pyarray(py))?,
-            times_ns: frozen_array(p.times_ns.into_pyarray(py))?,
-            reflectivity: frozen_array(p.reflectivity.into_pyarray(py))?,
-            tag: frozen_array(p.tag.into_pyarray(py))?,
-            start_ns: scan.start_ns,
-            end_ns: scan.end_ns,
-            packets: scan.packets,
-            partial: scan.partial,
-            n,
-        }))
+        let scan = self.lock()?.pop_scan();
+        scan.map(|scan| scan_to_py(py, scan)).transpose()
     }
 
     /// Queued IMU samples: (times_ns (M,) uint64, gyro (M, 3) float32 rad/s, acc (M, 3) float32 g).
-    #[allow(clippy::type_complexity)]
-    fn drain_imu(&self, py: Python<'_>) -> PyResult<(Py<PyArray1<u64>>, Py<PyArray2<f32>>, Py<PyArray2<f32>>)> {
+    fn drain_imu(&self, py: Python<'_>) -> PyResult<ImuArrays> {
         let samples = self.lock()?.drain_imu();
-        let m = samples.len();
-        let times: Vec<u64> = samples.iter().map(|s| s.timestamp_ns).collect();
-        let gyro: Vec<f32> = samples.iter().flat_map(|s| s.gyro).collect();
-        let acc: Vec<f32> = samples.iter().flat_map(|s| s.acc).collect();
-        let shape_err = |e: numpy::ndarray::ShapeError| PyRuntimeError::new_err(format!("drain_imu: {e}"));
-        let gyro = Array2::from_shape_vec((m, 3), gyro).map_err(shape_err)?;
-        let acc = Array2::from_shape_vec((m, 3), acc).map_err(shape_err)?;
-        Ok((
-            frozen_array(times.into_pyarray(py))?,
-            frozen_array(gyro.into_pyarray(py))?,
-            frozen_array(acc.into_pyarray(py))?,
-        ))
+        imu_arrays(py, samples)
     }
 
     /// Closes every open scan (end of stream).
@@ -193,6 +179,169 @@ impl LivoxScanAssembler {
         }
         d.set_item("malformed", stats.malformed())?;
         Ok(d)
+    }
+}
+
+/// What `LivoxReceiver.take` hands over: (scans, IMU (times_ns, gyro, acc), packet stamps (ns,
+/// sensor clock), their arrivals (s, `time.monotonic()`'s clock), datagrams read so far).
+type TakenTuple = (Vec<LivoxScan>, ImuArrays, Py<PyArray1<u64>>, Py<PyArray1<f64>>, u64);
+type ImuArrays = (Py<PyArray1<u64>>, Py<PyArray2<f32>>, Py<PyArray2<f32>>);
+
+fn imu_arrays(py: Python<'_>, samples: Vec<ImuSample>) -> PyResult<ImuArrays> {
+    let m = samples.len();
+    let times: Vec<u64> = samples.iter().map(|s| s.timestamp_ns).collect();
+    let gyro: Vec<f32> = samples.iter().flat_map(|s| s.gyro).collect();
+    let acc: Vec<f32> = samples.iter().flat_map(|s| s.acc).collect();
+    let shape_err = |e: numpy::ndarray::ShapeError| PyRuntimeError::new_err(format!("imu: {e}"));
+    let gyro = Array2::from_shape_vec((m, 3), gyro).map_err(shape_err)?;
+    let acc = Array2::from_shape_vec((m, 3), acc).map_err(shape_err)?;
+    Ok((frozen_array(times.into_pyarray(py))?, frozen_array(gyro.into_pyarray(py))?, frozen_array(acc.into_pyarray(py))?))
+}
+
+fn assembler_config(
+    frame_period_s: f64,
+    reorder_grace_s: f64,
+    resync_gap_s: f64,
+    keep_zero_points: bool,
+    max_queued_scans: usize,
+) -> PyResult<AssemblerConfig> {
+    if max_queued_scans == 0 {
+        return Err(PyValueError::new_err("max_queued_scans: must be >= 1, got 0"));
+    }
+    Ok(AssemblerConfig {
+        frame_period_ns: seconds_to_ns("frame_period_s", frame_period_s, false)?,
+        reorder_grace_ns: seconds_to_ns("reorder_grace_s", reorder_grace_s, true)?,
+        resync_gap_ns: seconds_to_ns("resync_gap_s", resync_gap_s, false)?,
+        keep_zero_points,
+        max_queued_scans,
+        ..AssemblerConfig::default()
+    })
+}
+
+/// A Mid-360 read by Rust threads (livox_mid360::receiver): each datagram is read, stamped on
+/// arrival, filtered by source and assembled with no GIL held; `take` hands everything over in
+/// one call.
+///
+/// `fds`: the bound sockets' file descriptors (each is duplicated: the Python socket objects
+/// keep theirs and must stay open while this runs; empty: no threads, datagrams come in through
+/// `push`). `lidar_ip`: take datagrams from it only (None: from the first address that sent a
+/// valid packet to each socket). `accepting`: False drops datagrams (counted `unstamped`)
+/// until `accept()`.
+#[pyclass(frozen, module = "insulator_rs._core")]
+pub struct LivoxReceiver {
+    receiver: Receiver,
+    /// The same instant on both clocks: `Instant` and Python's `time.monotonic()` (read back to
+    /// back while holding the GIL; both CLOCK_MONOTONIC on Linux).
+    origin: (Instant, f64),
+}
+
+#[pymethods]
+impl LivoxReceiver {
+    #[new]
+    #[pyo3(signature = (fds, *, lidar_ip = None, accepting = true, frame_period_s = 0.1, reorder_grace_s = 0.005,
+                        resync_gap_s = 1.0, keep_zero_points = false, max_queued_scans = 64))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        fds: Vec<i32>,
+        lidar_ip: Option<&str>,
+        accepting: bool,
+        frame_period_s: f64,
+        reorder_grace_s: f64,
+        resync_gap_s: f64,
+        keep_zero_points: bool,
+        max_queued_scans: usize,
+    ) -> PyResult<Self> {
+        let lidar_ip = lidar_ip
+            .map(|ip| ip.parse::<IpAddr>().map_err(|_| PyValueError::new_err(format!("lidar_ip: expected an IP address, got {ip:?}"))))
+            .transpose()?;
+        let config = ReceiverConfig {
+            assembler: assembler_config(frame_period_s, reorder_grace_s, resync_gap_s, keep_zero_points, max_queued_scans)?,
+            lidar_ip,
+            accepting,
+            ..ReceiverConfig::default()
+        };
+        let mut sockets = Vec::with_capacity(fds.len());
+        for fd in &fds {
+            if *fd < 0 {
+                return Err(PyValueError::new_err(format!("fds: {fd} is not an open file descriptor")));
+            }
+            // SAFETY: the fd is only borrowed for the duplication; the caller's socket keeps it open.
+            let owned = unsafe { BorrowedFd::borrow_raw(*fd) }
+                .try_clone_to_owned()
+                .map_err(|e| PyValueError::new_err(format!("fds: cannot duplicate {fd}: {e}")))?;
+            sockets.push(UdpSocket::from(owned));
+        }
+        let monotonic = py.import("time")?.getattr("monotonic")?;
+        let before: f64 = monotonic.call0()?.extract()?;
+        let instant = Instant::now();
+        let after: f64 = monotonic.call0()?.extract()?;
+        let receiver = if sockets.is_empty() {
+            Receiver::manual(config, 2)
+        } else {
+            Receiver::spawn(sockets, config).map_err(|e| PyValueError::new_err(format!("fds: not usable as UDP sockets: {e}")))?
+        };
+        Ok(Self { receiver, origin: (instant, 0.5 * (before + after)) })
+    }
+
+    /// Everything finished since the last take: (scans, (imu times_ns, gyro, acc), stamps_ns,
+    /// arrivals (s, `time.monotonic()`'s clock), datagrams read so far). Waits up to
+    /// `timeout_s` (GIL released) until a datagram has arrived since the last take.
+    fn take(&self, py: Python<'_>, timeout_s: f64) -> PyResult<TakenTuple> {
+        if !(timeout_s.is_finite() && (0.0..=60.0).contains(&timeout_s)) {
+            return Err(PyValueError::new_err(format!("timeout_s: must be within 0..60 s, got {timeout_s}")));
+        }
+        let taken = py.detach(|| self.receiver.take(Duration::from_secs_f64(timeout_s)));
+        let (origin, origin_s) = self.origin;
+        let stamps: Vec<u64> = taken.stamps.iter().map(|s| s.stamp_ns).collect();
+        let arrivals: Vec<f64> =
+            taken.stamps.iter().map(|s| origin_s + s.arrival.saturating_duration_since(origin).as_secs_f64()).collect();
+        let scans = taken.scans.into_iter().map(|scan| scan_to_py(py, scan)).collect::<PyResult<Vec<_>>>()?;
+        Ok((
+            scans,
+            imu_arrays(py, taken.imu)?,
+            frozen_array(stamps.into_pyarray(py))?,
+            frozen_array(arrivals.into_pyarray(py))?,
+            taken.datagrams,
+        ))
+    }
+
+    /// Hands in one datagram as if socket `socket` had read it from `host:port` just now.
+    fn push(&self, socket: usize, host: &str, port: u16, datagram: &[u8]) -> PyResult<()> {
+        let ip: IpAddr = host.parse().map_err(|_| PyValueError::new_err(format!("host: expected an IP address, got {host:?}")))?;
+        self.receiver.push(socket, SocketAddr::new(ip, port), Instant::now(), datagram);
+        Ok(())
+    }
+
+    /// Datagrams are accepted from now on.
+    fn accept(&self) {
+        self.receiver.accept();
+    }
+
+    /// Closes every open scan (end of stream); they come with the next take.
+    fn flush(&self) {
+        self.receiver.flush();
+    }
+
+    /// The assembler's counters plus read, foreign, unstamped, stamps_overflowed, read_errors.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let (assembler, own) = self.receiver.stats();
+        let d = PyDict::new(py);
+        for (name, value) in assembler.pairs() {
+            d.set_item(name, value)?;
+        }
+        d.set_item("malformed", assembler.malformed())?;
+        d.set_item("read", own.read)?;
+        d.set_item("foreign", own.foreign)?;
+        d.set_item("unstamped", own.unstamped)?;
+        d.set_item("stamps_overflowed", own.stamps_overflowed)?;
+        d.set_item("read_errors", own.read_errors)?;
+        Ok(d)
+    }
+
+    /// Stops the reader threads (within 50 ms); idempotent.
+    fn stop(&self, py: Python<'_>) {
+        py.detach(|| self.receiver.stop());
     }
 }
 
@@ -293,6 +442,7 @@ fn livox_parse_config_ack(py: Python<'_>, frame: &[u8]) -> PyResult<(u8, u16)> {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<LivoxScan>()?;
     m.add_class::<LivoxScanAssembler>()?;
+    m.add_class::<LivoxReceiver>()?;
     m.add_function(wrap_pyfunction!(livox_parse_header, m)?)?;
     m.add_function(wrap_pyfunction!(livox_encode_command, m)?)?;
     m.add_function(wrap_pyfunction!(livox_decode_command, m)?)?;

@@ -385,8 +385,11 @@ def test_datagrams_before_the_vehicle_clock_exists_are_counted_not_fatal() -> No
             sock.sendto(d, driver.point_address)
             time.sleep(0.001)
         assert wait_for(lambda: driver.unstamped + driver.health()["point_packets"] == 20, 5.0)
-        # counted as what they are (no vehicle time to stamp them with), not as socket errors
-        assert driver.unstamped == 5 and driver.health()["unstamped"] == 5 and driver.receive_errors == 0
+        # counted as what they are (no vehicle time to stamp them with), not as socket errors;
+        # the clock is asked again on every batch the reader threads hand over, so the datagrams
+        # that came while it failed 5 times (at least the first) are the ones dropped
+        assert 1 <= driver.unstamped < 20 and driver.health()["unstamped"] == driver.unstamped
+        assert driver.receive_errors == 0 and calls["n"] > 5
         assert driver._thread is not None and driver._thread.is_alive()
     finally:
         sock.close()

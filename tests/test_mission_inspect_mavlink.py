@@ -14,7 +14,7 @@ import pytest
 from test_mission_inspect import small_scene
 
 from insulator_rs.app.cli import main
-from insulator_rs.mission.config import InspectionConfig
+from insulator_rs.mission.config import InspectionParams
 from insulator_rs.perception.pipeline import PerceptionPipeline
 from insulator_rs.flight.loop import FlightLoop
 from insulator_rs.sim.kinematics import KinematicVehicle
@@ -97,7 +97,7 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
     # in real time over MAVLink where the vehicle is still swinging when the shutter fires)
     first = [p for p in s["photos"] if p.get("attempt", 1) == 1]
     assert len(first) == 2 * s["insulators_inspected"]
-    assert len(s["photos"]) <= (1 + InspectionConfig().photo_retakes) * len(first)
+    assert len(s["photos"]) <= (1 + InspectionParams.photo_retakes) * len(first)
     assert s["photo_checks"]["retakes"] == len(s["photos"]) - len(first)
     for p in s["photos"]:
         assert (out / p["file"]).stat().st_size > 1000

@@ -23,6 +23,7 @@ __all__ = [
     "Localization",
     "LivoxScan",
     "LivoxScanAssembler",
+    "LivoxReceiver",
     "LocalizationError",
     "NEAR_LIMIT",
     "NOISE",
@@ -307,6 +308,37 @@ class LivoxScanAssembler:
     @property
     def pending_scans(self) -> int: ...
     def stats(self) -> dict[str, int]: ...
+
+@final
+class LivoxReceiver:
+    """A Mid-360 read, stamped on arrival, filtered and assembled by Rust threads (no GIL)."""
+
+    def __new__(
+        cls,
+        fds: list[int],
+        *,
+        lidar_ip: str | None = None,
+        accepting: bool = True,
+        frame_period_s: float = 0.1,
+        reorder_grace_s: float = 0.005,
+        resync_gap_s: float = 1.0,
+        keep_zero_points: bool = False,
+        max_queued_scans: int = 64,
+    ) -> LivoxReceiver: ...
+    def take(
+        self, timeout_s: float
+    ) -> tuple[
+        list[LivoxScan],
+        tuple[NDArray[np.uint64], NDArray[np.float32], NDArray[np.float32]],
+        NDArray[np.uint64],
+        NDArray[np.float64],
+        int,
+    ]: ...
+    def push(self, socket: int, host: str, port: int, datagram: bytes) -> None: ...
+    def accept(self) -> None: ...
+    def flush(self) -> None: ...
+    def stats(self) -> dict[str, int]: ...
+    def stop(self) -> None: ...
 
 def livox_parse_header(datagram: bytes) -> dict[str, int]: ...
 def livox_encode_command(

@@ -6,7 +6,9 @@
 //!   late and malformed packets;
 //! * [`control`]: command frames (CRC-16 header, CRC-32 data): discovery, work mode
 //!   (start/stop sampling), host IP and ports, data type; their acks;
-//! * [`crc`]: CRC-16/CCITT-FALSE and CRC-32.
+//! * [`crc`]: CRC-16/CCITT-FALSE and CRC-32;
+//! * [`receiver`]: reader threads that stamp each datagram on arrival and assemble the scans,
+//!   off the caller's lock (the GIL, for the Python driver).
 //!
 //! Reference: "Livox LiDAR Communication Protocol -- Mid360" (Livox wiki, v1.4.11) and
 //! `livox_lidar_def.h` of Livox-SDK2. Nothing here panics on any input bytes.
@@ -16,9 +18,11 @@ pub mod control;
 pub mod crc;
 pub mod error;
 pub mod packet;
+pub mod receiver;
 
 pub use assembler::{Accepted, AssemblerConfig, Scan, ScanAssembler, Stats};
 pub use error::{ControlError, PacketError};
+pub use receiver::{LivoxReceiver, PacketStamp, ReceiverConfig, ReceiverStats, Taken};
 pub use packet::{
     decode_imu, decode_points, encode_packet, parse_packet, DataType, ImuSample, Packet, PacketHeader, PacketMeta,
     PointColumns,

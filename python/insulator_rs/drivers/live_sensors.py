@@ -132,8 +132,9 @@ def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[]
     a URL or a video file (see :mod:`insulator_rs.drivers.camera_select`); needs
     ``camera_model``. ``now``: the vehicle clock. ``camera_latency_s``: the rig's measured
     camera latency, subtracted where a frame's exposure time is not known. ``host_clock``
-    with ``host_to_vehicle``: the LiDAR's arrivals are stamped on the host's clock and mapped
-    to the vehicle clock afterwards (see :mod:`insulator_rs.drivers.livox`).
+    with ``host_to_vehicle``: the LiDAR's arrivals are stamped on the host's clock (a clock at
+    real time, ``time.monotonic``'s or offset from it) as they arrive, and mapped to the vehicle
+    clock afterwards (see :mod:`insulator_rs.drivers.livox`).
     """
     livox: LivoxMid360 | None = None
     cam: CameraSource | None = None
@@ -150,6 +151,8 @@ def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[]
                 lidar_ip=None if listen_only else host,
                 announce_ip=None if listen_only else local_address_towards(host),
                 time_map=time_map, keep_scans=LIDAR_KEEP_SCANS,
+                # the host's clock runs at real time: each datagram keeps its arrival instant
+                arrival_stamps=host_clock is not None,
             ).start()
         if camera is not None:
             if camera_model is None:

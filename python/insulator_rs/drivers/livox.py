@@ -1,10 +1,19 @@
 """Livox Mid-360 driver: UDP receive thread, control commands, scans in the vehicle clock.
 
-Data path: the point-cloud (host port 56301) and IMU (56401) sockets are read by one
-thread; every datagram goes to the Rust :class:`~insulator_rs._core.LivoxScanAssembler`,
-which validates it (length, version, type, CRC-32), counts every fault, and assembles
-10 Hz scans with per-point times. Finished scans are mapped to the vehicle clock here and
-kept (the newest ``keep_scans``) for :meth:`LivoxMid360.lidar_scan`.
+Data path: the point-cloud (host port 56301) and IMU (56401) sockets are read by Rust
+threads (:class:`~insulator_rs._core.LivoxReceiver`) that hold no GIL: each datagram is
+stamped as the kernel hands it over, taken from the LiDAR only, validated (length, version,
+type, CRC-32; every fault counted) and assembled into 10 Hz scans with per-point times. One
+Python thread takes what is finished a batch at a time: the scans, mapped to the vehicle clock
+here and kept (the newest ``keep_scans``) for :meth:`LivoxMid360.lidar_scan`; the IMU samples;
+and each packet's (sensor stamp, arrival) pair for the clock fit.
+
+Why the reading is not Python's: a Python thread reading one datagram per ``recvfrom`` gives
+the GIL up on every call and waits up to the switch interval (5 ms) to win it back from a
+busy flight loop. At the Mid-360's ~2,000 datagrams/s, on a loaded computer, that reader fell
+seconds behind and stamped each datagram when it was read: measured against PX4 SITL beside
+other jobs, the clock fit read +-1000 ppm and 32-51 of 60-70 camera frames found no LiDAR
+points in time to pair (the airframe issue's load finding).
 
 Time: a packet's stamp is the sensor's clock (time since power-on, or PTP/GPS time). The
 driver pairs each valid packet's last-point stamp with the time of its arrival on the
@@ -13,6 +22,11 @@ driver pairs each valid packet's last-point stamp with the time of its arrival o
 (its 2048 of them span 8.5 minutes: measured against PX4 SITL on a loaded box, a 1 s window
 put the drift anywhere within +-1000 ppm, a 16 s one still at -692 and +856 ppm for a truth
 of -25), and all point times are mapped through it, then through ``to_vehicle``.
+
+With ``arrival_stamps`` (the live path), a datagram's arrival is the reader thread's stamp,
+on ``time.monotonic``'s clock carried to ``now``'s (the host clock: the same one); without it
+(the simulator and tests, whose clocks are not real time), ``now()`` read when the datagram is
+processed.
 
 Two clocks, two maps, as the hardware has them: ``now`` is the host's own clock (a crystal,
 as the LiDAR's is, so sensor -> host is the straight line the envelope fits) and
@@ -44,8 +58,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from insulator_rs._core import (
+    LivoxReceiver,
     LivoxScan,
-    LivoxScanAssembler,
     livox_decode_command,
     livox_discovery_request,
     livox_host_config_request,
@@ -63,6 +77,9 @@ HOST_PORT_COMMAND = 56101
 HOST_PORT_POINT = 56301
 HOST_PORT_IMU = 56401
 MAX_DATAGRAM = 2048
+#: Finished scans the reader threads hold for the Python thread (6.4 s: a thread starved that
+#: long still finds them; the oldest is dropped and counted beyond it).
+RECEIVE_QUEUED_SCANS = 64
 #: Kernel receive buffer asked for (a second of Mid-360 data is 2.9 MB): 32 MB, 11 s. A receive
 #: thread starved on a loaded computer must find the datagrams still there; measured against
 #: PX4 SITL in CI, 2 datagrams were lost with 8 MB asked (the kernel caps SO_RCVBUF at
@@ -133,7 +150,9 @@ class LivoxMid360:
     ``to_vehicle`` (host s -> vehicle s), else the vehicle clock itself (module docstring).
     ``T_b_l``: the LiDAR's extrinsics (4x4). ``lidar_ip``: the sensor's address for
     control commands (None: only listen). ``time_map``: sensor s -> vehicle s, replacing
-    the arrival-based estimate.
+    the arrival-based estimate. ``arrival_stamps``: stamp datagrams when they arrive (the
+    reader threads' stamps; ``now`` must run at real time, as the host clock does) rather
+    than when they are processed (module docstring).
     """
 
     def __init__(self, *, now: Callable[[], float], T_b_l: np.ndarray, host_ip: str = "0.0.0.0",
@@ -141,7 +160,8 @@ class LivoxMid360:
                  lidar_ip: str | None = None, lidar_command_port: int = PORT_COMMAND,
                  announce_ip: str | None = None,
                  time_map: TimeMap | None = None, to_vehicle: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
-                 reorder_grace_s: float = 0.005, resync_gap_s: float = 1.0, command_timeout: float = 1.0) -> None:
+                 reorder_grace_s: float = 0.005, resync_gap_s: float = 1.0, command_timeout: float = 1.0,
+                 arrival_stamps: bool = False) -> None:
         T = np.asarray(T_b_l, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"T_b_l: expected a finite 4x4 matrix, got shape {T.shape}")
@@ -149,6 +169,7 @@ class LivoxMid360:
             raise ValueError(f"keep_scans: must be >= 1, got {keep_scans}")
         self.T_b_l = T
         self._now = now
+        self.arrival_stamps = bool(arrival_stamps)
         self.host_ip = host_ip
         self.lidar_ip = lidar_ip or None
         self.lidar_command_port = int(lidar_command_port)
@@ -156,10 +177,11 @@ class LivoxMid360:
         self.command_timeout = float(command_timeout)
         self._time_map = time_map
         self._to_vehicle = to_vehicle
-        self._vehicle_clock_seen = False  # once the vehicle clock answered, it always does
         self.clock = OneWaySync(bin_s=CLOCK_BIN_S)
-        self._assembler = LivoxScanAssembler(frame_period_s=frame_period_s, reorder_grace_s=reorder_grace_s,
-                                             resync_gap_s=resync_gap_s)
+        self._windows = (frame_period_s, reorder_grace_s, resync_gap_s)  # the assembler's scan windows
+        self._receiver: LivoxReceiver | None = None  # made by start(), or by the first _on_datagram
+        self._process_lock = threading.Lock()  # one taker at a time: the thread, flush(), _on_datagram
+        self._received = 0  # datagrams read, as of the last batch processed
         self._scans: deque[LidarScan] = deque(maxlen=keep_scans)
         self._imu: deque[ImuBatch] = deque(maxlen=64)
         self._lock = threading.Lock()
@@ -168,16 +190,15 @@ class LivoxMid360:
         self._seq = 0
         self.unmapped_scans = 0
         self.receive_errors = 0
-        self.unstamped = 0
         self.receive_buffer_bytes = 0  # the kernel's effective receive buffer (the last socket bound)
         self._pair: tuple[float, float] | None = None  # the least-latency (stamp, arrival) of this group
         self._pair_count = 0
-        self.foreign_datagrams = 0
-        self._sources: dict[int, tuple[str, int]] = {}
         self.sockets: list[socket.socket] = []
         self._point_sock = self._bind(point_port, "point data")
         self._imu_sock = self._bind(imu_port, "IMU data") if imu_port is not None else None
         self._cmd_sock: socket.socket | None = None
+        self.batches = 0  # batches taken from the reader threads
+        self.largest_batch = 0  # packet stamps in the largest one (how far the Python thread fell behind)
 
     @property
     def point_address(self) -> tuple[str, int]:
@@ -252,56 +273,77 @@ class LivoxMid360:
 
     def start(self) -> LivoxMid360:
         self.configure()
-        self._thread = threading.Thread(target=self._run, name="livox-mid360", daemon=True)
+        socks = [s for s in (self._point_sock, self._imu_sock) if s is not None]
+        # datagrams are taken only once they can be stamped (the vehicle clock answers)
+        self._receiver = self._new_receiver([s.fileno() for s in socks], accepting=self._clock_ready())
+        self._thread = threading.Thread(target=self._run, args=(self._receiver,), name="livox-mid360", daemon=True)
         self._thread.start()
         return self
 
-    def _run(self) -> None:
-        socks = [s for s in (self._point_sock, self._imu_sock) if s is not None]
+    def _new_receiver(self, fds: list[int], *, accepting: bool) -> LivoxReceiver:
+        frame_period_s, reorder_grace_s, resync_gap_s = self._windows
+        return LivoxReceiver(fds, lidar_ip=self.lidar_ip, accepting=accepting, frame_period_s=frame_period_s,
+                             reorder_grace_s=reorder_grace_s, resync_gap_s=resync_gap_s,
+                             max_queued_scans=RECEIVE_QUEUED_SCANS)
+
+    def _clock_ready(self) -> bool:
+        """Whether a datagram arriving now can be stamped in the vehicle clock."""
+        try:
+            now = self._now()
+            if self._to_vehicle is not None:
+                self._to_vehicle(np.array([now]))
+        except InsulatorError:
+            return False
+        return True
+
+    def _run(self, receiver: LivoxReceiver) -> None:
+        accepting = self._clock_ready()
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select(socks, [], [], POLL_S)
-                for sock in ready:
-                    data, peer = sock.recvfrom(MAX_DATAGRAM)
-                    self._receive(sock, data, peer)
+                if not accepting and (accepting := self._clock_ready()):
+                    receiver.accept()
+                with self._process_lock:
+                    # waits with the GIL released until datagrams came
+                    self._process(receiver.take(POLL_S), None)
             except (OSError, ValueError, InsulatorError):
-                # A socket error, or a vehicle clock that failed: that datagram is lost,
-                # counted; the thread keeps going (no vehicle time yet: ``unstamped``).
+                # a vehicle clock that failed mid-batch: that batch's stamps are lost, counted;
+                # the thread keeps going
                 if self._stop.is_set():
                     return
                 self.receive_errors += 1
 
-    def _receive(self, sock: socket.socket, data: bytes, peer: tuple[str, int]) -> None:
-        """Takes a datagram from the LiDAR only: from ``lidar_ip`` when configured, else
-        from the first address (IP and port) that sent a valid packet to this socket.
-        Anything else is counted in ``foreign_datagrams`` and never parsed."""
-        source = self._sources.get(sock.fileno())
-        if (self.lidar_ip is not None and peer[0] != self.lidar_ip) or (source is not None and peer != source):
-            self.foreign_datagrams += 1
-            return
-        try:
-            arrival = self._now()
-            if not self._vehicle_clock_seen and self._to_vehicle is not None:
-                self._to_vehicle(np.array([arrival]))
-            self._vehicle_clock_seen = True
-        except InsulatorError:  # no vehicle time yet: the datagram cannot be stamped
-            self.unstamped += 1
-            return
-        kind = self._on_datagram(data, arrival)
-        if source is None and kind in ("points", "imu"):
-            self._sources[sock.fileno()] = peer
-
-    def _on_datagram(self, data: bytes, arrival: float) -> str:
-        kind = self._assembler.push(data)
-        if kind in ("points", "imu", "late") and len(data) >= 36:
-            # Validated: stamp of the packet's last sample (timestamp + time_interval).
-            ts = int.from_bytes(data[28:36], "little") + 100 * int.from_bytes(data[3:5], "little")
-            self._add_pair(ts * 1e-9, arrival)
-        if kind == "imu":
-            self._take_imu()
-        while (scan := self._assembler.pop_scan()) is not None:
+    def _process(self, taken: tuple[list[LivoxScan], tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray,
+                                    np.ndarray, int], arrival: float | None) -> None:
+        """One batch of the reader threads: packet stamps to the clock fit, then the scans and
+        IMU samples mapped through it. ``arrival``: every packet's arrival on ``now``'s clock
+        (None: the readers' stamps with ``arrival_stamps``, else ``now()``)."""
+        scans, (imu_t, gyro, acc), stamps_ns, arrivals_s, datagrams = taken
+        if len(stamps_ns):
+            if arrival is not None:
+                arrivals = np.full(len(stamps_ns), arrival)
+            elif self.arrival_stamps:
+                # time.monotonic -> now's clock, once a batch (the host clock's own: offset ~0)
+                arrivals = np.asarray(arrivals_s) + (self._now() - time.monotonic())
+            else:
+                arrivals = np.full(len(stamps_ns), self._now())
+            self.batches += 1
+            self.largest_batch = max(self.largest_batch, len(stamps_ns))
+            for stamp, at in zip((np.asarray(stamps_ns, np.float64) * 1e-9).tolist(), arrivals.tolist()):
+                self._add_pair(stamp, at)
+        for scan in scans:
             self._take(scan)
-        return kind
+        if len(imu_t):
+            self._take_imu(imu_t, gyro, acc)
+        self._received = datagrams
+
+    def _on_datagram(self, data: bytes, arrival: float) -> None:
+        """Processes one datagram now, as arrived at ``arrival`` (tests; the driver's thread is
+        not running)."""
+        if self._receiver is None:
+            self._receiver = self._new_receiver([], accepting=True)
+        self._receiver.push(0, self.lidar_ip or "127.0.0.1", 0, data)
+        with self._process_lock:
+            self._process(self._receiver.take(0.0), arrival)
 
     def _add_pair(self, stamp: float, arrival: float) -> None:
         if self._pair is None or arrival - stamp < self._pair[1] - self._pair[0]:
@@ -334,10 +376,9 @@ class LivoxMid360:
         with self._lock:
             self._scans.append(lidar)
 
-    def _take_imu(self) -> None:
-        t, gyro, acc = self._assembler.drain_imu()
+    def _take_imu(self, t: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> None:
         times = self._map(t.astype(np.float64) * 1e-9)
-        if times is not None and len(t):
+        if times is not None:
             with self._lock:
                 self._imu.append(ImuBatch(times=times, gyro=gyro, acc=acc))
 
@@ -364,16 +405,31 @@ class LivoxMid360:
         return out
 
     def received(self) -> int:
-        """Datagrams read so far, from the LiDAR or not."""
-        return int(self._assembler.stats()["datagrams"]) + self.foreign_datagrams
+        """Datagrams read and processed so far, from the LiDAR or not."""
+        return self._received
+
+    def _counters(self) -> dict[str, int]:
+        return {} if self._receiver is None else dict(self._receiver.stats())
+
+    @property
+    def unstamped(self) -> int:
+        """Datagrams dropped because they arrived before the vehicle clock could stamp them."""
+        return int(self._counters().get("unstamped", 0))
+
+    @property
+    def foreign_datagrams(self) -> int:
+        """Datagrams from another address than the LiDAR's (never parsed)."""
+        return int(self._counters().get("foreign", 0))
 
     def health(self) -> dict[str, object]:
-        stats: dict[str, object] = dict(self._assembler.stats())
-        stats["receive_errors"] = self.receive_errors
+        counters = self._counters()
+        read_errors = counters.pop("read_errors", 0)
+        stats: dict[str, object] = {k: v for k, v in counters.items() if k not in ("read", "foreign")}
+        stats["receive_errors"] = self.receive_errors + read_errors
+        stats["receive_largest_batch"] = self.largest_batch
         stats["receive_buffer_bytes"] = self.receive_buffer_bytes
         stats["unmapped_scans"] = self.unmapped_scans
-        stats["unstamped"] = self.unstamped
-        stats["foreign_datagrams"] = self.foreign_datagrams
+        stats["foreign_datagrams"] = counters.get("foreign", 0)
         if self.clock.ready() and self._time_map is None:
             fit = self.clock.fit
             stats["clock_drift_ppm"] = fit.drift * 1e6
@@ -382,9 +438,11 @@ class LivoxMid360:
 
     def flush(self) -> None:
         """Closes the scan being assembled (end of a recording or test)."""
-        self._assembler.flush()
-        while (scan := self._assembler.pop_scan()) is not None:
-            self._take(scan)
+        if self._receiver is None:
+            return
+        with self._process_lock:
+            self._receiver.flush()
+            self._process(self._receiver.take(0.0), None)
 
     def close(self) -> None:
         if self.lidar_ip is not None and self._cmd_sock is not None:
@@ -395,6 +453,8 @@ class LivoxMid360:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+        if self._receiver is not None:
+            self._receiver.stop()
         for s in self.sockets:
             s.close()
         self.sockets.clear()
