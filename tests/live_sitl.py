@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from px4_sitl import FAILSAFE_LINE, Px4Sitl, mission_at_home, sitl_folder
+from px4_sitl import FAILSAFE_LINE, HARDWARE_PRIORITY, Px4Sitl, mission_at_home, sitl_folder
 
 REPO = Path(__file__).resolve().parents[1]
 # A live flight's camera: the simulator's lens at 320 x 240 (the rig's calibration must match
@@ -143,7 +143,7 @@ def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: l
     live_mission = mission_at_home(live_mission, folder / "at_home.toml")
     env = {**os.environ, "PYTHONPATH": str(Path(insulator_rs.__file__).parents[1])}
     port = free_udp_port()
-    head = subprocess.Popen([sys.executable, "-m", "insulator_rs.sim.sensor_head", "--scene", str(scene),
+    head = subprocess.Popen([*HARDWARE_PRIORITY, sys.executable, "-m", "insulator_rs.sim.sensor_head", "--scene", str(scene),
                              "--mission", str(live_mission), "--px4", f"udpout:127.0.0.1:{18570 + px4.instance}",
                              "--lidar-to", f"127.0.0.1:{port}", *head_args],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)

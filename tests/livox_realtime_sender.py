@@ -52,7 +52,7 @@ def main(argv: list[str]) -> int:
     sent = 0
     for d, at in zip(datagrams, due):
         wait = at - time.monotonic()
-        if wait > 0.002:
+        if wait > 0:
             time.sleep(wait)
         sock.sendto(d, (host, port))
         sent += 1
