@@ -90,6 +90,9 @@ RECEIVE_BUFFER_BYTES = 32 << 20
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 #: How long a read waits before checking for shutdown (s).
 POLL_S = 0.05
+#: s: the least time between two batches taken from the reader threads (live sensors only; a
+#: simulated one is stepped datagram by datagram by its caller and must not wait)
+BATCH_S = 0.01
 #: s of sensor time per clock pair kept: the least-latency pair of each (timesync.OneWaySync).
 CLOCK_BIN_S = 0.25
 #: Valid packets per clock pair (the one with the least latency is kept: see the module docstring).
@@ -275,8 +278,10 @@ class LivoxMid360:
         self.configure()
         socks = [s for s in (self._point_sock, self._imu_sock) if s is not None]
         # datagrams are taken only once they can be stamped (the vehicle clock answers)
-        self._receiver = self._new_receiver([s.fileno() for s in socks], accepting=self._clock_ready())
-        self._thread = threading.Thread(target=self._run, args=(self._receiver,), name="livox-mid360", daemon=True)
+        accepting = self._clock_ready()
+        self._receiver = self._new_receiver([s.fileno() for s in socks], accepting=accepting)
+        self._thread = threading.Thread(target=self._run, args=(self._receiver, accepting), name="livox-mid360",
+                                        daemon=True)
         self._thread.start()
         return self
 
@@ -296,8 +301,9 @@ class LivoxMid360:
             return False
         return True
 
-    def _run(self, receiver: LivoxReceiver) -> None:
-        accepting = self._clock_ready()
+    def _run(self, receiver: LivoxReceiver, accepting: bool) -> None:
+        """``accepting``: what the receiver was made with (the clock may have become ready since:
+        it is asked again here, and the receiver told)."""
         while not self._stop.is_set():
             try:
                 if not accepting and (accepting := self._clock_ready()):
@@ -305,6 +311,10 @@ class LivoxMid360:
                 with self._process_lock:
                     # waits with the GIL released until datagrams came
                     self._process(receiver.take(POLL_S), None)
+                if self.arrival_stamps:
+                    # a live sensor: its datagrams keep their arrival stamps while they wait, so
+                    # batches of BATCH_S at most take the GIL 1/BATCH_S times a second, not 2,000
+                    self._stop.wait(BATCH_S)
             except (OSError, ValueError, InsulatorError):
                 # a vehicle clock that failed mid-batch: that batch's stamps are lost, counted;
                 # the thread keeps going
