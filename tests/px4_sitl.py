@@ -39,9 +39,9 @@ from typing import Any
 #: two-core box they run at a higher priority than the client, so that the load a test puts on
 #: the machine lands on the software under test, not on the simulated hardware: measured beside
 #: a CI build at normal priority, the head's LiDAR left 0.39 s late at the median (1.76 s at
-#: p99), which no Mid-360 does, and lockstep PX4 ran 1.6 % slow. Without the privilege to raise
-#: it (not root) ``nice`` says so on stderr and runs the command at the normal priority.
-HARDWARE_PRIORITY = ["nice", "-n", "-10"]
+#: p99), which no Mid-360 does. Without the privilege to raise a priority (not root) they run at
+#: the normal one (``nice`` would warn on the output the head's readiness line is read from).
+HARDWARE_PRIORITY = ["nice", "-n", "-10"] if os.geteuid() == 0 else []
 
 REPO = Path(__file__).resolve().parents[1]
 ENV_VAR = "INSULATOR_RS_PX4_SITL"
