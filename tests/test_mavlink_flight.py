@@ -473,3 +473,55 @@ def test_serial_link_through_a_pseudo_terminal() -> None:
             bridge.close()
             os.close(master)
             os.close(slave)
+
+
+@pytest.mark.parametrize("leave", ["land", "return_to_launch", "hold"])
+def test_leaving_offboard_with_a_lost_command_never_trips_px4s_offboard_loss(leave: str) -> None:
+    """The first LAND / RTL / HOLD command is lost on the link (the simulated PX4 never sees it):
+    the client sends it again after its 1 s ACK wait, 4 s of vehicle time at this time scale,
+    past PX4's COM_OF_LOSS_T (1 s). Reference: the simulated PX4's own mode, polled under its
+    lock all along: it must go from OFFBOARD straight to the mode asked for, never through the
+    offboard-loss fallback (PX4's default POSCTL), because the setpoint stream holds the last
+    position until the heartbeat shows the new mode. The client before this kept that stream
+    stopped from the first try on: PX4 SITL logged "Failsafe activated" and began its Return."""
+    client = _connect(time_scale=TIME_SCALE)
+    try:
+        sim = sim_of(client)
+        take_off_into_offboard(client, 3.0)
+        for _ in range(10):
+            client.send_setpoint(client.state().position)
+            client.advance(DT)
+        wanted = {"land": (M.MAV_CMD_NAV_LAND, "LAND"), "return_to_launch": (M.MAV_CMD_NAV_RETURN_TO_LAUNCH, "RTL"),
+                  "hold": (M.MAV_CMD_DO_SET_MODE, "HOLD")}[leave]
+        handle = sim._handle_command
+        lost: list[int] = []
+
+        def lose_the_first(msg: Any, command: int, params: list[float]) -> None:
+            if command == wanted[0] and not lost:
+                lost.append(command)
+                return
+            handle(msg, command, params)
+
+        sim._handle_command = lose_the_first  # type: ignore[method-assign]
+        modes: list[str] = []
+        done = threading.Event()
+
+        def watch() -> None:
+            while not done.is_set():
+                mode = sim.with_vehicle(lambda v: v.mode.value)
+                if not modes or modes[-1] != mode:
+                    modes.append(mode)
+                time.sleep(0.005)
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
+        try:
+            getattr(client, leave)()
+        finally:
+            done.set()
+            watcher.join()
+        assert lost == [wanted[0]]
+        assert modes == ["OFFBOARD", wanted[1]], modes
+        assert client.state().mode == wanted[1]
+    finally:
+        client.close()

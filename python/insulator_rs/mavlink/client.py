@@ -231,8 +231,7 @@ class MavlinkVehicle:
 
     def hold(self) -> None:
         """Switch to HOLD (AUTO_LOITER) and stop streaming setpoints."""
-        self._stop_streaming()
-        self._set_mode(FlightMode.HOLD)
+        self._leave_offboard(FlightMode.HOLD, lambda: self._set_mode(FlightMode.HOLD))
 
     def takeoff(self, altitude: float) -> None:
         """MAV_CMD_NAV_TAKEOFF to ``altitude`` m above home; the climb runs while ``advance`` waits."""
@@ -278,14 +277,11 @@ class MavlinkVehicle:
         return self.state()
 
     def land(self) -> None:
-        self._stop_streaming()
-        self._command(M.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
-        self._wait_mode(FlightMode.LAND)
+        self._leave_offboard(FlightMode.LAND, lambda: self._command(
+            M.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan))
 
     def return_to_launch(self) -> None:
-        self._stop_streaming()
-        self._command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
-        self._wait_mode(FlightMode.RTL)
+        self._leave_offboard(FlightMode.RTL, lambda: self._command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH))
 
     def close(self) -> None:
         """Stop the threads, close the link, stop the simulator if we started it."""
@@ -344,6 +340,25 @@ class MavlinkVehicle:
                 self._lock.wait(timeout=min(remaining, 0.05))
 
     # -- setpoint streaming and heartbeat ---------------------------------------
+
+    def _leave_offboard(self, mode: FlightMode, switch: Callable[[], None]) -> None:
+        """Leave OFFBOARD for ``mode`` by ``switch()`` (a command), holding the last setpoint's
+        position in the stream until the heartbeat shows ``mode``, then stop streaming.
+
+        Why not stop first: PX4 fails safe COM_OF_LOSS_T (1 s) after the last setpoint, and a
+        command whose ACK is late or lost is sent again only after 1 s. Against PX4 SITL on a
+        loaded box, a landing that stopped the stream first logged ``Failsafe activated`` and
+        started PX4's Return before the LAND arrived (flights 4 and 5 of session 9's soak)."""
+        with self._lock:
+            self._monitor.offboard_engaged = False  # the mode change that follows is ours
+            if self._setpoint is not None:
+                position, _velocity, yaw = self._setpoint
+                self._setpoint = (position, None, yaw)  # hold there: no feed-forward carried on
+        try:
+            switch()
+            self._wait_mode(mode)
+        finally:
+            self._stop_streaming()
 
     def _stop_streaming(self) -> None:
         with self._lock:
