@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
 import signal
 import socket
 import sys
@@ -314,79 +313,12 @@ class MjpegServer:
         self.httpd.server_close()
 
 
-def render_jpeg(camera: Any, mesh: Any, T_w_b: np.ndarray, seed: int, exposure: float) -> tuple[bytes | None, float]:
-    """One camera image exposed at ``T_w_b``, JPEG-encoded (None: the encoder failed), and its mean."""
-    frame = camera.render(mesh, T_w_b, seed=seed, time=exposure)
-    ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(frame.rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 92])
-    return (jpeg.tobytes() if ok else None), float(frame.rgb.mean())
-
-
-def _render_images(conn: Any, scene: str, mission: str) -> None:
-    """The camera worker's loop (a process of its own): (T_w_b, seed, exposure) in, (JPEG bytes,
-    mean intensity) out, or ("error", text); None ends it."""
-    from insulator_rs.mission.config import load_mission
-    from insulator_rs.rig import simulator_rig
-    from insulator_rs.sim.camera_render import Camera
-    from insulator_rs.sim.towers import load_tower
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the head stops the worker; Ctrl-C goes to the head
-    mesh = load_tower(scene).mesh
-    loaded = load_mission(Path(mission))
-    rig = loaded.rig if loaded.rig is not None else simulator_rig()
-    camera = Camera(rig.camera, rig.T_b_c)
-    while (job := conn.recv()) is not None:
-        T_w_b, seed, exposure = job
-        try:
-            conn.send(render_jpeg(camera, mesh, np.asarray(T_w_b), seed, exposure))
-        except (ValueError, InsulatorError, cv2.error) as exc:
-            conn.send(("error", str(exc)))
-
-
-class CameraWorker:
-    """The head's camera renderer in a process of its own.
-
-    Why: the head stands for hardware. In one process, the camera's render (0.1-0.15 s an image,
-    much of it Python holding the GIL) and the Mid-360's (0.5 s of CPU per second of stream) shared
-    one GIL and, at most, one core: measured beside a CI run, the head's LiDAR thread stalled 119
-    times for over 0.5 s (3.6 s at worst) in a 217 s flight and its datagrams left 0.25 s late at
-    the median, 1.7 s at p99, which a Mid-360 never does. Apart, each has a core's share."""
-
-    def __init__(self, scene: str, mission: Path) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self._process = ctx.Process(target=_render_images, args=(child, scene, str(mission)),
-                                    name="head-camera-render", daemon=True)
-        self._process.start()
-        child.close()
-
-    def render(self, T_w_b: np.ndarray, seed: int, exposure: float) -> tuple[bytes | None, float]:
-        """The JPEG of the image exposed at ``T_w_b`` (None: the encoder failed) and its mean."""
-        self._conn.send((np.asarray(T_w_b, np.float64), int(seed), float(exposure)))
-        if not self._conn.poll(30.0):
-            raise InsulatorError("camera worker: no image within 30 s")
-        result = self._conn.recv()
-        if result[0] == "error":
-            raise InsulatorError(f"camera worker: {result[1]}")
-        return result
-
-    def close(self) -> None:
-        try:
-            self._conn.send(None)
-        except (OSError, ValueError):
-            pass  # the worker is gone already
-        self._process.join(timeout=5.0)
-        if self._process.is_alive():
-            self._process.kill()
-            self._process.join(timeout=5.0)
-        self._conn.close()
-
-
 class SensorHead:
     """The LiDAR and camera threads over one pose feed and clock (see the module docstring)."""
 
     def __init__(self, mesh: Any, rig: Any, feed: Px4PoseFeed, *, lidar_to: tuple[str, int],
                  camera_port: int = 0, fps: float = 3.0, sensor_clock: SensorClock | None = None,
-                 seed: int = 0, log: Any = None, camera_worker: CameraWorker | None = None) -> None:
+                 seed: int = 0, log: Any = None) -> None:
         from insulator_rs.sim.camera_render import Camera
 
         self.feed = feed
@@ -398,7 +330,6 @@ class SensorHead:
         self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
                                   slice_rate=LIDAR_SLICE_RATE, ahead=False)
         self.camera = Camera(rig.camera, rig.T_b_c)
-        self.camera_worker = camera_worker  # None: images rendered in this process
         self.mesh = mesh
         self.lidar_to = lidar_to
         self.period = 1.0 / fps
@@ -469,7 +400,10 @@ class SensorHead:
             t0 = time.monotonic()
             try:
                 exposure = min(now, self.feed.newest_time())
-                jpeg, mean = self._image(self.feed.pose(exposure), self.seed + self.images, exposure)
+                frame = self.camera.render(self.mesh, self.feed.pose(exposure), seed=self.seed + self.images,
+                                           time=exposure)
+                ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(frame.rgb[:, :, ::-1]),
+                                        [cv2.IMWRITE_JPEG_QUALITY, 92])
             except (ValueError, InsulatorError, cv2.error) as exc:
                 self._error(f"camera: {exc}")
                 time.sleep(self.period)
@@ -483,17 +417,12 @@ class SensorHead:
                 # arrival stamp would be off by the miss: measured up to 125 ms at p99 under load)
                 self.camera_late += 1
                 self._log(kind="camera_late", exposure=exposure, now=now)
-            elif jpeg is not None:
-                self.server.publish(jpeg)
+            elif ok:
+                self.server.publish(jpeg.tobytes())
                 self.images += 1
-                self._log(kind="camera", exposure=exposure, published=now, host=time.monotonic(), mean=mean)
+                self._log(kind="camera", exposure=exposure, published=now, host=time.monotonic(),
+                          mean=float(frame.rgb.mean()))
             self._stop.wait(max(0.0, self.period - (time.monotonic() - t0)))
-
-    def _image(self, T_w_b: np.ndarray, seed: int, exposure: float) -> tuple[bytes | None, float]:
-        """The JPEG of the image exposed at ``T_w_b`` (None: not encoded) and its mean intensity."""
-        if self.camera_worker is not None:
-            return self.camera_worker.render(T_w_b, seed, exposure)
-        return render_jpeg(self.camera, self.mesh, T_w_b, seed, exposure)
 
     def _error(self, text: str) -> None:
         if len(self.errors) < 20:
@@ -515,8 +444,6 @@ class SensorHead:
         self.server.close()
         self._sock.close()
         self.clock.close()
-        if self.camera_worker is not None:
-            self.camera_worker.close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -558,11 +485,9 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         time.sleep(0.05)
     log = args.log.open("w") if args.log is not None else None
-    worker = CameraWorker(args.scene, args.mission)
     head = SensorHead(tower.mesh, rig, feed, lidar_to=(host, int(port)), camera_port=args.camera_port,
                       fps=args.fps, sensor_clock=SensorClock(offset_s=args.clock_offset,
-                                                             drift=args.clock_drift_ppm * 1e-6), log=log,
-                      camera_worker=worker).start()
+                                                             drift=args.clock_drift_ppm * 1e-6), log=log).start()
     print(f"sensor head ready: lidar -> {host}:{port}, camera {head.server.url}", flush=True)
     try:
         while not stop.wait(0.5):
