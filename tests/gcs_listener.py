@@ -16,16 +16,31 @@ from pymavlink.dialects.v20 import common as M  # type: ignore[import-untyped]  
 GCS_SYSTEM, GCS_COMPONENT = 255, M.MAV_COMP_ID_MISSIONPLANNER  # QGroundControl's ids
 
 
+CAPTURE_STATUS_PERIOD_S = 2.0  # how often a camera's image count is asked (recover_images)
+RCVBUF_BYTES = 4 << 20  # a GCS drains its socket in its own process; this one shares a GIL
+
+
 class GcsListener:
     """``with GcsListener(("127.0.0.1", port)) as gcs: ... gcs.messages``. Like QGroundControl,
     it asks a camera component (100-105) for its CAMERA_INFORMATION when it first hears its
-    HEARTBEAT (``ask_camera``)."""
+    HEARTBEAT (``ask_camera``). With ``recover_images`` it also keeps each camera's photo list
+    whole as the camera protocol provides: it asks for CAMERA_CAPTURE_STATUS every
+    :data:`CAPTURE_STATUS_PERIOD_S`, and asks again (MAV_CMD_REQUEST_MESSAGE, param2 = the index)
+    for every CAMERA_IMAGE_CAPTURED below the image count that has not arrived
+    (``images_requested``)."""
 
     def __init__(self, autopilot_gcs_port: tuple[str, int] | None = None, *, bind_port: int = 0,
-                 ask_camera: bool = True) -> None:
+                 ask_camera: bool = True, recover_images: bool = False) -> None:
         self.ask_camera = ask_camera
+        self.recover_images = recover_images
         self.cameras_asked: set[tuple[int, int]] = set()
+        self.images_requested: list[tuple[tuple[int, int], int]] = []
+        self._images: dict[tuple[int, int], set[int]] = {}
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+        except OSError:
+            pass
         self.sock.bind(("127.0.0.1", bind_port))
         self.sock.settimeout(0.05)
         self.dest = autopilot_gcs_port
@@ -45,12 +60,39 @@ class GcsListener:
         if self.dest is not None:
             self.sock.sendto(buf, self.dest)
 
+    def socket_drops(self) -> int | None:
+        """Datagrams the kernel dropped at this socket (its receive buffer was full: the listener
+        fell behind), from /proc/net/udp; None where that cannot be read."""
+        try:
+            port = self.port
+            for line in open("/proc/net/udp").read().splitlines()[1:]:
+                f = line.split()
+                if int(f[1].split(":")[1], 16) == port:
+                    return int(f[-1])
+        except (OSError, ValueError, IndexError):
+            return None
+        return None
+
+    def _ask_missing_images(self, camera: tuple[int, int], count: int, *, again: bool) -> None:
+        """Ask for each image below ``count`` not received: once, and ``again`` (at a capture
+        status) up to 3 times, since the answer can be lost too."""
+        have = self._images.setdefault(camera, set())
+        for index in range(count):
+            tries = self.images_requested.count((camera, index))
+            if index not in have and (tries == 0 or (again and tries < 3)):
+                self.images_requested.append((camera, index))
+                self.command_long(camera, M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, index)
+
     def _run(self) -> None:
-        next_hb = 0.0
+        next_hb = next_status = 0.0
         while not self._stop.is_set():
             if time.monotonic() >= next_hb:
                 self._out.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
                 next_hb = time.monotonic() + 0.5
+            if self.recover_images and self.dest is not None and time.monotonic() >= next_status:
+                next_status = time.monotonic() + CAPTURE_STATUS_PERIOD_S
+                for camera in list(self.cameras_asked):
+                    self.command_long(camera, M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS)
             try:
                 data, _ = self.sock.recvfrom(65535)
             except (TimeoutError, socket.timeout):
@@ -66,6 +108,12 @@ class GcsListener:
                         and m.type == M.MAV_TYPE_CAMERA and src not in self.cameras_asked):
                     self.cameras_asked.add(src)
                     self.command_long(src, M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+                if self.recover_images and self.dest is not None:
+                    if m.get_type() == "CAMERA_IMAGE_CAPTURED":
+                        self._images.setdefault(src, set()).add(int(m.image_index))
+                        self._ask_missing_images(src, int(m.image_index), again=False)  # the ones before it
+                    elif m.get_type() == "CAMERA_CAPTURE_STATUS":
+                        self._ask_missing_images(src, int(m.image_count), again=True)
 
     def command_long(self, target: tuple[int, int], command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))

@@ -154,6 +154,66 @@ def test_through_the_simulated_px4s_gcs_link():
         vehicle.close()
 
 
+def _request_images(obs: MavlinkGcsObserver, first: float, last: float) -> None:
+    req = M.MAVLink_command_long_message(7, CAMERA_COMPONENT, M.MAV_CMD_REQUEST_MESSAGE, 0,
+                                         M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, first, last, 0, 0, 0, 0)
+    req._header = M.MAVLink_header(req.id, srcSystem=255, srcComponent=190)
+    obs.handle_message(req)
+
+
+def test_images_are_sent_again_by_index_or_range_as_the_message_defines():
+    """CAMERA_IMAGE_CAPTURED's definition: MAV_CMD_REQUEST_MESSAGE param2 the first index (-1:
+    all), param3 0 that one, -1 it and those after, else the last of the range."""
+    with GcsListener() as gcs:
+        out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        obs = MavlinkGcsObserver(lambda b: out.sendto(b, ("127.0.0.1", gcs.port)), system_id=7)
+        for k in range(4):
+            obs.photo_taken(_photo(k))
+        cases = [(-1, 0), (2, -1), (0, 1), (3, 0), (1, 9), (9, 0), (2, 1), (-2, 0), (math.nan, 0)]
+        for first, last in cases:
+            _request_images(obs, first, last)
+        obs.close()
+        out.close()
+        assert gcs.wait_for(lambda: len(gcs.of("COMMAND_ACK")) == len(cases), 5.0)
+    got = [c.image_index for c in gcs.of("CAMERA_IMAGE_CAPTURED")]
+    assert got == [0, 1, 2, 3] + [0, 1, 2, 3] + [2, 3] + [0, 1] + [3] + [1, 2, 3]
+    results = [a.result for a in gcs.of("COMMAND_ACK")]
+    assert results == [M.MAV_RESULT_ACCEPTED] * 5 + [M.MAV_RESULT_DENIED] * 4
+    assert obs.send_errors == 0
+
+
+def test_a_gcs_gets_back_the_photos_the_link_lost():
+    """The link loses the second photo's CAMERA_IMAGE_CAPTURED and the last one's: a GCS that keeps
+    its photo list whole (asking by index for a gap, and for the image count every 2 s) gets both
+    again through our simulated PX4, each once."""
+    sim, vehicle = start_simulated_px4(sim_options={"gcs_port": 0})
+    try:
+        with GcsListener(sim.gcs.address, recover_images=True) as gcs:
+            assert gcs.wait_for(lambda: gcs.of("HEARTBEAT", 1), 5.0)
+            captured = [0]
+
+            def lossy(buf: bytes) -> None:
+                if buf[0] == 0xFD and int.from_bytes(buf[7:10], "little") == M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
+                    captured[0] += 1
+                    if captured[0] in (2, 4):
+                        return  # lost on the way
+                vehicle.link.send_raw(buf)
+
+            obs = MavlinkGcsObserver(lossy, system_id=sim.system_id, camera=CAMERA)
+            vehicle.link.add_listener(obs.handle_message)
+            obs.start()
+            assert gcs.wait_for(lambda: gcs.cameras_asked, 5.0)
+            for k in range(4):
+                obs.photo_taken(_photo(k))
+            assert gcs.wait_for(lambda: {c.image_index for c in gcs.of("CAMERA_IMAGE_CAPTURED")} == {0, 1, 2, 3},
+                                10.0), (gcs.images_requested, [c.image_index for c in gcs.of("CAMERA_IMAGE_CAPTURED")])
+            obs.close()
+    finally:
+        vehicle.close()
+    assert sorted(c.image_index for c in gcs.of("CAMERA_IMAGE_CAPTURED")) == [0, 1, 2, 3]
+    assert sorted(i for _, i in gcs.images_requested) == [1, 3]
+
+
 def test_the_simulated_px4_drops_a_burst_of_large_frames_as_px4_does():
     """PX4 SITL forwarded 2 of 10 CAMERA_IMAGE_CAPTURED sent back to back (tests/test_px4_sitl_gcs.py);
     the simulated PX4 models its forwarding buffer the same way."""

@@ -129,3 +129,15 @@ def test_bad_input_is_named():
         plan_pmm(np.zeros((2, 3)), 3.0, np.nan)
     with pytest.raises(ValueError, match="v_start"):
         plan_pmm(np.zeros((2, 3)), 3.0, 12.0, v_start=np.array([5.0, 0, 0]))
+
+
+def test_a_segment_at_its_minimum_time_has_a_profile_despite_rounding():
+    """Regression (the efficiency study with the inspection camera's viewpoints, tower A, N=24):
+    segment_times gave 0.258333370 s for an axis braking from 0.1000004 to -3 m/s over
+    -0.3746 m, 1.2e-9 s above its minimum time, and no candidate was valid (a phase at
+    -3.9e-9 s). Reference: the profile sampled at its end reaches (p1, v1)."""
+    p0, v0, p1, v1, duration = 0.0, 0.10000042297209097, -0.3745833333333346, -3.0, 0.25833336975593296
+    prof = axis_profile_for_time(p0, v0, p1, v1, duration, 3.0, 12.0)
+    assert abs(prof.duration - duration) < 1e-12
+    p, v, _ = prof.sample(np.array([duration]))
+    assert abs(p[0] - p1) < 1e-6 and abs(v[0] - v1) < 1e-6

@@ -9,8 +9,9 @@ Set-up (stated, so the numbers can be reproduced and judged):
 * N inspection waypoints are spread over the insulators in ground-truth order,
   round-robin (insulator i gets N // n + (i < N mod n) viewpoints; with N < n
   only the first N insulators are inspected). The viewpoints are those of
-  :func:`~insulator_rs.planning.waypoints.inspection_waypoints`, identical for
-  both strategies.
+  :func:`~insulator_rs.planning.waypoints.inspection_waypoints`, framed for the
+  simulator rig's inspection camera (zoom on a gimbal) exactly as the flight frames them,
+  identical for both strategies.
 * Visibility model: every ``SENSE_PERIOD`` s the vehicle (camera level along
   the body x axis, yaw towards the tower while exploring, towards the
   insulator while inspecting) sees an insulator when at least
@@ -217,12 +218,11 @@ class TowerStudy:
         self.name = name
         self.v_max = self.mission.vehicle.v_max()
         self.a_max = self.mission.vehicle.a_max()
-        self.fov = 2 * math.atan(self.tower_camera_half_height())
-
-    @staticmethod
-    def tower_camera_half_height() -> float:
-        cam = simulator_rig().camera
-        return (cam.height / 2) / cam.fy  # tan of half the vertical field of view (the narrower)
+        rig = simulator_rig()
+        # The shots are framed as the flight frames them (``FlightLoop``): by the rig's zoom
+        # inspection camera on its gimbal, the detection camera's field of view as the fallback.
+        self.camera, self.inspection = rig.camera, rig.inspection
+        self.fov = 2 * math.atan((rig.camera.height / 2) / rig.camera.fy)
 
     def viewpoints(self, gt_index: int, count: int, insulator_id: int) -> list[InspectionWaypoint]:
         if count == 0:
@@ -232,7 +232,8 @@ class TowerStudy:
         return inspection_waypoints(ins.center, ins.axis, insulator_id=insulator_id, line=self.geom.line,
                                     volumes=self.geom.volumes, count=count,
                                     inspection_distance=p.inspection_distance,
-                                    insulator_length=ins.length, fov=self.fov)
+                                    insulator_length=ins.length, fov=self.fov, camera=self.camera,
+                                    inspection=self.inspection)
 
     def gt_index(self, center: np.ndarray) -> int:
         return int(np.argmin([np.linalg.norm(i.center - center) for i in self.tower.insulators]))

@@ -88,7 +88,11 @@ def _fixed_time_candidates(d: np.ndarray | float, v0: np.ndarray | float, v1: np
     """
     d, v0, v1, T, vm, am = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
                                                  for x in (d, v0, v1, duration, v_max, a_max)))
-    tol = 1e-9
+    # A phase may be this much below zero (s). Durations come from :func:`segment_times`, whose
+    # square root loses half the digits near a double root (a profile at its minimum time): a
+    # segment of the efficiency study at 0.258 s came back with a phase at -3.9e-9 s and no
+    # valid candidate. 1e-7 s at 12 m/s^2 and 3 m/s moves the axis by under a micrometre.
+    tol = 1e-7
     # The zero-length move first: exact. Where it applies (T = 0, d = 0, v1 = v0) the quadratic
     # below has a double root, which rounding turns into two roots ~sqrt(eps) apart whose phases
     # are only within ``tol`` of zero.
