@@ -319,6 +319,13 @@ def run(args: argparse.Namespace) -> int:
         assert network is not None  # live: the real-photo network by default; standin refused
         detector: BoxDetector = network
         photo_camera = rig.camera
+        if rig.inspection is not None:
+            # No live driver for a second camera yet: the photos are the detection camera's frames,
+            # so they are framed, checked and described (CAMERA_INFORMATION) for that camera, not
+            # for a zoom that would never be applied.
+            print("insulator-rs inspect: note: the rig's [inspection_camera] has no live driver yet: "
+                  "the inspection photos are the detection camera's, framed for its lens", file=sys.stderr)
+            rig = replace(rig, inspection=None)
     else:
         sensors = SimulatedSensors(tower.mesh, pose, rig, detect_scale=args.detect_scale,
                                    photo_scale=args.photo_scale, seed=args.seed,
