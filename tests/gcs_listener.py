@@ -35,6 +35,7 @@ class GcsListener:
         self.recover_images = recover_images
         self.cameras_asked: set[tuple[int, int]] = set()
         self.images_requested: list[tuple[tuple[int, int], int]] = []
+        self.drops_at_close: int | None = None
         self._images: dict[tuple[int, int], set[int]] = {}
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -159,6 +160,7 @@ class GcsListener:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2)
+        self.drops_at_close = self.socket_drops()  # the socket leaves /proc/net/udp when closed
         self.sock.close()
 
     def __enter__(self) -> GcsListener:

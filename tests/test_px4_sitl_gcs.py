@@ -229,7 +229,7 @@ def test_small_scene_flight_against_px4_sitl_shows_every_photo_on_its_gcs(tmp_pa
     print(f"{len(photos)} photos; the GCS got {len(caps)} CAMERA_IMAGE_CAPTURED, "
           f"{len(gcs.statustexts())} STATUSTEXT; {gcs.count()[(px4.instance + 1, CAMERA_COMPONENT, 'HEARTBEAT')]} "
           f"camera heartbeats; asked again for images {gcs.images_requested}; the GCS socket dropped "
-          f"{gcs.socket_drops()} datagrams")
+          f"{gcs.drops_at_close} datagrams")
     # every photo reached the GCS: sent as taken, or sent again when the GCS asked by index (the
     # camera protocol's recovery, as QGroundControl keeps its photo list whole)
     first = {}
