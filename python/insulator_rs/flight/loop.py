@@ -52,6 +52,7 @@ from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
 from insulator_rs.perception.photo_check import PhotoCheck, check_photo, expected_view
+from insulator_rs.perception.pairing import PAIRING_WAIT
 from insulator_rs.perception.pipeline import BOUNDED, LocalizedInsulator, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.planning.abort import AbortCase, AbortRoute, leg_trajectory, plan_abort_route, plan_stop
@@ -157,6 +158,7 @@ class FlightLoop:
         self.photos = InspectionPhotos(self.report, mission.inspection.insulator_length,
                                        exif_camera=rig.exif_camera(), inspection=rig.inspection)
         self.waypoints: list[InspectionWaypoint] = []
+        self._search_end: PlanItem | None = None  # the item where the search ended, once caught up
         self.status = "running"
         self.abort_reason: str | None = None
         self.abort_route: AbortRoute | None = None  # the safe route out an abort flew
@@ -383,12 +385,16 @@ class FlightLoop:
         # no trajectory: the vehicle is at the items already (a re-plan that came as it arrived,
         # tower A's second waypoint): it goes on to the photo, not round the same leg forever
         if traj is None:
-            for _ in items[:-1]:
+            for it in items[:-1]:
+                if not self._search_may_end(it):
+                    return False
                 self.sm.reached(st.time)
         for t, st in ([] if traj is None else self._follow(traj, lambda: items[min(k, len(items) - 1)].yaw)):
             if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
                 return False
             while k < len(items) - 1 and t >= seg.item_times[k] - 1e-9:
+                if not self._search_may_end(items[k]):
+                    return False
                 self.sm.reached(self.vehicle.state().time)
                 k += 1
                 if self.sm.plan_version != version:
@@ -399,8 +405,39 @@ class FlightLoop:
         if last.kind == PlanKind.INSPECT and last.waypoint is not None:
             self.take_photo(last.waypoint)
         if self.sm.target() is last:
+            if not self._search_may_end(last):
+                return False
             self.sm.reached(self.vehicle.state().time)
         return True
+
+    def _search_may_end(self, item: PlanItem) -> bool:
+        """Before ``item``, the plan's head, is reported reached: True to go on. Where reaching it
+        ends the search (only crossings back and the landing follow) and perception still holds
+        frames taken up to now, the vehicle first hovers at ``item`` until they are handed on
+        (:meth:`_perception_caught_up`), and False says: re-plan from there (a find of those
+        frames is inspected first; else the item is reached at once). Once per item."""
+        if not self.sm.head_ends_search() or self._search_end is item:
+            return True
+        self._search_end = item
+        arrival = self.vehicle.state().time
+        if self.runner.caught_up(arrival):
+            return True
+        self._perception_caught_up(item, arrival)
+        return False
+
+    def _perception_caught_up(self, item: PlanItem, arrival: float) -> None:
+        """Hover at ``item`` until perception has handed on every frame taken up to ``arrival``,
+        at most the pairing window plus PAIRING_WAIT; sooner when the plan changes (a find) or
+        the mission holds or aborts. Why: a frame's LiDAR points come up to PAIRING_WAIT s after
+        its window (a loaded computer: 1.3-1.5 s at the median against PX4 SITL), and once the
+        search is over a find only refines the registry, so a string seen in the last pass's
+        last seconds was reported without a photo, or never confirmed."""
+        deadline = arrival + self.runner.pipeline.pairing_window + PAIRING_WAIT + CONTROL_PERIOD
+        version = self.sm.plan_version
+        while not self.runner.caught_up(arrival):
+            st = self.tick(item.position, None, item.yaw)
+            if self.sm.plan_version != version or self.sm.state in (State.HOLD, State.ABORT) or st.time >= deadline:
+                return
 
     def _follow(self, traj: MinSnapTrajectory, yaw: Callable[[], float]) -> Iterator[tuple[float, VehicleState]]:
         """Stream ``traj`` from its start, one tick at a time, at heading ``yaw()``; yields the

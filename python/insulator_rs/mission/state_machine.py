@@ -289,6 +289,13 @@ class InspectionStateMachine:
         last = next((it for it in reversed(self.visited) if it.side == self.side), None)
         return None if last is None else np.array(last.position, dtype=np.float64)
 
+    def head_ends_search(self) -> bool:
+        """Whether reaching the plan's head ends the search: it is still on (not finished), and
+        no scan, inspection or return item follows the head (crossings back and the landing, at
+        most, are left)."""
+        return (self.state != State.FINISH and bool(self.plan) and self.plan[0].kind != PlanKind.LAND
+                and not any(it.kind in (PlanKind.SCAN, PlanKind.INSPECT, PlanKind.RETURN) for it in self.plan[1:]))
+
     def next_leg(self) -> list[PlanItem]:
         """The plan's items flown as one trajectory: from the head up to and including the first
         inspection waypoint (a photo ends a leg), stopping before the landing."""

@@ -97,6 +97,11 @@ class PerceptionRunner:
         """Whether frames with boxes still wait for their points."""
         return bool(self.pairing.pending)
 
+    def caught_up(self, time: float) -> bool:
+        """Whether every frame with boxes exposed at or before ``time`` (vehicle clock) has been
+        handed to perception: none of them still waits for its LiDAR points."""
+        return not any(len(p.boxes) and p.frame.time <= time for p in self.pairing.pending)
+
     def finish(self, now: float) -> list[LocalizedInsulator]:
         """A recorded stream has ended at ``now``, or the flight stops perceiving: the newest
         scan goes in, and every waiting frame with it."""
