@@ -17,7 +17,9 @@ a bag replay and the studies call, so that what is measured offline is what flie
 5. **Localize** the accumulated points, expressed in the current body frame B, with
    ``ir.localize`` (or ``ir.localize_bounded``, method ``"bounded"``); the result goes back to
    W and is checked against the box's size and, with a known insulator length, against the
-   shape of an insulator string (``insulator_shape``: the false-find filter).
+   shape of an insulator string (``insulator_shape``: the false-find filter); a bounded
+   localization is refused when the box holds another, larger line that fits it better
+   (:meth:`PerceptionPipeline._ambiguous`: a conductor in front of the string).
 6. **Birth**: a track's localizations are handed on only once one of its boxes was a confident
    one (score >= :data:`BIRTH_SCORE`); until then its low-score boxes only gather evidence.
    This is ByteTrack's rule (Zhang et al., ECCV 2022: high-score detections start tracks,
@@ -71,6 +73,16 @@ BIRTH_SCORE = 0.5
 # A localization resting on fewer points than this is discarded: a handful of returns
 # is as likely a lattice member or a conductor clamp as the insulator.
 MIN_LOCALIZATION_POINTS = 10
+# m: another line in the box (see PerceptionPipeline._ambiguous) whose centre lies farther than this
+# from the localized one's, on more points, fitting the box's scale better and passing the same
+# gates, makes the localization ambiguous: refused (counted under not_insulator, reason AMBIGUOUS).
+# The clutter study (evaluation/clutter_study.py) found every gross error (0.7-1.6 m) to be a
+# conductor 0.7-1.6 m in front of the string, along it in the box, fitted instead of it; the goal
+# there is no error above 0.3 m.
+AMBIGUITY_SEPARATION = 0.3
+# the other lines looked at, nearest first (each peeled off before the next is fitted)
+AMBIGUITY_MAX_LINES = 4
+AMBIGUOUS = "ambiguous: a larger line elsewhere in the box"
 # s: LiDAR points stamped this close to a frame's exposure are "of the same instant": one
 # Mid-360 frame (100 ms) on either side, so a scan ending at the exposure pairs whole.
 PAIRING_WINDOW = 0.1
@@ -290,6 +302,10 @@ class PerceptionPipeline:
             if not self._looks_like_insulator(acc_b, est, center, axis, box, T_c_w, camera, track):
                 self.counters.not_insulator += 1
                 continue
+            if self._ambiguous(acc_b, est, track, T_b_w, T_w_b, box, T_c_w, camera):
+                self.counters.not_insulator += 1
+                self.not_insulator[AMBIGUOUS] = self.not_insulator.get(AMBIGUOUS, 0) + 1
+                continue
             track.anchor = center
             if track.best_score < BIRTH_SCORE:
                 self.counters.unconfirmed += 1
@@ -324,20 +340,82 @@ class PerceptionPipeline:
             self.not_insulator[key] = self.not_insulator.get(key, 0) + 1
         return verdict.ok
 
+    def _ambiguous(self, acc_b: np.ndarray, est: ir.Localization | ir.BoundedLocalization, track: Track,
+                   T_b_w: np.ndarray, T_w_b: np.ndarray, box: np.ndarray, T_c_w: np.ndarray,
+                   camera: ir.CameraModel) -> bool:
+        """Whether the box holds another line, more than AMBIGUITY_SEPARATION from the one
+        localized, that rests on more points, fits the box's scale better (the known length
+        projected at its centre against the box) and passes the same size and shape gates (relief
+        aside): then which of the two is the insulator cannot be told, and the localization is
+        refused.
+
+        The line fit takes the *nearest* cluster in the box (the insulator is in front of the
+        steel and conductors seen through its box). A conductor or a member in front of the
+        string, running along it inside the box, breaks that premise: it is then fitted, bounded
+        by the box, and passes every gate of a first localization (its relief, the shape cue that
+        tells a wire from a string, is judged only over MIN_RELIEF_SAMPLES localizations). The
+        string behind it is still in the box, and is the larger line. The other lines are fitted
+        as the localization was (the same method on the points farther than tau from the lines
+        found so far, nearest first, at most AMBIGUITY_MAX_LINES), so a second wire in front is
+        peeled off before the string is reached. Only for the bounded method with a known
+        insulator length (the gates need it)."""
+        if self.insulator_length is None or self.method != BOUNDED:
+            return False
+        tau = float(ir.localize_defaults()["tau"])
+        mine = self._scale_ratio(T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3],
+                                 T_w_b[:3, :3] @ np.asarray(est.direction), box, T_c_w, camera)
+        if mine is None:
+            return False
+        rest = _off_line(acc_b, est, tau)
+        # the other lines, nearest first as the fit takes them: a second wire in front of the
+        # string is peeled off before the string is reached
+        for _ in range(AMBIGUITY_MAX_LINES):
+            if len(rest) <= max(MIN_LOCALIZATION_POINTS, est.n_points):
+                return False
+            try:
+                other = self._localize(rest, track, T_b_w)
+            except ir.LocalizationError:
+                return False
+            if (other.n_points > est.n_points
+                    and np.linalg.norm(np.asarray(other.center) - np.asarray(est.center)) > AMBIGUITY_SEPARATION):
+                center = T_w_b[:3, :3] @ np.asarray(other.center) + T_w_b[:3, 3]
+                axis = T_w_b[:3, :3] @ np.asarray(other.direction)
+                theirs = self._scale_ratio(center, axis, box, T_c_w, camera)
+                # it must fit the box's scale better than the localized line (and plausibly): a
+                # string in front of the lattice keeps its localization, the lattice behind it
+                # projecting smaller than the box
+                if (theirs is not None and 1.0 / SCALE_TOLERANCE <= theirs <= SCALE_TOLERANCE
+                        and abs(np.log(theirs)) < abs(np.log(mine))):
+                    shape = cluster_shape(line_members(rest, np.asarray(other.center),
+                                                       np.asarray(other.direction)))
+                    aspect = box_aspect_ratio(center, axis, box, T_c_w, camera, length=self.insulator_length)
+                    if check_insulator_shape(shape, insulator_length=self.insulator_length, aspect_ratio=aspect,
+                                             relief_history=[]).ok:
+                        return True
+            rest = _off_line(rest, other, tau)
+        return False
+
     def _scale_plausible(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
                          T_c_w: np.ndarray, camera: ir.CameraModel) -> bool:
         """Whether an insulator of the known length at ``center`` along ``axis`` (W) would span
         the box (its longer side, px) to within SCALE_TOLERANCE. True without a known length."""
+        ratio = self._scale_ratio(center, axis, box, T_c_w, camera)
+        return ratio is None or 1.0 / SCALE_TOLERANCE <= ratio <= SCALE_TOLERANCE
+
+    def _scale_ratio(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
+                     T_c_w: np.ndarray, camera: ir.CameraModel) -> float | None:
+        """The projected span (px) of an insulator of the known length at ``center`` along ``axis``
+        (W) over the box's longer side; None without a known length or with an end behind the
+        camera."""
         if self.insulator_length is None:
-            return True
+            return None
         half = 0.5 * self.insulator_length * axis / np.linalg.norm(axis)
         uv, _ = ir.project_points(np.stack([center - half, center + half]), T_c_w, camera)
         if not np.all(np.isfinite(uv)):
-            return True  # an end behind the camera: no scale to compare
+            return None  # an end behind the camera: no scale to compare
         predicted = float(np.max(np.abs(uv[1] - uv[0])))
         measured = float(max(box[2] - box[0], box[3] - box[1]))
-        ratio = predicted / max(measured, 1.0)
-        return 1.0 / SCALE_TOLERANCE <= ratio <= SCALE_TOLERANCE
+        return predicted / max(measured, 1.0)
 
     def _associate(self, anchor: np.ndarray) -> Track:
         if self.tracks:
@@ -349,6 +427,14 @@ class PerceptionPipeline:
         self.tracks.append(track)
         self.counters.tracks += 1
         return track
+
+
+def _off_line(points: np.ndarray, est: ir.Localization | ir.BoundedLocalization, tau: float) -> np.ndarray:
+    """The points farther than ``tau`` from the localization's line (same frame)."""
+    u = np.asarray(est.direction, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    v = points - np.asarray(est.center, dtype=np.float64)
+    return points[np.linalg.norm(v - np.outer(v @ u, u), axis=1) > tau]
 
 
 def _as_boxes(boxes: np.ndarray) -> np.ndarray:
