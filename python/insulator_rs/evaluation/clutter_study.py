@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.mavlink.frames import rotation_from_euler_ned_frd
 from insulator_rs.evaluation.localization_study import POSE_RATE_HZ, StudyConfig, _noisy, _purity
 from insulator_rs.perception.pipeline import AMBIGUOUS, PerceptionPipeline
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
@@ -214,14 +215,9 @@ def build_scene(rng: np.random.Generator, specs: dict[str, SceneSpec] | None = N
 
 
 def _rpy_pose(position: np.ndarray, yaw: float, pitch: float, roll: float) -> np.ndarray:
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cr, sr = math.cos(roll), math.sin(roll)
-    Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    # the same ZYX Tait-Bryan composition as PX4's attitude (mavlink.frames), here in W
     T = np.eye(4)
-    T[:3, :3] = Rz @ Ry @ Rx
+    T[:3, :3] = rotation_from_euler_ned_frd(roll, pitch, yaw)
     T[:3, 3] = position
     return T
 
