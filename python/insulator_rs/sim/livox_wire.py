@@ -105,14 +105,16 @@ class LidarStream:
         span = DOTS_PER_PACKET / self.lidar.point_rate
         while len(self._datagrams) >= CHUNK:
             chunk, self._datagrams = self._datagrams[:CHUNK], self._datagrams[CHUNK:]
-            self._chunks.append((max(self._vehicle_start(d) for d in chunk) + span + LATENCY_S, chunk))
+            self._chunks.append((self._vehicle_start(chunk) + span + LATENCY_S, chunk))
 
-    def _vehicle_start(self, datagram: bytes) -> float:
-        """Vehicle time of a datagram's first sample (its header timestamp, on the sensor clock)."""
-        if len(datagram) < 36:
+    def _vehicle_start(self, chunk: list[bytes]) -> float:
+        """Vehicle time of the newest first sample among ``chunk``'s datagrams (their header
+        timestamps, on the sensor clock; the map to the vehicle clock is monotonic, so the newest
+        stamp is mapped alone: one clock call a chunk, not one a datagram)."""
+        stamps = [struct.unpack_from("<Q", d, 28)[0] for d in chunk if len(d) >= 36]
+        if not stamps:
             return -math.inf
-        (ts,) = struct.unpack_from("<Q", datagram, 28)
-        return float(self.emitter.clock.to_vehicle(ts * 1e-9))
+        return float(self.emitter.clock.to_vehicle(max(stamps) * 1e-9))
 
 
 class WireLidar:
