@@ -58,6 +58,8 @@ GRAVITY = 9.80665  # m/s^2
 # Mid-360 class leans 7 degrees into a 5 m/s wind and 14 degrees into 10 m/s (atan(k w / g)), as
 # multirotors of that size do (5-15 degrees at 5-10 m/s).
 LINEAR_DRAG_PER_S = 0.25
+# The velocity loop's integral holds at most the drag of this wind (m/s).
+MAX_HELD_WIND_MPS = 15.0
 # The thrust must keep at least this share of gravity upward (a free-fall command is not flown).
 MIN_VERTICAL_THRUST = 0.1 * GRAVITY
 
@@ -79,13 +81,26 @@ class MotionLimits:
     position_gain: float = 1.5
     max_tilt: float = math.radians(45.0)  # PX4 MPC_TILTMAX_AIR
     attitude_time_constant: float = 0.15  # s: the attitude loop's first-order lag
+    # The velocity loop, PI as PX4's (MPC_XY_VEL_P_ACC / _I_ACC): the proportional part a
+    # first-order response of this time constant (s), the integral part (1/s^2) what takes a
+    # steady push (the wind the loop does not know) off. Dead-beat before (the whole step of
+    # each 50 ms setpoint in the first 10 ms substep), the commanded thrust was a train of
+    # pulses and the attitude saw-toothed 2-3 degrees between the 20 Hz poses a flight records:
+    # LiDAR points deskewed with those poses sat 0.2-0.6 m off in hard manoeuvres and
+    # `calibrate time-offset` read an 80 ms camera lateness as 60 ms. A real airframe's
+    # acceleration, and so its tilt, is continuous. 0.1 s and 10 /s^2: critically damped and
+    # over (zeta 1.6), a wind gust taken off within about a second.
+    velocity_time_constant: float = 0.1
+    velocity_integral_gain: float = 10.0
     drag: float = LINEAR_DRAG_PER_S  # 1/s
 
     def __post_init__(self) -> None:
         for name in ("max_horizontal_speed", "max_vertical_speed", "max_horizontal_acceleration",
-                     "max_vertical_acceleration", "max_yaw_rate", "position_gain", "attitude_time_constant"):
+                     "max_vertical_acceleration", "max_yaw_rate", "position_gain", "attitude_time_constant",
+                     "velocity_time_constant"):
             require_positive(getattr(self, name), name)
-        require_non_negative(self.drag, "drag")
+        for name in ("drag", "velocity_integral_gain"):
+            require_non_negative(getattr(self, name), name)
         if not 0.0 < self.max_tilt < math.pi / 2:
             raise ValueError(f"max_tilt must be in (0, pi/2) rad, got {self.max_tilt!r}")
 
@@ -233,6 +248,8 @@ class MultirotorModel:
     angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     thrust_direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     wind_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # the velocity loop's integral (m/s^2, W): the push it has learnt to hold against
+    velocity_integral: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self) -> None:
         self.rotation = attitude_from_thrust(self.thrust_direction, self.yaw)
@@ -267,6 +284,7 @@ class MultirotorModel:
             wind = self._wind_step(h)
             if setpoint is None:
                 self.velocity = np.zeros(3)
+                self.velocity_integral = np.zeros(3)
                 self._attitude_step(h, np.array([0.0, 0.0, 1.0]))
                 continue
             self._substep(h, setpoint, wind)
@@ -280,14 +298,25 @@ class MultirotorModel:
 
     def _substep(self, h: float, setpoint: Setpoint, wind: np.ndarray) -> None:
         lim = self.limits
-        change = self.desired_velocity(setpoint) - self.velocity
+        velocity_error = self.desired_velocity(setpoint) - self.velocity
+        wanted = velocity_error * (1.0 - math.exp(-h / lim.velocity_time_constant)) + self.velocity_integral * h
+        change = wanted.copy()
         change[:2] = _clamp_norm(change[:2], lim.max_horizontal_acceleration * h)
         change[2] = float(np.clip(change[2], -lim.max_vertical_acceleration * h,
                                   lim.max_vertical_acceleration * h))
+        # never commanded past the speed limits (the integral alone could carry it over)
+        commanded = self.velocity + change
+        commanded[:2] = _clamp_norm(commanded[:2], max(lim.max_horizontal_speed, float(np.linalg.norm(self.velocity[:2]))))
+        commanded[2] = float(np.clip(commanded[2], -max(lim.max_vertical_speed, abs(self.velocity[2])),
+                                     max(lim.max_vertical_speed, abs(self.velocity[2]))))
+        change = commanded - self.velocity
         # The thrust the controller asks for: the acceleration it wants, gravity, and the drag
         # of its own velocity (it knows its velocity, not the wind); tilt-limited as PX4's.
         drag_known = lim.drag * self.velocity
-        thrust = limit_tilt(change / h + drag_known + np.array([0.0, 0.0, GRAVITY]), lim.max_tilt)
+        requested = change / h + drag_known + np.array([0.0, 0.0, GRAVITY])
+        thrust = limit_tilt(requested, lim.max_tilt)
+        flown_as_asked = bool(np.allclose(change, wanted, rtol=0.0, atol=1e-12)
+                              and np.allclose(thrust, requested, rtol=0.0, atol=1e-9))
         airborne = bool(self.position[2] > self.ground_z + 1e-6)
         drag = lim.drag * (self.velocity - wind) if airborne else drag_known
         acceleration = thrust - np.array([0.0, 0.0, GRAVITY]) - drag
@@ -299,7 +328,14 @@ class MultirotorModel:
             # Ground contact: no sinking, no sliding.
             self.position[2] = self.ground_z
             self.velocity = np.zeros(3)
+            self.velocity_integral = np.zeros(3)
             grounded = True
+        elif flown_as_asked:
+            # integrate only while the command is flown as asked (not cut by the acceleration
+            # or tilt limit: no wind-up), and at most the push of a 15 m/s wind's drag
+            self.velocity_integral = _clamp_norm(
+                self.velocity_integral + lim.velocity_integral_gain * velocity_error * h,
+                lim.drag * MAX_HELD_WIND_MPS)
         max_turn = lim.max_yaw_rate * h
         if setpoint.yaw is not None:
             error = wrap_angle(setpoint.yaw - self.yaw)
