@@ -355,7 +355,9 @@ def run(args: argparse.Namespace) -> int:
         recorder.metadata(RECORD_NAME, FlightMetadata(
             mission_text=Path(mission_path).read_text(encoding="utf-8"), mission_suffix=Path(mission_path).suffix,
             mission_source=str(Path(mission_path).resolve()),  # absolute: a replay resolves its rig from there
-            scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene).as_record())
+            scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene,
+            # what the frames' stamps already carry: a replay applies a later calibration's difference
+            camera_latency_s=repr(rig.camera_latency_s if live else 0.0)).as_record())
         vehicle = RecordingVehicle(vehicle, recorder)
         sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
     try:

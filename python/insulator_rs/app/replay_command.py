@@ -36,6 +36,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("flights", nargs="+", type=Path, help="recordings, or folders of recordings")
     p.add_argument("--out", type=Path, default=Path("replay_report"), help="report folder (created)")
     p.add_argument("--mission", default=None, help="mission file (default: the one the recording carries)")
+    p.add_argument("--rig", default=None,
+                   help="rig file to replay with instead of the mission's (its [camera] latency_s, e.g. as "
+                        "calibrate time-offset wrote it, is applied to the recorded frame stamps)")
     p.add_argument("--scene", default=None, help="scene whose ground truth scores the replay (simulated flights)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR,
                    help=f"shipped model name or ONNX file (default {DEFAULT_DETECTOR})")
@@ -72,7 +75,7 @@ def _options(args: argparse.Namespace) -> ReplayOptions:
                     odometry=args.odometry_topic, tf_static=args.tf_static_topic, world_frame=args.world_frame,
                     body_frame=args.body_frame, lidar_frame=args.lidar_frame, camera_frame=args.camera_frame)
     return ReplayOptions(topics=topics, detector=args.detector, method=args.method, deskew=not args.no_deskew,
-                         detect_period=args.detect_period, mission=args.mission, scene=args.scene,
+                         detect_period=args.detect_period, mission=args.mission, rig=args.rig, scene=args.scene,
                          max_gap=args.max_gap, rerun=args.rerun, progress=not args.quiet, overwrite=args.overwrite)
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from insulator_rs._toml import tomllib
@@ -23,16 +24,31 @@ RECORD_NAME = "insulator_rs"
 @dataclass(frozen=True)
 class FlightMetadata:
     """``mission_text`` and its ``mission_suffix`` (.toml/.yaml), ``scene`` (a simulated
-    flight's scene name, for scoring against its ground truth; "" for a real flight)."""
+    flight's scene name, for scoring against its ground truth; "" for a real flight),
+    ``camera_latency_s`` (the latency, s, the flight's camera subtracted from its frames' arrival
+    stamps: the rig's ``[camera] latency_s`` for a live camera, 0 for the simulator's, which
+    stamps the exposure; "" in recordings from before it was kept: not known)."""
 
     mission_text: str = ""
     mission_suffix: str = ".toml"
     mission_source: str = ""
     scene: str = ""
+    camera_latency_s: str = ""
 
     def as_record(self) -> dict[str, str]:
         return {"mission_text": self.mission_text, "mission_suffix": self.mission_suffix,
-                "mission_source": self.mission_source, "scene": self.scene}
+                "mission_source": self.mission_source, "scene": self.scene,
+                "camera_latency_s": self.camera_latency_s}
+
+    def recorded_camera_latency(self) -> float | None:
+        """The latency the recorded frames' stamps already carry (s); None when not recorded."""
+        if not self.camera_latency_s:
+            return None
+        try:
+            value = float(self.camera_latency_s)
+        except ValueError:
+            return None
+        return value if np.isfinite(value) else None
 
     def mission(self, recording: Path) -> Mission | None:
         if not self.mission_text:
@@ -97,4 +113,4 @@ def read_metadata(path: Path) -> FlightMetadata:
         return FlightMetadata()
     m = dict(records[0].metadata)
     return FlightMetadata(m.get("mission_text", ""), m.get("mission_suffix", ".toml"), m.get("mission_source", ""),
-                          m.get("scene", ""))
+                          m.get("scene", ""), m.get("camera_latency_s", ""))

@@ -5,17 +5,20 @@ reports afterwards where a scene is known."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from insulator_rs.exceptions import BagError, ConfigError, ModelError
+from insulator_rs.mission.config import Mission
 from insulator_rs.models import SIMULATOR_MODEL
 from insulator_rs.perception.pipeline import BOUNDED
 from insulator_rs.ports.detector import DETECT_CONF, BoxDetector, open_network_detector
+from insulator_rs.recording.metadata import FlightMetadata
 from insulator_rs.recording.types import Topics
 from insulator_rs.report.jsonfile import write_json
 from insulator_rs.report.summary import failed_summary
+from insulator_rs.rig import load_rig
 
 DEFAULT_DETECTOR = SIMULATOR_MODEL  # the network the simulated flights fly with
 
@@ -30,6 +33,7 @@ class ReplayOptions:
     deskew: bool = True
     detect_period: float = 0.0
     mission: str | None = None
+    rig: str | None = None  # a rig file for the mission's (its [camera] latency_s: a later calibration)
     scene: str | None = None
     max_gap: float = 2.0
     rerun: bool = False
@@ -59,18 +63,37 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
                 raise ConfigError(f"--mission: {path} does not carry its mission (not recorded by insulator_rs); "
                                   f"give the mission file")
             mission = recorded
+        if options.rig is not None:
+            mission = replace(mission, rig=load_rig(options.rig))
         detector = open_detector_by_name(options.detector)
+        latency = camera_latency(meta, mission)
         settings = ReplaySettings(method=options.method, deskew=options.deskew, detect_period=options.detect_period,
-                                  progress=options.progress)
+                                  progress=options.progress, camera_shift_s=latency["shift_s"])
         # a recording of ours logs each scan at its window's end (McapRecorder.scan)
         with FlightBag(path, options.topics, max_gap=options.max_gap, scan_windows=bool(meta.mission_text)) as bag:
             summary = ReplayRun(bag, out, mission=mission, detector=detector, settings=settings,
                                 rerun=options.rerun, overwrite=options.overwrite).run().as_dict()
+        summary["camera_latency"] = latency
         summary["scene"] = options.scene or meta.scene or None
         summary["tower"] = f"{mission.tower.lat:.6f},{mission.tower.lon:.6f}"  # the tower's GPS names it
         return summary
     except (BagError, ConfigError, ModelError, ValueError) as exc:
         return failed(path, out, str(exc))
+
+
+def camera_latency(meta: FlightMetadata, mission: Mission) -> dict[str, Any]:
+    """How much earlier than their recorded stamps the frames were exposed (``shift_s``): the
+    rig's ``[camera] latency_s`` as it is now (``calibrate time-offset --rig`` writes it after the
+    flight) less what the flight's camera already subtracted (``recorded_s``, as the recording
+    says; a recording from before it said: nothing is shifted, and ``note`` says why)."""
+    rig_latency = mission.rig.camera_latency_s if mission.rig is not None else 0.0
+    recorded = meta.recorded_camera_latency()
+    record: dict[str, Any] = {"rig_s": rig_latency, "recorded_s": recorded,
+                              "shift_s": 0.0 if recorded is None else rig_latency - recorded}
+    if recorded is None and rig_latency:
+        record["note"] = ("the recording does not say which camera latency its frame stamps carry: "
+                          "the rig's latency_s is not applied")
+    return record
 
 
 def failed(path: Path, out: Path, error: str) -> dict[str, Any]:

@@ -61,6 +61,8 @@ class ReplaySettings:
     detect_period: float = 0.0
     pairing_window: float = PAIRING_WINDOW
     progress: bool = False
+    # s: frames exposed this much before their recorded stamps (a calibration made after the flight)
+    camera_shift_s: float = 0.0
 
 
 class ReplayRun:
@@ -85,7 +87,7 @@ class ReplayRun:
             self.rerun = RerunLog(self.report.layout.path / RERUN_FILE, name=bag.path.name)
         self.player = RecordingPlayer(bag.items())
         self.vehicle = ReplayVehicle(self.player)
-        self.sensors = ReplaySensors(self.player)
+        self.sensors = ReplaySensors(self.player, settings.camera_shift_s)
         # The rig's camera and T_b_c serve only the pipeline's known-pose form; frames carry their
         # own intrinsics and camera pose, scans the recording's T_b_l.
         rig = mission.rig if mission.rig is not None else simulator_rig()

@@ -7,9 +7,16 @@ handed over when a live source would have delivered them.
 * ``lidar_scan(now)``: every recorded scan whose covered time is over by ``now``, merged into
   one (a live driver's newest scan holds the points since the last; nothing recorded is lost);
 * ``photo``: a replay takes no photos (None).
+
+``camera_shift_s``: how much later than the recorded stamps the frames were exposed, by a
+calibration made after the flight (the rig's ``[camera] latency_s`` now, less what the flight's
+camera already subtracted): each frame is handed over when it arrived in the recording, stamped
+``time - camera_shift_s``.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,8 +28,11 @@ from insulator_rs.replay.player import RecordingPlayer
 class ReplaySensors:
     """The recording's sensor data, on the replay's clock (see the module docstring)."""
 
-    def __init__(self, player: RecordingPlayer) -> None:
+    def __init__(self, player: RecordingPlayer, camera_shift_s: float = 0.0) -> None:
+        if not (np.isfinite(camera_shift_s) and abs(camera_shift_s) <= 1.0):
+            raise ValueError(f"camera_shift_s: must be a finite number of seconds in [-1, 1], got {camera_shift_s}")
         self.player = player
+        self.camera_shift_s = float(camera_shift_s)
         self.counts = {"frames_delivered": 0, "frames_skipped": 0, "scans_delivered": 0}
 
     def detection_frame(self, now: float) -> CameraFrame | None:
@@ -32,9 +42,10 @@ class ReplaySensors:
             if newest is not None:
                 self.counts["frames_skipped"] += 1
             newest = frames.popleft()
-        if newest is not None:
-            self.counts["frames_delivered"] += 1
-        return newest
+        if newest is None:
+            return None
+        self.counts["frames_delivered"] += 1
+        return replace(newest, time=newest.time - self.camera_shift_s) if self.camera_shift_s else newest
 
     def lidar_scan(self, now: float) -> LidarScan | None:
         scans = self.player.scans
@@ -59,7 +70,7 @@ class ReplaySensors:
         return None
 
     def health(self) -> dict[str, object]:
-        return {"source": "recording", **self.counts}
+        return {"source": "recording", **self.counts, "camera_shift_s": self.camera_shift_s}
 
     def close(self) -> None:
         pass
