@@ -19,7 +19,8 @@ For each cell, from the scene's TRUE geometry (its mesh: steel, insulators, fitt
 conductors; not the mission's boxes) and the airframe's TRUE trajectory (the simulator's, up to
 the landing, whoever flew it): the minimum clearance, against the mission's ``safety_margin``;
 how the flight ended (landed by our route, by PX4's, or still flying); what ``summary.json`` says;
-whether the recording (``--record``, MCAP) holds every message written to it. Writes
+whether the recording (``--record``, MCAP) holds every message written to it (the client killed: every
+message flushed before the kill, the recorder flushing every second). Writes
 ``fault_matrix.md`` (the table), ``fault_matrix.json`` and ``fault_matrix.png`` (cells coloured by
 clearance) in ``--out``, one line per cell as it goes.
 """
@@ -280,7 +281,7 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
             simulator.stop()
     if killed:
         (out / "flight.mcap").write_bytes(saved)
-    written = sum(recorder.counts.values())
+    written, durable = sum(recorder.counts.values()), recorder.durable
     read = _readable_messages(out / "flight.mcap")
     summary = json.loads((out / "report" / "summary.json").read_text(encoding="utf-8"))
     reason = (summary.get("abort") or {}).get("reason") or ""
@@ -294,7 +295,8 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
                 max_altitude_m=round(float(np.max(np.array(truth)[:, 2])), 1), ended=ended,
                 status=summary["status"], reason=reason,
                 report_names_fault=fault is None or any(w in said for w in REPORT_WORDS[fault]),
-                recording=f"{read} of {written} messages", recording_intact=read >= written if not killed else read > 0,
+                recording=f"{read} of {written} messages" + (f" ({durable} flushed before the kill)" if killed else ""),
+                recording_intact=read >= (durable if killed else written),
                 flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
     say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
         f"({nearest}), {ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
