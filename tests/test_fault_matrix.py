@@ -25,7 +25,7 @@ from insulator_rs.sim import faults as F
 from insulator_rs.sim.kinematics import KinematicVehicle
 
 # s after arming, read by FM.moments_from off the clean flight's state log (docs/results/fault_matrix)
-MOMENTS = {"take-off": 1.0, "exploration": 25.0, "inspection": 9.9, "crossing": 40.9, "return": 102.6}
+MOMENTS = {"take-off": 0.8, "exploration": 25.4, "inspection": 9.9, "crossing": 40.9, "return": 102.6}
 
 
 class Source:

@@ -55,6 +55,7 @@ SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
 LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landing) bring it down
+HOVER_WAIT = 30.0  # s of vehicle time in HOLD after which the autopilot is taken to hover for the pilot
 WATCH_PERIOD = 0.02  # wall s between looks at our simulated PX4 once the companion is gone
 FLIGHT_ARGS = {"detect_period": 0.5, "detect_scale": 0.2, "photo_scale": 0.2, "seed": 0}
 
@@ -241,7 +242,7 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
 
     clock = F.FaultClock()
     loop_ref: list[FlightLoop] = []
-    actions = {"link loss": lambda: F.link_loss(simulator),
+    actions: dict[str, Callable[[], Callable[[], None]]] = {"link loss": lambda: F.link_loss(simulator),
                "client killed": lambda: F.kill_client(base),
                "GPS loss": lambda: F.gps_loss(airframe),
                "low battery": lambda: F.battery_drop(
@@ -314,8 +315,13 @@ def _watch_landing(airframe: Callable[[Callable[[Any], Any]], Any], look: Callab
 
     landed, armed, mode, t0 = status()
     modes = {mode}
-    now = t0
-    while not (landed and not armed) and now - t0 < LANDING_WAIT:
+    now, wall_end = t0, wallclock.monotonic() + 2 * LANDING_WAIT / TIME_SCALE
+    hover_since = t0  # a hover (HOLD) nobody ends: the pilot's, after HOVER_WAIT s it is the end
+    while not (landed and not armed) and now - t0 < LANDING_WAIT and wallclock.monotonic() < wall_end:
+        if mode != "HOLD":
+            hover_since = now
+        elif now - hover_since > HOVER_WAIT:
+            break
         if in_process is not None:
             try:
                 in_process.advance(0.05)
@@ -332,7 +338,7 @@ def _watch_landing(airframe: Callable[[Callable[[Any], Any]], Any], look: Callab
         if who == "PX4" else None
     if landed:
         return f"landed: {who}" + (f" ({px4_mode})" if px4_mode else "")
-    return f"in the air ({mode}) after {LANDING_WAIT:.0f} s: {who}"
+    return f"in the air: {who} ({mode})"
 
 
 # -- the matrix -----------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
-from insulator_rs.ports.vehicle import Vehicle, VehicleState
+from insulator_rs.ports.vehicle import Vehicle, VehicleDecorator, VehicleState
 
 # Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
 RECORDED_ODOMETRY = "/odom"
@@ -201,13 +201,13 @@ class RecordingSensors:
         return getattr(self.inner, name)
 
 
-class RecordingVehicle:
+class RecordingVehicle(VehicleDecorator):
     """A :class:`~insulator_rs.ports.vehicle.Vehicle` decorator that records the pose stream
     ``inner`` reports (``VehicleState.T_w_b``, what the flight's perception is fed), wired by
-    the composition root."""
+    the composition root; every other call passes on."""
 
     def __init__(self, inner: Vehicle, recorder: McapRecorder) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.recorder = recorder
 
     def _record(self, st: VehicleState) -> VehicleState:
@@ -221,28 +221,3 @@ class RecordingVehicle:
 
     def advance(self, dt: float) -> VehicleState:
         return self._record(self.inner.advance(dt))
-
-    def arm(self) -> None:
-        self.inner.arm()
-
-    def start_offboard(self) -> None:
-        self.inner.start_offboard()
-
-    def takeoff(self, altitude: float) -> None:
-        self.inner.takeoff(altitude)
-
-    def send_setpoint(self, position: np.ndarray, velocity: np.ndarray | None = None,
-                      yaw: float | None = None) -> None:
-        self.inner.send_setpoint(position, velocity, yaw)
-
-    def land(self) -> None:
-        self.inner.land()
-
-    def hold(self) -> None:
-        self.inner.hold()
-
-    def close(self) -> None:
-        self.inner.close()
-
-    def __getattr__(self, name: str) -> Any:  # what else an adapter offers (link_stats, ...)
-        return getattr(self.inner, name)

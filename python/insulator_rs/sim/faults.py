@@ -35,7 +35,7 @@ from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import ClientKilled
 from insulator_rs.ports.detector import BoxDetector, detector_name
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, Sensors
-from insulator_rs.ports.vehicle import Vehicle, VehicleState
+from insulator_rs.ports.vehicle import Vehicle, VehicleDecorator, VehicleState
 
 
 class FaultClock:
@@ -133,14 +133,14 @@ class TimedAction:
     fired_at: float | None = None
 
 
-class FaultyVehicle:
+class FaultyVehicle(VehicleDecorator):
     """The ``Vehicle`` port firing ``actions`` (:class:`TimedAction`) at their flight times on
     ``clock`` (started by the arm command); every call goes to ``inner`` as it is. ``fired`` lists
     (name, vehicle time) of what fired; ``watch`` sees every state ``advance`` returns."""
 
     def __init__(self, inner: Vehicle, clock: FaultClock, actions: list[TimedAction], *,
                  watch: Callable[[VehicleState], None] | None = None) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.clock = clock
         self.watch = watch
         self.actions = sorted(actions, key=lambda a: a.at)
@@ -158,37 +158,12 @@ class FaultyVehicle:
                 a.action()  # may raise ClientKilled: the process ends here
         return st
 
-    def state(self) -> VehicleState:
-        return self.inner.state()
-
     def advance(self, dt: float) -> VehicleState:
         return self._due(self.inner.advance(dt))
 
     def arm(self) -> None:
         self.clock.start(self.inner.state().time)
         self.inner.arm()
-
-    def start_offboard(self) -> None:
-        self.inner.start_offboard()
-
-    def takeoff(self, altitude: float) -> None:
-        self.inner.takeoff(altitude)
-
-    def send_setpoint(self, position: np.ndarray, velocity: np.ndarray | None = None,
-                      yaw: float | None = None) -> None:
-        self.inner.send_setpoint(position, velocity, yaw)
-
-    def land(self) -> None:
-        self.inner.land()
-
-    def hold(self) -> None:
-        self.inner.hold()
-
-    def close(self) -> None:
-        self.inner.close()
-
-    def __getattr__(self, name: str) -> Any:  # what else the adapter offers (parameters, link_stats)
-        return getattr(self.inner, name)
 
 
 def gps_loss(airframe: Callable[[Callable[[Any], Any]], Any]) -> Callable[[], None]:
