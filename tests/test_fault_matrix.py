@@ -147,12 +147,11 @@ def test_a_lidar_asked_for_points_and_silent_is_lost():
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    from insulator_rs.app.inspect_command import MISSIONS_DIR
     from insulator_rs.mission.config import load_mission
     from insulator_rs.sim.towers import load_tower
 
     folder = tmp_path_factory.mktemp("faults")
-    scene, mission = FM.small_scene(folder, MISSIONS_DIR.parent / "scenes", MISSIONS_DIR)
+    scene, mission = FM.small_scene(folder, FM.PACKAGE / "scenes", FM.PACKAGE / "missions")
     tower = load_tower(str(scene))
     return FM.Setup(scene, mission, tower, FM.Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
 

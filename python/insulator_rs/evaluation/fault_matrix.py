@@ -42,11 +42,13 @@ import numpy as np
 from insulator_rs.exceptions import ClientKilled
 from insulator_rs.ports.vehicle import VehicleState
 
+PACKAGE = Path(__file__).resolve().parents[1]
 FAULTS = ("link loss", "LiDAR silent", "camera frozen", "detector error", "low battery", "GPS loss",
           "operator abort", "client killed")
 MOMENTS = ("take-off", "exploration", "inspection", "crossing", "return")
 #: the faults flown against our simulated PX4 over UDP: the companion's link or process is the fault
-MAVLINK_FAULTS = ("link loss", "client killed")
+MAVLINK_PACKAGE = Path(__file__).resolve().parents[1]
+FAULTS = ("link loss", "client killed")
 #: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
 REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
@@ -201,7 +203,7 @@ def _readable_messages(path: Path) -> int:
 def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
              say: Callable[[str], None] = lambda _: None) -> Cell:
     """Fly ``fault`` from ``at`` s after arming (None: the clean flight) into ``out``; measure it."""
-    from insulator_rs.app.inspect_command import kinematic_vehicle
+    from insulator_rs.sim.mission_airframe import kinematic_vehicle
     from insulator_rs.flight.loop import FlightLoop, FlightSettings
     from insulator_rs.mission.config import load_mission
     from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
@@ -345,7 +347,6 @@ def _watch_landing(airframe: Callable[[Callable[[Any], Any]], Any], look: Callab
 def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str] = MOMENTS,
                say: Callable[[str], None] = print) -> dict[str, Any]:
     """The clean flight, then every (fault, moment) cell; results written in ``out``."""
-    from insulator_rs.app.inspect_command import MISSIONS_DIR
     from insulator_rs.mission.config import load_mission
     from insulator_rs.sim.towers import load_tower
 
@@ -357,7 +358,7 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
             raise ValueError(f"moment: {name!r} is not one of {', '.join(MOMENTS)}")
     wall0 = wallclock.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    scene, mission = small_scene(out / "scene", MISSIONS_DIR.parent / "scenes", MISSIONS_DIR)
+    scene, mission = small_scene(out / "scene", PACKAGE / "scenes", PACKAGE / "missions")
     tower = load_tower(str(scene))
     setup = Setup(scene, mission, tower, Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
     flights = out / "flights"
