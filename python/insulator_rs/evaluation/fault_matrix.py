@@ -47,8 +47,7 @@ FAULTS = ("link loss", "LiDAR silent", "camera frozen", "detector error", "low b
           "operator abort", "client killed")
 MOMENTS = ("take-off", "exploration", "inspection", "crossing", "return")
 #: the faults flown against our simulated PX4 over UDP: the companion's link or process is the fault
-MAVLINK_PACKAGE = Path(__file__).resolve().parents[1]
-FAULTS = ("link loss", "client killed")
+MAVLINK_FAULTS = ("link loss", "client killed")
 #: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
 REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
