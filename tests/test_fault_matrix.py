@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from insulator_rs.evaluation import fault_matrix as FM
-from insulator_rs.exceptions import ClientKilled, VehicleFailsafe
+from insulator_rs.exceptions import ClientKilled, VehicleError, VehicleFailsafe
 from insulator_rs.perception.pipeline import PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.ports.sensors import CameraFrame, LidarScan
@@ -114,8 +114,8 @@ def test_low_battery_and_the_kill():
         F.battery_drop(lambda f: f(airframe), 1.5)
     with pytest.raises(ClientKilled):
         F.kill_client(airframe)()
-    with pytest.raises(Exception, match="closed"):
-        airframe.state() if False else airframe.advance(0.1)  # the killed client sends nothing more
+    with pytest.raises(VehicleError, match="closed"):
+        airframe.advance(0.1)  # the killed client is closed: nothing more is sent
 
 
 def _runner(sensors, detector) -> PerceptionRunner:
