@@ -81,9 +81,6 @@ class Cell:
     flight_s: float
     wall_s: float
 
-    def ok(self, margin: float) -> bool:
-        return self.clearance_m >= margin and self.ended.startswith("landed") and self.recording_intact
-
 
 # -- the scene -----------------------------------------------------------------------------------
 def small_scene(folder: Path, scenes: Path, missions: Path) -> tuple[Path, Path]:
