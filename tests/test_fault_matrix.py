@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from insulator_rs.evaluation import fault_matrix as FM
-from insulator_rs.exceptions import ClientKilled, VehicleError, VehicleFailsafe
+from insulator_rs.exceptions import ClientKilled, ParameterError, VehicleError, VehicleFailsafe
 from insulator_rs.perception.pipeline import PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.ports.sensors import CameraFrame, LidarScan
@@ -172,3 +172,36 @@ def test_a_fault_cell_stays_clear_ends_landed_and_is_reported(setup, tmp_path, f
         assert cell.ended.startswith("landed: PX4") and cell.max_altitude_m > 12.0  # PX4 came back over the top
     assert cell.report_names_fault, f"{cell.status} / {cell.reason}"
     assert cell.recording_intact, cell.recording
+
+
+class Unheard:
+    """A parameter store whose autopilot answered the setup, then nothing (the link lost)."""
+
+    def __init__(self) -> None:
+        self.values = {"A": 1.0, "B": 2.0, "C": 3.0}
+        self.lost = False
+        self.asked: list[str] = []
+
+    def read(self, name):
+        return self.values[name]
+
+    def set(self, name, value):
+        self.asked.append(name)
+        if self.lost:
+            raise ParameterError(name, "no PARAM_VALUE after 3 tries of 1 s: the autopilot did not answer")
+        self.values[name] = value
+        return value
+
+
+def test_the_restore_stops_asking_an_autopilot_that_no_longer_answers():
+    from insulator_rs.flight.autopilot_setup import AutopilotSetup
+    from insulator_rs.planning.px4_failsafes import ParameterSetting
+
+    store = Unheard()
+    setup = AutopilotSetup(store, [ParameterSetting(n, 9.0, "test") for n in "ABC"], ground_station=False)
+    setup.apply()
+    store.lost, store.asked = True, []
+    setup.restore()  # the link loss at take-off waited minutes here, every parameter's retries
+    assert store.asked == ["A"]
+    assert setup.restore_status == "restore failed for A, B, C"
+    assert setup.records[1].error == "not tried: the autopilot did not answer for A"
