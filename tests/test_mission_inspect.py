@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from insulator_rs.app.cli import main
+from insulator_rs.evaluation import fault_matrix
 from insulator_rs.flight.loop import FlightLoop
 
 REPO = Path(__file__).resolve().parents[1]
@@ -18,27 +19,9 @@ MISSIONS = REPO / "python" / "insulator_rs" / "missions"
 
 
 def small_scene(tmp_path):
-    """Tower B's design cut down to a 12 m body with one cross-arm (two insulators)."""
-    s = (SCENES / "tower_b.toml").read_text()
-    s = s.replace('name = "tower_b"', 'name = "small_tower"')
-    s = s.replace("height = 26.0\nbase_width = 5.6", "height = 12.0\nbase_width = 3.0")
-    s = s.replace("panels = 9", "panels = 4").replace("peak_height = 2.5", "peak_height = 1.5")
-    i, k = s.index("[[cross_arms]]"), s.index("[insulators]")
-    s = s[:i] + "[[cross_arms]]\nheight = 10.0\nreach = 3.0\ndepth = 1.2\nwidth = 1.0\n\n" + s[k:]
-    scene = tmp_path / "small_tower.toml"
-    scene.write_text(s)
-    m = (MISSIONS / "tower_b.toml").read_text()
-    for a, b in (("max_height = 28.5", "max_height = 13.5"), ("max_width = 9.0", "max_width = 6.0"),
-                 ("pass_spacing = 8.0", "pass_spacing = 10.0"), ("standoff = 8.0", "standoff = 6.0"),
-                 ("v_max_horizontal = 1.0", "v_max_horizontal = 3.0"),
-                 ("a_max_horizontal = 3.0", "a_max_horizontal = 6.0"),
-                 ("v_max_vertical = 1.0", "v_max_vertical = 2.0"),
-                 ("a_max_vertical = 3.0", "a_max_vertical = 4.0")):
-        assert a in m
-        m = m.replace(a, b)
-    mission = tmp_path / "small_mission.toml"
-    mission.write_text(m)
-    return scene, mission
+    """Tower B's design cut down to a 12 m body with one cross-arm (two insulators): the fault
+    matrix's scene (``insulator_rs.evaluation.fault_matrix.small_scene``), files in ``tmp_path``."""
+    return fault_matrix.small_scene(tmp_path, SCENES, MISSIONS)
 
 
 # Detection twice a second: the false-find filter judges a string's shape on its first three

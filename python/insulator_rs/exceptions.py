@@ -79,6 +79,12 @@ class SensorError(InsulatorError):
     and the address, device or pipeline)."""
 
 
+class DetectorError(InsulatorError):
+    """The box detector failed on a frame (its runtime raised): that detection event is lost and
+    counted; a detector failing for longer than the sensor-lost timeout aborts the mission. The
+    message names the detector and what it raised."""
+
+
 class PacketError(SensorError):
     """A Livox datagram or control frame is malformed (raised by the compiled core's Livox
     bindings): truncated, a length, version, data type or sample count that does not fit, a
@@ -137,3 +143,10 @@ class PreflightRefused(InsulatorError):
     def __init__(self, failed: list[tuple[str, str]]) -> None:
         super().__init__("pre-flight checks failed: " + "; ".join(f"{name}: {reason}" for name, reason in failed))
         self.failed = list(failed)
+
+
+class ClientKilled(BaseException):
+    """The simulator's stand-in for ``kill -9`` of the companion process (``sim/faults.py``): raised
+    at the moment of the kill, through every handler (a ``BaseException``, as the process's end is
+    not an error anything in it may handle); nothing more is sent to the vehicle, nothing more is
+    written. Never raised outside the fault matrix."""

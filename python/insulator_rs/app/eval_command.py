@@ -17,6 +17,8 @@ STUDIES: tuple[tuple[str, str, str], ...] = (
      "single-flight vs two-flight inspection time (paper efficiency figure)"),
     ("motion", "insulator_rs.evaluation.motion_study",
      "localization error under motion distortion, with and without deskew"),
+    ("faults", "insulator_rs.evaluation.fault_matrix",
+     "the fault matrix: every fault at every moment of the flight, clearance to the true tower"),
 )
 
 

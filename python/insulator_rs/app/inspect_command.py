@@ -48,7 +48,8 @@ from insulator_rs.mission.state_machine import POLICIES
 from insulator_rs.report import check_out_folder, parse_out_folder
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
-from insulator_rs.sim.kinematics import KinematicVehicle, MotionLimits
+from insulator_rs.sim.kinematics import KinematicVehicle
+from insulator_rs.sim.mission_airframe import LIMIT_HEADROOM, kinematic_vehicle  # noqa: F401 (their old home)
 from insulator_rs.sim.wind import WindSpec
 from insulator_rs.sim.sensors import (
     SimulatedSensors,
@@ -64,22 +65,6 @@ if TYPE_CHECKING:
 
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 MAX_MAVLINK_TIME_SCALE = 4.0  # the client's timeouts and the 20 Hz stream hold up to this speed-up
-# The vehicle's own limits get this much headroom over the planning limits so the
-# position loop can track the trajectory.
-LIMIT_HEADROOM = 1.5
-
-
-def kinematic_vehicle(mission: Mission, seed: int) -> KinematicVehicle:
-    """The simulated airframe at the mission's take-off point, limits with headroom over the plan's
-    (its pack full: :func:`charged` sets another charge)."""
-    geom = MissionGeometry.from_mission(mission)
-    lim = mission.vehicle
-    return KinematicVehicle(
-        start_position=geom.takeoff, start_yaw=geom.path[0].yaw, seed=seed,
-        limits=MotionLimits(max_horizontal_speed=lim.v_max_horizontal * LIMIT_HEADROOM,
-                            max_vertical_speed=lim.v_max_vertical * LIMIT_HEADROOM,
-                            max_horizontal_acceleration=lim.a_max_horizontal * LIMIT_HEADROOM,
-                            max_vertical_acceleration=lim.a_max_vertical * LIMIT_HEADROOM))
 
 
 def charged(vehicle: KinematicVehicle, battery: float | None) -> KinematicVehicle:

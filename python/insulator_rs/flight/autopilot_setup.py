@@ -72,17 +72,27 @@ class AutopilotSetup:
         self.pending = True
 
     def restore(self) -> None:
-        """Put every old value back that was changed (verified); failures are recorded, not raised."""
+        """Put every old value back that was changed (verified); failures are recorded, not raised.
+        An autopilot that answers none of the tries for one value (the link is gone: the fault
+        matrix's link loss at take-off waited minutes on every parameter's retries) is not asked
+        for the rest: they are recorded as failed too."""
         failed = []
         self.pending = False
+        unheard: str | None = None
         for record in self.records:
             if record.set is None or record.old is None:
+                continue
+            if unheard is not None:
+                record.error = f"not tried: {unheard}"
+                failed.append(record.name)
                 continue
             try:
                 record.restored = self.store.set(record.name, record.old)
             except ParameterError as exc:
                 record.error = str(exc)
                 failed.append(record.name)
+                if "no PARAM_VALUE" in exc.reason or "not confirmed" in exc.reason:
+                    unheard = f"the autopilot did not answer for {record.name}"
         self.restore_status = f"restore failed for {', '.join(failed)}" if failed else "restored"
 
     def keep(self, reason: str) -> None:

@@ -15,12 +15,14 @@ the report says why and keeps everything found so far, and once the failsafe fir
 is sent to the vehicle. Every other abort (a command the vehicle refuses, a leg no safe
 trajectory can be planned for, the flight-time limit, the operator's abort, the battery reserve
 (:mod:`insulator_rs.flight.reserve`: the rest of the plan no longer fits above the mission's
-``battery_reserve``, and the way out is due), the camera silent) stops the vehicle and flies
+``battery_reserve``, and the way out is due), the camera silent, the LiDAR silent or the detector
+failing (:meth:`PerceptionRunner.lost`)) stops the vehicle and flies
 the safe route out that :mod:`insulator_rs.planning.abort` plans from what the state machine
 knew (on across over the tower, back out beside an arm), then lands clear of the tower and the
 conductor corridors; where no route can be planned the vehicle holds in the autopilot's HOLD
 and the pilot is told to take over, never a blind descent. A sensor error costs that detection
-event or photo, never the flight; only a camera silent for SENSOR_LOST_TIMEOUT s aborts.
+event or photo, never the flight; only a camera or a LiDAR silent, or a detector failing, for
+SENSOR_LOST_TIMEOUT s aborts.
 
 The report folder (:mod:`insulator_rs.report`: photos with EXIF GPS, WGS-84, GeoJSON/KML) is
 written as the flight goes; an interruption (Ctrl-C) still leaves the summary, the photos
@@ -280,7 +282,7 @@ class FlightLoop:
 
     def _abort_due(self, st: VehicleState, t: float) -> str | None:
         """Why the mission must abort now, if it must: the operator asked, the flight-time
-        limit, the battery reserve, the camera silent."""
+        limit, the battery reserve, the camera silent, the LiDAR silent or the detector failing."""
         if self._abort_request is not None:
             return self._abort_request
         if t > self.settings.max_flight_time:
@@ -293,6 +295,8 @@ class FlightLoop:
             self._frames_seen = (self.runner.counts.frames, st.time)
         elif st.time - since > SENSOR_LOST_TIMEOUT:
             return f"sensor lost: no camera frame for {SENSOR_LOST_TIMEOUT:.0f} s"
+        if self.sm.state != State.FINISH:  # on the way home perception is over
+            return self.runner.lost(st.time, SENSOR_LOST_TIMEOUT)  # the LiDAR silent, the detector failing
         return None
 
     def _battery_demands(self, st: VehicleState) -> tuple[RouteDemand, RouteDemand]:

@@ -12,7 +12,9 @@ times (the vehicle clock of each pose, frame and point):
   tells its state machine, a replay its registry).
 
 A sensor error costs that detection event, never the caller (it is counted and handed to
-``on_sensor_error``).
+``on_sensor_error``); so does a detector that raises (counted as ``detector_errors``). What the
+caller cannot see event by event, :meth:`lost` says: the LiDAR asked for points and silent, or
+the detector failing on every frame, for longer than a timeout (the flight loop aborts on it).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from typing import Protocol
 
 import numpy as np
 
-from insulator_rs.exceptions import SensorError
+from insulator_rs.exceptions import DetectorError, SensorError
 from insulator_rs.perception.pairing import FramePairing, PendingFrame, ScanIntake
 from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
 from insulator_rs.ports.detector import BoxDetector
@@ -44,7 +46,8 @@ class RunnerViewer(Protocol):
 class RunnerCounts:
     """What the runner did: detection ``events`` (a frame asked for), ``frames`` run through the
     detector, ``events_with_boxes`` (frames with boxes handed to the pipeline), ``repeated_frames`` (a source handing the same frame again:
-    not run twice), ``sensor_errors``, ``localizations``."""
+    not run twice), ``sensor_errors``, ``localizations``, ``detector_errors`` (frames the detector
+    raised on)."""
 
     events: int = 0
     frames: int = 0
@@ -52,6 +55,7 @@ class RunnerCounts:
     repeated_frames: int = 0
     sensor_errors: int = 0
     localizations: int = 0
+    detector_errors: int = 0
 
 
 class PerceptionRunner:
@@ -75,6 +79,11 @@ class PerceptionRunner:
         self._last_frame_time = -math.inf
         # the boxes of the latest detection event (an observer draws them; None before the first)
         self.last_boxes: np.ndarray | None = None
+        # vehicle time of the first ask for LiDAR points since new ones last came (None: they came)
+        self.lidar_unanswered_since: float | None = None
+        # vehicle time of the first detector failure since it last ran, and that failure
+        self.detector_failing_since: float | None = None
+        self.detector_error: DetectorError | None = None
 
     @property
     def pairing_short(self) -> int:
@@ -105,8 +114,20 @@ class PerceptionRunner:
     def finish(self, now: float) -> list[LocalizedInsulator]:
         """A recorded stream has ended at ``now``, or the flight stops perceiving: the newest
         scan goes in, and every waiting frame with it."""
-        self._take_scan(self._ask_scan(now))
+        self._take_scan(self._ask_scan(now), now)
         return self._process(self.pairing.drain(self.intake.horizon))
+
+    def lost(self, now: float, timeout: float) -> str | None:
+        """Why perception is lost at vehicle time ``now``, if it is: the LiDAR asked for points and
+        delivering nothing new for more than ``timeout`` s, or the detector raising on every frame
+        for that long; None while both work (or were not needed)."""
+        since = self.lidar_unanswered_since
+        if since is not None and now - since > timeout:
+            return f"sensor lost: no LiDAR scan for {timeout:.0f} s"
+        since = self.detector_failing_since
+        if since is not None and now - since > timeout:
+            return f"detector failed for {timeout:.0f} s ({self.detector_error})"
+        return None
 
     # -- internals ------------------------------------------------------------------------
     def _sensor_error(self, exc: SensorError) -> None:
@@ -121,10 +142,28 @@ class PerceptionRunner:
             self._sensor_error(exc)
             return None
 
-    def _take_scan(self, scan: LidarScan | None) -> None:
+    def _take_scan(self, scan: LidarScan | None, now: float) -> None:
         new = self.intake.take(scan)
-        if new is not None:
-            self.pipeline.add_scan(new)
+        if new is None:
+            if self.lidar_unanswered_since is None:
+                self.lidar_unanswered_since = now
+            return
+        self.lidar_unanswered_since = None
+        self.pipeline.add_scan(new)
+
+    def _detect(self, image: np.ndarray) -> np.ndarray | None:
+        """The detector's boxes on ``image``; None (counted, the failure kept for :meth:`lost`)
+        when its runtime raised: any adapter's failure costs this event, never the flight."""
+        try:
+            boxes = np.asarray(self.detector(image), dtype=np.float64)
+        except Exception as exc:  # noqa: BLE001 - a network runtime raises kinds of its own
+            self.counts.detector_errors += 1
+            self.detector_error = DetectorError(f"{type(exc).__name__}: {exc}")
+            if self.detector_failing_since is None:
+                self.detector_failing_since = self._last_frame_time
+            return None
+        self.detector_failing_since = None
+        return boxes
 
     def _detection_event(self, now: float) -> None:
         """Take a detection frame and run the detector; a frame with boxes waits for the LiDAR
@@ -139,8 +178,10 @@ class PerceptionRunner:
                 return
             self._last_frame_time = frame.time
             self.counts.frames += 1
-            boxes = np.asarray(self.detector(frame.image), dtype=np.float64)
-            self.last_boxes = boxes
+            detected = self._detect(frame.image)
+            if detected is None:
+                return
+            boxes = self.last_boxes = detected
             if self.viewer is not None:
                 self.viewer.frame(frame, boxes[:, :4])
             if len(boxes) == 0:
@@ -149,7 +190,7 @@ class PerceptionRunner:
         except SensorError as exc:
             self._sensor_error(exc)
             return
-        self._take_scan(scan)
+        self._take_scan(scan, now)
         self.pairing.add(frame, boxes)
 
     def _pair_due(self, now: float) -> list[LocalizedInsulator]:
@@ -157,7 +198,7 @@ class PerceptionRunner:
         every tick and its new points go to the pipeline; the frames then due are processed."""
         if not self.pairing.waiting_for_points(now):
             return []
-        self._take_scan(self._ask_scan(now))
+        self._take_scan(self._ask_scan(now), now)
         return self._process(self.pairing.due(now, self.intake.horizon))
 
     def _process(self, frames: list[PendingFrame]) -> list[LocalizedInsulator]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -173,3 +173,43 @@ def vehicle_parameters(vehicle: object) -> ParameterStore | None:
     """The vehicle's parameter store, or None when it has none (or not that interface)."""
     store = getattr(vehicle, "parameters", None)
     return store if isinstance(store, ParameterStore) else None
+
+
+class VehicleDecorator:
+    """A :class:`Vehicle` adapter round ``inner`` that passes every call on as it is: a decorator
+    (the recording's, the fault matrix's) subclasses it and overrides what it watches or changes;
+    anything else the inner adapter offers (parameters, link_stats) is reached through it."""
+
+    def __init__(self, inner: Vehicle) -> None:
+        self.inner = inner
+
+    def state(self) -> VehicleState:
+        return self.inner.state()
+
+    def advance(self, dt: float) -> VehicleState:
+        return self.inner.advance(dt)
+
+    def arm(self) -> None:
+        self.inner.arm()
+
+    def start_offboard(self) -> None:
+        self.inner.start_offboard()
+
+    def takeoff(self, altitude: float) -> None:
+        self.inner.takeoff(altitude)
+
+    def send_setpoint(self, position: np.ndarray, velocity: np.ndarray | None = None,
+                      yaw: float | None = None) -> None:
+        self.inner.send_setpoint(position, velocity, yaw)
+
+    def land(self) -> None:
+        self.inner.land()
+
+    def hold(self) -> None:
+        self.inner.hold()
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def __getattr__(self, name: str) -> Any:  # what else the inner adapter offers
+        return getattr(self.inner, name)

@@ -1,0 +1,464 @@
+"""The fault matrix (issue 19 item 6): every fault at every moment of the flight, in the simulator.
+
+``python -m insulator_rs.evaluation.fault_matrix --out DIR`` (or ``insulator-rs eval faults``)
+flies the small scene (tower B's design cut to a 12 m body with one cross-arm: a take-off, passes,
+two inspection detours, an over-the-top crossing and the way home in 125 s) once clean, reads
+the five moments off that flight's own state log (``trajectory.csv``), then flies each fault
+from each moment:
+
+* moments (s after arming): take-off (the climb, 1 m up), exploration (the middle of the longest
+  pass), inspection (the middle of the first detour to an inspection waypoint), crossing (the
+  middle of the over-the-top crossing), return (the middle of the way home and the landing);
+* faults, each an adapter round a port (:mod:`insulator_rs.sim.faults`): link loss and client
+  killed against our simulated PX4 over real UDP (``--vehicle mavlink``: PX4's own failsafes,
+  COM_OF_LOSS_T, COM_OBL_RC_ACT, RTL_RETURN_ALT, take over); the LiDAR silent, the camera frozen,
+  the detector raising, the pack dropping to its reserve, GPS (the position estimate) lost and
+  the operator's abort in process.
+
+For each cell, from the scene's TRUE geometry (its mesh: steel, insulators, fittings and
+conductors; not the mission's boxes) and the airframe's TRUE trajectory (the simulator's, up to
+the landing, whoever flew it): the minimum clearance, against the mission's ``safety_margin``;
+how the flight ended (landed by our route, by PX4's, or still flying); what ``summary.json`` says;
+whether the recording (``--record``, MCAP) holds every message written to it (the client killed: every
+message flushed before the kill, the recorder flushing every second). Writes
+``fault_matrix.md`` (the table), ``fault_matrix.json`` and ``fault_matrix.png`` (cells coloured by
+clearance) in ``--out``, one line per cell as it goes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time as wallclock
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from insulator_rs.exceptions import ClientKilled
+from insulator_rs.ports.vehicle import VehicleState
+
+PACKAGE = Path(__file__).resolve().parents[1]
+FAULTS = ("link loss", "LiDAR silent", "camera frozen", "detector error", "low battery", "GPS loss",
+          "operator abort", "client killed")
+MOMENTS = ("take-off", "exploration", "inspection", "crossing", "return")
+#: the faults flown against our simulated PX4 over UDP: the companion's link or process is the fault
+MAVLINK_FAULTS = ("link loss", "client killed")
+#: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
+REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
+                "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
+                "operator abort": ("operator abort",), "client killed": ("running",)}
+SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
+LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
+TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
+LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landing) bring it down
+HOVER_WAIT = 30.0  # s of vehicle time in HOLD after which the autopilot is taken to hover for the pilot
+WATCH_PERIOD = 0.02  # wall s between looks at our simulated PX4 once the companion is gone
+FLIGHT_ARGS = {"detect_period": 0.5, "detect_scale": 0.2, "photo_scale": 0.2, "seed": 0}
+
+
+@dataclass
+class Cell:
+    """One fault at one moment, measured (see the module docstring)."""
+
+    fault: str
+    moment: str
+    at_s: float  # s after arming the fault began
+    vehicle: str  # "in process" or "simulated PX4 (UDP)"
+    clearance_m: float  # minimum distance of the true trajectory to the scene's structure
+    nearest: str  # the kind of structure nearest then
+    max_altitude_m: float
+    ended: str  # "landed: our route", "landed: PX4 RTL", ...
+    status: str  # summary.json's status
+    reason: str  # summary.json's abort reason or failsafe, else ""
+    report_names_fault: bool
+    recording: str  # "N of N messages" read back
+    recording_intact: bool
+    flight_s: float
+    wall_s: float
+
+
+# -- the scene -----------------------------------------------------------------------------------
+def small_scene(folder: Path, scenes: Path, missions: Path) -> tuple[Path, Path]:
+    """Tower B's design cut down to a 12 m body with one cross-arm (two insulators), and its
+    mission (the passes 6 m from the line, 3 m/s): the files written in ``folder``."""
+    s = (scenes / "tower_b.toml").read_text(encoding="utf-8")
+    s = s.replace('name = "tower_b"', 'name = "small_tower"')
+    s = s.replace("height = 26.0\nbase_width = 5.6", "height = 12.0\nbase_width = 3.0")
+    s = s.replace("panels = 9", "panels = 4").replace("peak_height = 2.5", "peak_height = 1.5")
+    i, k = s.index("[[cross_arms]]"), s.index("[insulators]")
+    s = s[:i] + "[[cross_arms]]\nheight = 10.0\nreach = 3.0\ndepth = 1.2\nwidth = 1.0\n\n" + s[k:]
+    m = (missions / "tower_b.toml").read_text(encoding="utf-8")
+    for a, b in (("max_height = 28.5", "max_height = 13.5"), ("max_width = 9.0", "max_width = 6.0"),
+                 ("pass_spacing = 8.0", "pass_spacing = 10.0"), ("standoff = 8.0", "standoff = 6.0"),
+                 ("v_max_horizontal = 1.0", "v_max_horizontal = 3.0"),
+                 ("a_max_horizontal = 3.0", "a_max_horizontal = 6.0"),
+                 ("v_max_vertical = 1.0", "v_max_vertical = 2.0"),
+                 ("a_max_vertical = 3.0", "a_max_vertical = 4.0")):
+        if a not in m:
+            raise ValueError(f"{missions / 'tower_b.toml'}: no {a!r} to cut the small mission from")
+        m = m.replace(a, b)
+    folder.mkdir(parents=True, exist_ok=True)
+    scene, mission = folder / "small_tower.toml", folder / "small_mission.toml"
+    scene.write_text(s, encoding="utf-8")
+    mission.write_text(m, encoding="utf-8")
+    return scene, mission
+
+
+class Structure:
+    """The scene's structure (every triangle but the ground's) sampled every SURFACE_STEP m, for
+    the clearance of a trajectory: the distance to the nearest sample less the sampling's worst
+    case (a point of a triangle is at most ``bound`` from a sample), so never more than the truth."""
+
+    def __init__(self, mesh: Any) -> None:
+        from scipy.spatial import cKDTree
+
+        keep = np.array([mesh.instances[int(i)].kind != "ground" if int(i) in mesh.instances else True
+                         for i in mesh.instance_ids])
+        tri = mesh.vertices[mesh.triangles[keep]]  # (T, 3, 3)
+        kinds = np.array([mesh.instances[int(i)].kind if int(i) in mesh.instances else "other"
+                          for i in mesh.instance_ids[keep]])
+        points, labels = [], []
+        for (a, b, c), kind in zip(tri, kinds):
+            n = max(1, int(math.ceil(max(np.linalg.norm(b - a), np.linalg.norm(c - a), np.linalg.norm(c - b))
+                                     / SURFACE_STEP)))
+            u, v = np.meshgrid(np.arange(n + 1), np.arange(n + 1))
+            sel = u + v <= n
+            w1, w2 = u[sel] / n, v[sel] / n
+            points.append(a + np.outer(w1, b - a) + np.outer(w2, c - a))
+            labels.extend([kind] * int(sel.sum()))
+        self.points = np.concatenate(points)
+        self.labels = np.array(labels)
+        self.tree = cKDTree(self.points)
+        self.bound = SURFACE_STEP / math.sqrt(3.0)  # a point of a grid cell to its nearest corner
+
+    def clearance(self, positions: np.ndarray) -> tuple[float, str]:
+        """(minimum clearance in m, the kind of structure nearest there) along ``positions``."""
+        d, k = self.tree.query(np.asarray(positions, dtype=np.float64))
+        j = int(np.argmin(d))
+        return max(0.0, float(d[j]) - self.bound), str(self.labels[k[j]])
+
+
+# -- the moments ----------------------------------------------------------------------------------
+def moments_from(trajectory_csv: Path) -> dict[str, float]:
+    """The five moments (s after arming) from a clean flight's state log (see the module docstring)."""
+    import csv
+
+    with trajectory_csv.open(encoding="utf-8") as f:
+        rows = [(float(r["time_s"]), float(r["z_m"]), r["state"]) for r in csv.DictReader(f)]
+    runs: list[tuple[str, float, float]] = []  # (state, first s, last s)
+    for t, _, state in rows:
+        if runs and runs[-1][0] == state:
+            runs[-1] = (state, runs[-1][1], t)
+        else:
+            runs.append((state, t, t))
+
+    def middle(state: str, longest: bool = False) -> float:
+        spans = [(b - a, (a + b) / 2) for s, a, b in runs if s == state]
+        if not spans:
+            raise ValueError(f"{trajectory_csv}: the clean flight has no {state!r} phase")
+        return round((max(spans) if longest else spans[0])[1], 1)
+
+    z0 = rows[0][1]
+    climb = next(t for t, z, s in rows if s == "idle" and z - z0 >= 1.0)
+    return {"take-off": round(climb, 1), "exploration": middle("explore", longest=True),
+            "inspection": middle("inspect"), "crossing": middle("cross"), "return": middle("finish")}
+
+
+# -- one cell -------------------------------------------------------------------------------------
+@dataclass
+class Setup:
+    """What every cell flies: the scene and mission files, the built scene, the structure."""
+
+    scene: Path
+    mission: Path
+    tower: Any
+    structure: Structure
+    margin: float
+
+
+def _readable_messages(path: Path) -> int:
+    """Messages readable from an MCAP file (a complete one, or one cut short: up to the cut)."""
+    from mcap.records import Message
+    from mcap.stream_reader import StreamReader
+
+    n = 0
+    with path.open("rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False).records:
+                n += isinstance(record, Message)
+        except Exception:  # noqa: BLE001 - the cut: everything before it was counted
+            pass
+    return n
+
+
+def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
+             say: Callable[[str], None] = lambda _: None) -> Cell:
+    """Fly ``fault`` from ``at`` s after arming (None: the clean flight) into ``out``; measure it."""
+    from insulator_rs.sim.mission_airframe import kinematic_vehicle
+    from insulator_rs.flight.loop import FlightLoop, FlightSettings
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
+    from insulator_rs.rig import simulator_rig
+    from insulator_rs.sim import faults as F
+    from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
+    from insulator_rs.sim.sensors import SimulatedSensors, kinematic_true_pose, simulated_px4_true_pose
+
+    wall0 = wallclock.perf_counter()
+    mission = load_mission(setup.mission)
+    rig = mission.rig if mission.rig is not None else simulator_rig()
+    seed = int(FLIGHT_ARGS["seed"])
+    airframe_vehicle = kinematic_vehicle(mission, seed)
+    mavlink = fault in MAVLINK_FAULTS
+    simulator: Any = None
+    base: Any
+    if mavlink:
+        from insulator_rs.mavlink.client import MavlinkVehicle
+        from insulator_rs.sim.px4 import SimulatedPx4
+
+        origin = (mission.tower.lat, mission.tower.lon, mission.tower.alt)
+        simulator = SimulatedPx4(time_scale=TIME_SCALE, vehicle=airframe_vehicle, origin=origin).start()
+        host, port = simulator.address
+        # the client does not own the simulator: a killed client leaves PX4 flying
+        base = MavlinkVehicle(f"udpout:{host}:{port}", time_scale=TIME_SCALE)
+        airframe: Callable[[Callable[[Any], Any]], Any] = simulator.with_vehicle
+        pose = simulated_px4_true_pose(simulator)
+    else:
+        base = airframe_vehicle
+
+        def airframe(f: Callable[[Any], Any]) -> Any:
+            return f(airframe_vehicle)
+        pose = kinematic_true_pose(airframe_vehicle)
+    truth: list[np.ndarray] = []
+
+    def look(_: VehicleState | None = None) -> None:
+        truth.append(airframe(lambda v: v.model.position.copy()))
+
+    clock = F.FaultClock()
+    loop_ref: list[FlightLoop] = []
+    actions: dict[str, Callable[[], Callable[[], None]]] = {"link loss": lambda: F.link_loss(simulator),
+               "client killed": lambda: F.kill_client(base),
+               "GPS loss": lambda: F.gps_loss(airframe),
+               "low battery": lambda: F.battery_drop(
+                   airframe, mission.inspection.battery_reserve + LOW_BATTERY_ABOVE_RESERVE),
+               "operator abort": lambda: (lambda: loop_ref[0].request_abort())}
+    timed = [F.TimedAction(at, fault, actions[fault]())] if fault in actions else []
+    out.mkdir(parents=True, exist_ok=True)
+    recorder = McapRecorder(out / "flight.mcap")
+    sim_sensors = SimulatedSensors(setup.tower.mesh, pose, rig, detect_scale=FLIGHT_ARGS["detect_scale"],
+                                   photo_scale=FLIGHT_ARGS["photo_scale"], seed=seed)
+    sensors = F.FaultySensors(sim_sensors, clock, lidar_silent_at=at if fault == "LiDAR silent" else None,
+                              camera_frozen_at=at if fault == "camera frozen" else None)
+    vehicle = F.FaultyVehicle(RecordingVehicle(base, recorder), clock, timed, watch=look)
+    detector: Any = GroundTruthDetector(sim_sensors, seed=seed)
+    if fault == "detector error":
+        detector = F.FailingDetector(detector, at, lambda: clock.elapsed(base.state().time))
+    settings = FlightSettings(detect_period=FLIGHT_ARGS["detect_period"], quiet=True)
+    loop = FlightLoop(mission, vehicle, RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l), detector,
+                      out / "report", rig=rig, settings=settings, photo_camera=sim_sensors.photo_model)
+    loop_ref.append(loop)
+    killed = False
+    try:
+        look()
+        try:
+            loop.fly()
+            loop.finish_report()
+        except ClientKilled:
+            killed = True  # as kill -9: no report written after, the recorder never closed
+            saved = (out / "flight.mcap").read_bytes()  # what the file held at the kill
+        if not killed:
+            recorder.close()
+        ended = _watch_landing(airframe, look, base if not mavlink else None, setup, loop, killed)
+    finally:
+        if mavlink:
+            if not killed:
+                base.close()
+            simulator.stop()
+    if killed:
+        (out / "flight.mcap").write_bytes(saved)
+    written, durable = sum(recorder.counts.values()), recorder.durable
+    read = _readable_messages(out / "flight.mcap")
+    summary = json.loads((out / "report" / "summary.json").read_text(encoding="utf-8"))
+    reason = (summary.get("abort") or {}).get("reason") or ""
+    if summary.get("failsafe"):
+        reason = reason or summary["failsafe"]["reason"]
+    said = f"{summary['status']} {reason}".lower()
+    clearance, nearest = setup.structure.clearance(np.array(truth))
+    cell = Cell(fault=fault or "none", moment=moment, at_s=at,
+                vehicle="simulated PX4 (UDP)" if mavlink else "in process",
+                clearance_m=round(clearance, 2), nearest=nearest,
+                max_altitude_m=round(float(np.max(np.array(truth)[:, 2])), 1), ended=ended,
+                status=summary["status"], reason=reason,
+                report_names_fault=fault is None or any(w in said for w in REPORT_WORDS[fault]),
+                recording=f"{read} of {written} messages" + (f" ({durable} flushed before the kill)" if killed else ""),
+                recording_intact=read >= (durable if killed else written),
+                flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
+    say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
+        f"({nearest}), {ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
+    return cell
+
+
+def _watch_landing(airframe: Callable[[Callable[[Any], Any]], Any], look: Callable[[], None],
+                   in_process: Any, setup: Setup, loop: Any, killed: bool) -> str:
+    """After the companion's flight: let the autopilot finish (its failsafe, its landing) while
+    the true position is logged, up to LANDING_WAIT s of vehicle time; how it ended."""
+    from insulator_rs.exceptions import VehicleFailsafe
+
+    def status() -> tuple[bool, bool, str, float]:
+        return airframe(lambda v: (bool(v.landed), bool(v.armed), str(v.mode.value), float(v.clock.now)))
+
+    landed, armed, mode, t0 = status()
+    modes = {mode}
+    now, wall_end = t0, wallclock.monotonic() + 2 * LANDING_WAIT / TIME_SCALE
+    hover_since = t0  # a hover (HOLD) nobody ends: the pilot's, after HOVER_WAIT s it is the end
+    while not (landed and not armed) and now - t0 < LANDING_WAIT and wallclock.monotonic() < wall_end:
+        if mode != "HOLD":
+            hover_since = now
+        elif now - hover_since > HOVER_WAIT:
+            break
+        if in_process is not None:
+            try:
+                in_process.advance(0.05)
+            except VehicleFailsafe:
+                pass
+        else:
+            wallclock.sleep(WATCH_PERIOD)
+        look()
+        landed, armed, mode, now = status()
+        modes.add(mode)
+    who = "PX4" if killed or loop.failsafe is not None else "our route" if loop.abort_route is not None \
+        else "handed to the pilot" if loop.handed_over is not None else "the plan"
+    px4_mode = next((m for m in ("AUTO_RTL", "RTL", "AUTO_LAND", "LAND") if m in modes), None) \
+        if who == "PX4" else None
+    if landed:
+        return f"landed: {who}" + (f" ({px4_mode})" if px4_mode else "")
+    return f"in the air: {who} ({mode})"
+
+
+# -- the matrix -----------------------------------------------------------------------------------
+def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str] = MOMENTS,
+               say: Callable[[str], None] = print) -> dict[str, Any]:
+    """The clean flight, then every (fault, moment) cell; results written in ``out``."""
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.sim.towers import load_tower
+
+    for name in faults:
+        if name not in FAULTS:
+            raise ValueError(f"fault: {name!r} is not one of {', '.join(FAULTS)}")
+    for name in moments:
+        if name not in MOMENTS:
+            raise ValueError(f"moment: {name!r} is not one of {', '.join(MOMENTS)}")
+    wall0 = wallclock.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    scene, mission = small_scene(out / "scene", PACKAGE / "scenes", PACKAGE / "missions")
+    tower = load_tower(str(scene))
+    setup = Setup(scene, mission, tower, Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
+    flights = out / "flights"
+    clean = fly_cell(setup, None, "clean", math.inf, flights / "clean", say)
+    moments_s = moments_from(flights / "clean" / "report" / "trajectory.csv")
+    say(f"moments (s after arming): {moments_s}")
+    cells = [fly_cell(setup, f, m, moments_s[m], flights / f"{f.replace(' ', '_')}-{m}", say)
+             for f in faults for m in moments]
+    result = {"scene": "small (tower B's design, 12 m body, one cross-arm)", "margin_m": setup.margin,
+              "surface_step_m": SURFACE_STEP, "moments_s": moments_s, "clean": asdict(clean),
+              "cells": [asdict(c) for c in cells], "below_margin": sum(c.clearance_m < setup.margin for c in cells),
+              "not_landed": sum(not c.ended.startswith("landed") for c in cells),
+              "wall_s": round(wallclock.perf_counter() - wall0, 1)}
+    (out / "fault_matrix.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    (out / "fault_matrix.md").write_text(markdown(result), encoding="utf-8")
+    plot(result, out / "fault_matrix.png")
+    return result
+
+
+def markdown(result: dict[str, Any]) -> str:
+    """The matrix as markdown: clearance / end per cell, then one line per cell of what the report said."""
+    cells = result["cells"]
+    moments = [m for m in MOMENTS if any(c["moment"] == m for c in cells)]
+    faults = [f for f in FAULTS if any(c["fault"] == f for c in cells)]
+    by = {(c["fault"], c["moment"]): c for c in cells}
+    lines = ["| fault | " + " | ".join(f"{m} ({result['moments_s'][m]:.0f} s)" for m in moments) + " |",
+             "| --- |" + " --- |" * len(moments)]
+    short = {"landed: our route": "our route", "landed: the plan": "finished"}
+    for f in faults:
+        row = []
+        for m in moments:
+            c = by.get((f, m))
+            if c is None:
+                row.append("-")
+                continue
+            end = short.get(c["ended"], c["ended"].replace("landed: ", ""))
+            flag = "" if c["clearance_m"] >= result["margin_m"] else " **BELOW**"
+            row.append(f"{c['clearance_m']:.1f} m{flag}, {end}")
+        lines.append(f"| {f} | " + " | ".join(row) + " |")
+    lines += ["", "| cell | summary.json status | names the fault | recording |", "| --- | --- | --- | --- |"]
+    for c in cells:
+        lines.append(f"| {c['fault']} @ {c['moment']} | {c['status']} | {'yes' if c['report_names_fault'] else 'no'} "
+                     f"| {c['recording']} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(result: dict[str, Any], path: Path) -> None:
+    """Cells coloured by clearance (red below the margin), the end written in each."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = result["cells"]
+    moments = [m for m in MOMENTS if any(c["moment"] == m for c in cells)]
+    faults = [f for f in FAULTS if any(c["fault"] == f for c in cells)]
+    grid = np.full((len(faults), len(moments)), np.nan)
+    for c in cells:
+        grid[faults.index(c["fault"]), moments.index(c["moment"])] = c["clearance_m"]
+    fig, ax = plt.subplots(figsize=(1.9 * len(moments) + 2.5, 0.6 * len(faults) + 1.5))
+    margin = result["margin_m"]
+    im = ax.imshow(grid, cmap="RdYlGn", vmin=0.0, vmax=max(2 * margin, float(np.nanmax(grid))), aspect="auto")
+    for c in cells:
+        i, j = faults.index(c["fault"]), moments.index(c["moment"])
+        end = c["ended"].replace("landed: ", "")
+        ax.text(j, i, f"{c['clearance_m']:.1f} m\n{end}", ha="center", va="center", fontsize=7,
+                color="black" if c["clearance_m"] >= margin else "white")
+    ax.set_xticks(range(len(moments)), moments)
+    ax.set_yticks(range(len(faults)), faults)
+    ax.set_title(f"minimum clearance to the true tower and conductors (margin {margin:g} m)")
+    fig.colorbar(im, ax=ax, label="m")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="insulator-rs eval faults", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(p)
+    return run(p.parse_args(argv))
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from insulator_rs.report import parse_out_folder
+
+    p.add_argument("--out", type=parse_out_folder, required=True, help="folder for the table, JSON, plot and flights")
+    p.add_argument("--faults", default=",".join(FAULTS), help=f"comma-separated subset of: {', '.join(FAULTS)}")
+    p.add_argument("--moments", default=",".join(MOMENTS), help=f"comma-separated subset of: {', '.join(MOMENTS)}")
+
+
+def run(args: argparse.Namespace) -> int:
+    faults = [f.strip() for f in args.faults.split(",") if f.strip()]
+    moments = [m.strip() for m in args.moments.split(",") if m.strip()]
+    try:
+        result = run_matrix(args.out, faults, moments)
+    except ValueError as exc:
+        print(f"insulator-rs eval faults: error: {exc}", file=sys.stderr)
+        return 2
+    print(markdown(result))
+    print(f"{len(result['cells'])} cells, {result['below_margin']} below the {result['margin_m']:g} m margin, "
+          f"{result['not_landed']} not landed; wall {result['wall_s']:.0f} s")
+    return 0 if result["below_margin"] == 0 and result["not_landed"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,207 @@
+"""The fault matrix (issue 19 item 6): the fault adapters, the product's answer to each fault the
+matrix found unanswered, and a representative subset of its cells flown end to end.
+
+The cells fly the small scene (``insulator_rs.evaluation.fault_matrix``): the clearance is measured
+from the scene's TRUE mesh (steel, insulators, fittings, conductors) to the airframe's TRUE
+trajectory up to the landing, whoever flew it (our route out or PX4's failsafe); the link and
+client cells fly our simulated PX4 over real UDP. The whole matrix: ``insulator-rs eval faults``
+(README, "Security and failure behaviour").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from insulator_rs.evaluation import fault_matrix as FM
+from insulator_rs.exceptions import ClientKilled, ParameterError, VehicleError, VehicleFailsafe
+from insulator_rs.perception.pipeline import PerceptionPipeline
+from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.ports.sensors import CameraFrame, LidarScan
+from insulator_rs.rig import simulator_rig
+from insulator_rs.sim import faults as F
+from insulator_rs.sim.kinematics import KinematicVehicle
+
+# s after arming, read by FM.moments_from off the clean flight's state log (docs/results/fault_matrix)
+MOMENTS = {"take-off": 0.8, "exploration": 25.4, "inspection": 9.9, "crossing": 40.9, "return": 102.6}
+
+
+class Source:
+    """A sensor source that always delivers: a new frame and a new scan at every ask."""
+
+    def __init__(self) -> None:
+        self.rig = simulator_rig()
+        self.asked = {"frames": 0, "scans": 0}
+
+    def detection_frame(self, now: float) -> CameraFrame:
+        self.asked["frames"] += 1
+        return CameraFrame(now, np.zeros((4, 4, 3), np.uint8), self.rig.camera, self.rig.T_b_c)
+
+    def lidar_scan(self, now: float) -> LidarScan:
+        self.asked["scans"] += 1
+        return LidarScan(np.ones((3, 3)), np.full(3, now), self.rig.T_b_l, window_end=now)
+
+    def photo(self, now, T_b_c, camera=None):
+        return None
+
+    def health(self):
+        return {"source": "test"}
+
+    def close(self) -> None:
+        pass
+
+
+def started(at: float = 100.0) -> F.FaultClock:
+    clock = F.FaultClock()
+    clock.start(at)
+    return clock
+
+
+def test_a_silent_lidar_and_a_frozen_camera_start_at_their_moment():
+    src = Source()
+    sensors = F.FaultySensors(src, started(), lidar_silent_at=5.0, camera_frozen_at=3.0)
+    assert sensors.lidar_scan(104.9) is not None
+    assert sensors.lidar_scan(105.0) is None and src.asked["scans"] == 1  # nothing asked of the driver
+    before = sensors.detection_frame(102.9)
+    assert sensors.detection_frame(103.0) is before and sensors.detection_frame(110.0).time == 102.9
+    assert sensors.health()["fault_withheld"] == {"scans": 1, "frames_repeated": 2}
+
+
+def test_nothing_fails_before_arming():
+    sensors = F.FaultySensors(Source(), F.FaultClock(), lidar_silent_at=0.0, camera_frozen_at=0.0)
+    assert sensors.lidar_scan(1e6) is not None and sensors.detection_frame(1e6).time == 1e6
+    with pytest.raises(ValueError, match="lidar_silent_at"):
+        F.FaultySensors(Source(), F.FaultClock(), lidar_silent_at=math.nan)
+
+
+def test_the_detector_raises_from_its_moment():
+    now = [0.0]
+    det = F.FailingDetector(lambda image: np.zeros((0, 5)), 2.0, lambda: now[0])
+    assert det(np.zeros((2, 2, 3))).shape == (0, 5)
+    now[0] = 2.0
+    with pytest.raises(RuntimeError, match="ONNXRuntimeError"):
+        det(np.zeros((2, 2, 3)))
+
+
+def test_vehicle_faults_fire_once_at_their_flight_time_gps_loss_is_the_autopilots_failsafe():
+    airframe = KinematicVehicle(seed=0)
+    clock = F.FaultClock()
+    calls = []
+    vehicle = F.FaultyVehicle(airframe, clock, [
+        F.TimedAction(0.2, "GPS loss", F.gps_loss(lambda f: f(airframe))),
+        F.TimedAction(0.1, "note", lambda: calls.append(airframe.clock.now))])
+    airframe.send_setpoint(np.array([0.0, 0.0, 5.0]), None, 0.0)
+    vehicle.advance(0.5)  # before arming: nothing fires
+    assert not vehicle.fired
+    vehicle.arm()
+    vehicle.start_offboard()
+    vehicle.advance(0.15)
+    assert [n for n, _ in vehicle.fired] == ["note"] and len(calls) == 1
+    with pytest.raises(VehicleFailsafe, match="position estimate lost"):
+        vehicle.advance(0.1)
+        vehicle.advance(0.05)
+    vehicle.advance(0.1)
+    assert [n for n, _ in vehicle.fired] == ["note", "GPS loss"] and len(calls) == 1
+
+
+def test_low_battery_and_the_kill():
+    airframe = KinematicVehicle(seed=0)
+    F.battery_drop(lambda f: f(airframe), 0.26)()
+    assert airframe.battery_fraction == 0.26
+    with pytest.raises(ValueError, match="charge"):
+        F.battery_drop(lambda f: f(airframe), 1.5)
+    with pytest.raises(ClientKilled):
+        F.kill_client(airframe)()
+    with pytest.raises(VehicleError, match="closed"):
+        airframe.advance(0.1)  # the killed client is closed: nothing more is sent
+
+
+def _runner(sensors, detector) -> PerceptionRunner:
+    rig = simulator_rig()
+    return PerceptionRunner(sensors, detector, PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l),
+                            detect_period=0.5)
+
+
+def test_a_detector_that_raises_costs_the_event_then_the_mission_once_it_keeps_failing():
+    runner = _runner(Source(), F.FailingDetector(lambda image: np.zeros((0, 5)), 0.0, lambda: 0.0))
+    for k in range(25):
+        runner.step(float(k) * 0.5)  # no traceback: each failure is counted
+    assert runner.counts.detector_errors == 25 and runner.counts.frames == 25
+    assert runner.lost(5.0, 10.0) is None
+    assert runner.lost(12.0, 10.0).startswith("detector failed for 10 s (RuntimeError: [ONNXRuntimeError]")
+
+
+def test_a_lidar_asked_for_points_and_silent_is_lost():
+    box = np.array([[1.0, 1.0, 3.0, 3.0, 0.9]])
+    runner = _runner(F.FaultySensors(Source(), started(0.0), lidar_silent_at=2.0), lambda image: box)
+    for k in range(4):
+        runner.step(k * 0.5)
+        assert runner.lost(k * 0.5 + 9.9, 10.0) is None  # scans came while it was healthy
+    for k in range(5, 30):
+        runner.step(k * 0.5)
+    assert runner.lost(14.5, 10.0) == "sensor lost: no LiDAR scan for 10 s"
+    assert runner.lost(11.0, 10.0) is None
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.sim.towers import load_tower
+
+    folder = tmp_path_factory.mktemp("faults")
+    scene, mission = FM.small_scene(folder, FM.PACKAGE / "scenes", FM.PACKAGE / "missions")
+    tower = load_tower(str(scene))
+    return FM.Setup(scene, mission, tower, FM.Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
+
+
+# a representative subset: the two product fixes, the autopilot's own failsafe over the conductors,
+# the operator mid-crossing, and the companion lost or killed against our simulated PX4 over UDP
+CELLS = [("LiDAR silent", "exploration"), ("detector error", "inspection"), ("GPS loss", "crossing"),
+         ("operator abort", "crossing"), ("link loss", "inspection"), ("client killed", "crossing")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault,moment", CELLS, ids=[f"{f}@{m}" for f, m in CELLS])
+def test_a_fault_cell_stays_clear_ends_landed_and_is_reported(setup, tmp_path, fault, moment):
+    cell = FM.fly_cell(setup, fault, moment, MOMENTS[moment], tmp_path / "cell")
+    assert cell.clearance_m >= setup.margin, f"{cell.clearance_m} m from the {cell.nearest}"
+    assert cell.ended.startswith("landed"), cell.ended
+    if fault in FM.MAVLINK_FAULTS:
+        assert cell.ended.startswith("landed: PX4") and cell.max_altitude_m > 12.0  # PX4 came back over the top
+    assert cell.report_names_fault, f"{cell.status} / {cell.reason}"
+    assert cell.recording_intact, cell.recording
+
+
+class Unheard:
+    """A parameter store whose autopilot answered the setup, then nothing (the link lost)."""
+
+    def __init__(self) -> None:
+        self.values = {"A": 1.0, "B": 2.0, "C": 3.0}
+        self.lost = False
+        self.asked: list[str] = []
+
+    def read(self, name):
+        return self.values[name]
+
+    def set(self, name, value):
+        self.asked.append(name)
+        if self.lost:
+            raise ParameterError(name, "no PARAM_VALUE after 3 tries of 1 s: the autopilot did not answer")
+        self.values[name] = value
+        return value
+
+
+def test_the_restore_stops_asking_an_autopilot_that_no_longer_answers():
+    from insulator_rs.flight.autopilot_setup import AutopilotSetup
+    from insulator_rs.planning.px4_failsafes import ParameterSetting
+
+    store = Unheard()
+    setup = AutopilotSetup(store, [ParameterSetting(n, 9.0, "test") for n in "ABC"], ground_station=False)
+    setup.apply()
+    store.lost, store.asked = True, []
+    setup.restore()  # the link loss at take-off waited minutes here, every parameter's retries
+    assert store.asked == ["A"]
+    assert setup.restore_status == "restore failed for A, B, C"
+    assert setup.records[1].error == "not tried: the autopilot did not answer for A"
