@@ -145,6 +145,21 @@ def test_a_lidar_asked_for_points_and_silent_is_lost():
     assert runner.lost(11.0, 10.0) is None
 
 
+def test_a_late_lidar_whose_frames_were_given_up_on_is_not_lost_while_nothing_asks():
+    """Boxes for 3 s while the LiDAR is late (its asks unanswered), then nothing in view: no ask is
+    made, so the LiDAR is not judged silent however long that lasts (a loaded companion's late
+    stream, not a dead sensor)."""
+    boxes = np.array([[1.0, 1.0, 3.0, 3.0, 0.9]])
+    runner = _runner(F.FaultySensors(Source(), started(0.0), lidar_silent_at=1.0),
+                     lambda image: boxes if runner_time[0] < 3.0 else np.zeros((0, 5)))
+    runner_time = [0.0]
+    for k in range(80):
+        runner_time[0] = k * 0.5
+        runner.step(k * 0.5)
+    assert runner.lidar_unanswered_since is not None  # its asks went unanswered, then stopped
+    assert runner.lost(40.0, 10.0) is None
+
+
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     from insulator_rs.mission.config import load_mission

@@ -79,8 +79,12 @@ class PerceptionRunner:
         self._last_frame_time = -math.inf
         # the boxes of the latest detection event (an observer draws them; None before the first)
         self.last_boxes: np.ndarray | None = None
-        # vehicle time of the first ask for LiDAR points since new ones last came (None: they came)
+        # vehicle times of the first and the latest ask for LiDAR points since new ones last came
+        # (None: they came). Asks are made only while frames wait for points, so the LiDAR is
+        # lost when the asks themselves went unanswered that long, not when no ask was made
+        # (a late LiDAR's frames given up on, then nothing in view to ask for: not a silent one)
         self.lidar_unanswered_since: float | None = None
+        self.lidar_unanswered_until: float | None = None
         # vehicle time of the first detector failure since it last ran, and that failure
         self.detector_failing_since: float | None = None
         self.detector_error: DetectorError | None = None
@@ -121,8 +125,8 @@ class PerceptionRunner:
         """Why perception is lost at vehicle time ``now``, if it is: the LiDAR asked for points and
         delivering nothing new for more than ``timeout`` s, or the detector raising on every frame
         for that long; None while both work (or were not needed)."""
-        since = self.lidar_unanswered_since
-        if since is not None and now - since > timeout:
+        since, until = self.lidar_unanswered_since, self.lidar_unanswered_until
+        if since is not None and until is not None and min(until, now) - since > timeout:
             return f"sensor lost: no LiDAR scan for {timeout:.0f} s"
         since = self.detector_failing_since
         if since is not None and now - since > timeout:
@@ -147,8 +151,9 @@ class PerceptionRunner:
         if new is None:
             if self.lidar_unanswered_since is None:
                 self.lidar_unanswered_since = now
+            self.lidar_unanswered_until = now
             return
-        self.lidar_unanswered_since = None
+        self.lidar_unanswered_since = self.lidar_unanswered_until = None
         self.pipeline.add_scan(new)
 
     def _detect(self, image: np.ndarray) -> np.ndarray | None:
