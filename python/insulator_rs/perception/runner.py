@@ -108,6 +108,14 @@ class PerceptionRunner:
         self._take_scan(self._ask_scan(now))
         return self._process(self.pairing.drain(self.intake.horizon))
 
+    def survey(self, now: float) -> np.ndarray:
+        """The newest scan's points not taken before, in W (deskewed with the pose history), for
+        the obstacle map; they go to perception's buffer as well, through the same intake, so
+        perception (and a replay of the recorded flight) sees the same scans either way. A
+        sensor error costs this survey only (counted, handed on)."""
+        new = self._take_scan(self._ask_scan(now))
+        return np.zeros((0, 3)) if new is None or not len(new) else self.pipeline.scan_points_w(new)
+
     # -- internals ------------------------------------------------------------------------
     def _sensor_error(self, exc: SensorError) -> None:
         self.counts.sensor_errors += 1
@@ -121,10 +129,12 @@ class PerceptionRunner:
             self._sensor_error(exc)
             return None
 
-    def _take_scan(self, scan: LidarScan | None) -> None:
+    def _take_scan(self, scan: LidarScan | None) -> LidarScan | None:
+        """The new part of ``scan`` (None: nothing new), handed to the pipeline."""
         new = self.intake.take(scan)
         if new is not None:
             self.pipeline.add_scan(new)
+        return new
 
     def _detection_event(self, now: float) -> None:
         """Take a detection frame and run the detector; a frame with boxes waits for the LiDAR
