@@ -187,7 +187,9 @@ class FlightLoop:
         # what the LiDAR saw outside the safety volumes, kept for the planner (None: not kept)
         self.obstacles = (ObstacleMap(known=self.geom.volumes, ground_z=float(self.geom.takeoff[2]))
                           if settings.obstacle_map else None)
-        self._next_survey = -math.inf
+        # the first survey a period in: a scan asked for at once would reach back before the clock's
+        # start (the simulator renders the 100 ms before; a recording refuses negative stamps)
+        self._next_survey = self.vehicle.state().time + SURVEY_PERIOD
         self.legs_bent = 0  # legs planned round an obstacle of the map
         self.legs_replanned = 0  # legs left mid-way because the map saw their rest blocked
         self.legs_refused = 0  # legs no detour round the map's obstacles cleared
@@ -417,7 +419,8 @@ class FlightLoop:
         for t, st in ([] if traj is None else self._follow(traj, lambda: items[min(k, len(items) - 1)].yaw)):
             if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
                 return False
-            if seen is not None and self.obstacles is not None and self.obstacles.version != seen_version:
+            if (traj is not None and seen is not None and self.obstacles is not None
+                    and self.obstacles.version != seen_version):  # new occupied voxels: the rest re-checked
                 seen_version = self.obstacles.version
                 if not self._rest_clear(traj, t, seen):
                     self.legs_replanned += 1
