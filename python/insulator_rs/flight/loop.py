@@ -8,7 +8,9 @@ rule, shared with the replay of a recorded flight; paired and deskewed with the 
 the loop feeds every control tick); new insulators get inspection waypoints, which the state
 machine visits (a photo at each, from the companion computer's camera through
 ``Sensors.photo``, gimbal aimed), then the flight goes on, crosses over the top, finishes and
-lands. The loop does not know whether it is recorded: recording wraps the ports.
+lands. Every leg is also checked against what the LiDAR saw outside the tower's
+model (:mod:`insulator_rs.planning.obstacle_map`: a scan every SURVEY_PERIOD s into a voxel map),
+bent round it or refused, and re-checked as the map grows while the leg is flown. The loop does not know whether it is recorded: recording wraps the ports.
 
 A vehicle failsafe (link lost, the pilot took over, battery, position lost) aborts the mission:
 the report says why and keeps everything found so far, and once the failsafe fired nothing more
