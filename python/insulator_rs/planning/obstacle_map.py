@@ -40,10 +40,11 @@ from insulator_rs.planning.safety import SafetyVolumes
 
 VOXEL_SIZE = 0.4  # m: a pole or a guy wire fills a voxel; a 2 m margin is 5 voxels
 MIN_HITS = 2  # returns before a voxel counts as occupied (one noise return must not block)
-# m above the take-off ground: returns below are the ground. Deskewed with the estimated pose, a
-# ground return 15-20 m away lands up to a metre high (measured on the simulated flight); legs fly
-# no lower than 3 m, so what stands below this is never within a 2 m margin of them
-GROUND_BAND = 1.0
+# m above the take-off ground: returns below are the ground. Deskewed with the estimated pose,
+# ground returns land up to 1.2 m high, 1-4 m from the take-off point too (measured on the
+# simulated flight: they blocked the landing approach 2 m above it). Legs fly no lower than 3 m
+# (the landing approach 2 m): what stands lower than this is not seen by the map (README)
+GROUND_BAND = 1.5
 # m from the sensor: farther returns are left out (the least accurate, and seen again nearer
 # when the flight goes there)
 SURVEY_RANGE = 25.0
