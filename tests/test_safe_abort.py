@@ -44,7 +44,7 @@ MISSION = inspect_command.MISSIONS_DIR / "tower_b.toml"
 ARGS = ["--scene", "tower_b", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet", "--detector", "standin"]
 # s of flight: the top crossing is over the tower's footprint from 237.7 s to 251.0 s
 CROSSING = {"25 %": 241.0, "50 %": 244.4, "75 %": 247.7}
-ARM_VISITS = {"insulator 1 (take-off side)": 70.0, "insulator 3 (far side)": 315.0}
+ARM_VISITS = {"insulator 1 (take-off side)": 70.0, "insulator 3 (far side)": 290.0}
 Z_TOLERANCE = 0.02  # m: the trajectory's rounding (mm) and the vehicle's tracking, level flight
 
 

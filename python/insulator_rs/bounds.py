@@ -170,7 +170,13 @@ SCENE: dict[str, Limit] = {
     "conductors.jumper_sag": Limit(0.0, 10.0, "m", "a jumper loop sags a few metres at most"),
     "ground_size": Limit(0.0, 10000.0, "m", "the ground plane only needs to reach past the LiDAR "
                          "range", lo_open=True),
+    "obstacles.radius": Limit(0.005, 10.0, "m", "from a guy wire (a centimetre) to the width of a "
+                              "neighbouring structure"),
 }
+#: Most obstacles (poles, guy wires, structures beside the tower) in one scene.
+MAX_OBSTACLES = 50
+#: Shortest scene obstacle, m.
+OBSTACLE_MIN_LENGTH = 0.1
 #: Most cross-arms on one tower (the tallest double-circuit towers carry 6 plus peaks).
 MAX_CROSS_ARMS = 12
 #: Neighbour coordinates in a scene file, m from the inspected tower (see :data:`SPAN`).

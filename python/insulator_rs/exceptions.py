@@ -114,6 +114,17 @@ class PlanningError(InsulatorError):
     """
 
 
+class ObstacleMapError(InsulatorError, ValueError):
+    """The obstacle map (``insulator_rs.planning.obstacle_map``) was given a bad setting (voxel
+    size, hit count, capacity) or points that are not an (N, 3) array. The message names the
+    argument and the allowed range."""
+
+
+class ObstacleBlocked(PlanningError):
+    """A leg comes within the safety margin of an obstacle the LiDAR saw (the obstacle map) and
+    no detour round it is clear: the leg is refused. The message names the segment or waypoint."""
+
+
 class ReportError(InsulatorError, ValueError):
     """A report folder cannot be read back (``insulator-rs report``, ``report.html``): a missing
     or malformed ``summary.json`` or ``inspection.geojson``. The message names the file and what

@@ -167,6 +167,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="the simulated airframe's charge at take-off (fraction of the pack; default 1: full). "
                         "Its pack drains with time and distance (25 min hover); the mission comes back "
                         "before [inspection] battery_reserve is touched")
+    p.add_argument("--no-obstacle-map", action="store_true",
+                   help="check the route against the GPS-derived safety volumes only, not against the map "
+                        "of what the LiDAR saw (the comparison: what the map buys; unsafe beside "
+                        "anything the tower model does not hold)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--sim-camera-latency", type=bounds.option("--sim-camera-latency"), default=0.0,
                    help="s: the simulated camera's frames are stamped this long after their exposure (a late "
@@ -319,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
         photo_camera = sensors.photo_model
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
-                              quiet=args.quiet)
+                              quiet=args.quiet, obstacle_map=not args.no_obstacle_map)
     observer = None
     if mavlink:  # the pilot's view: STATUSTEXT and a MAVLink camera through the autopilot (mavlink/gcs.py)
         from insulator_rs.mavlink.gcs import CameraDescription, MavlinkGcsObserver

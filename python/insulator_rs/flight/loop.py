@@ -8,7 +8,9 @@ rule, shared with the replay of a recorded flight; paired and deskewed with the 
 the loop feeds every control tick); new insulators get inspection waypoints, which the state
 machine visits (a photo at each, from the companion computer's camera through
 ``Sensors.photo``, gimbal aimed), then the flight goes on, crosses over the top, finishes and
-lands. The loop does not know whether it is recorded: recording wraps the ports.
+lands. Every leg is also checked against what the LiDAR saw outside the tower's
+model (:mod:`insulator_rs.planning.obstacle_map`: a scan every SURVEY_PERIOD s into a voxel map),
+bent round it or refused, and re-checked as the map grows while the leg is flown. The loop does not know whether it is recorded: recording wraps the ports.
 
 A vehicle failsafe (link lost, the pilot took over, battery, position lost) aborts the mission:
 the report says why and keeps everything found so far, and once the failsafe fired nothing more
@@ -40,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.exceptions import (ParameterError, PlanningError, PreflightRefused, SensorError, VehicleError,
-                                     VehicleFailsafe)
+from insulator_rs.exceptions import (ObstacleBlocked, ParameterError, PlanningError, PreflightRefused, SensorError,
+                                     VehicleError, VehicleFailsafe)
 from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
 from insulator_rs.flight.autopilot_setup import AutopilotSetup
 from insulator_rs.flight.gimbal import aim_at, gimballed_T_b_c, stabilised_T_b_c  # noqa: F401 (their old home)
@@ -62,6 +64,7 @@ from insulator_rs.planning.energy import RouteDemand, route_demand
 from insulator_rs.planning.exploration import MIN_PASS_HEIGHT, PlanKind
 from insulator_rs.planning.framing import MIN_FILL
 from insulator_rs.planning.minsnap import MinSnapTrajectory
+from insulator_rs.planning.obstacle_map import ObstacleMap, SeenVolumes
 from insulator_rs.planning.pmm import rest_to_rest_times
 from insulator_rs.planning.px4_failsafes import tower_failsafe_parameters
 from insulator_rs.planning.segments import SAFETY_CHECK_DT, plan_segment
@@ -91,6 +94,9 @@ LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
 SENSOR_LOST_TIMEOUT = 10.0  # s of flight without a new camera frame: the sensor is lost, abort
 OFFBOARD_WARMUP = 0.5  # s of setpoints streamed before asking for OFFBOARD (PX4 wants a stream)
 GROUND_STATION_WAIT = 2.5  # wall s to wait for a ground station's HEARTBEAT (1 Hz) before take-off
+# s between LiDAR scans taken into the obstacle map (planning/obstacle_map.py); each is one
+# 100 ms scan, so the map sees a fifth of the returns: a pole fills its voxels within seconds
+SURVEY_PERIOD = 0.5
 # s of vehicle time to wait, after the mission ends with the vehicle in the air (PX4's own return,
 # a pilot holding), for the landing before the autopilot's old parameters are put back
 RESTORE_WAIT = 300.0
@@ -107,6 +113,10 @@ class FlightSettings:
     max_flight_time: float = 1800.0
     time_allocation: str = "pmm"
     quiet: bool = False
+    # check every leg against the LiDAR's obstacle map as well as the GPS-derived safety
+    # volumes (planning/obstacle_map.py); False flies the volumes only (inspect --no-obstacle-map:
+    # what the map buys, measured)
+    obstacle_map: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policy", Policy(self.policy))  # a bad policy is refused, named
@@ -178,6 +188,15 @@ class FlightLoop:
         self.battery = BatteryReserve(mission.inspection.battery_reserve)
         self.left: dict[str, Any] | None = None  # what an abort left of the plan (the report's)
         self.preflight_result: PreflightResult | None = None  # the gate before arming (flight/preflight.py)
+        # what the LiDAR saw outside the safety volumes, kept for the planner (None: not kept)
+        self.obstacles = (ObstacleMap(known=self.geom.volumes, ground_z=float(self.geom.takeoff[2]))
+                          if settings.obstacle_map else None)
+        # the first survey a period in: a scan asked for at once would reach back before the clock's
+        # start (the simulator renders the 100 ms before; a recording refuses negative stamps)
+        self._next_survey = self.vehicle.state().time + SURVEY_PERIOD
+        self.legs_bent = 0  # legs planned round an obstacle of the map
+        self.legs_replanned = 0  # legs left mid-way because the map saw their rest blocked
+        self.legs_refused = 0  # legs no detour round the map's obstacles cleared
 
     # -- helpers -------------------------------------------------------------------------
     def _waypoints(self, ins: Insulator) -> list[InspectionWaypoint]:
@@ -255,6 +274,9 @@ class FlightLoop:
         self.battery.observe(st)
         self.report.log_pose(t, st.position, st.yaw, self.sm.state.value)
         self.runner.add_pose(PoseStamped(st.time, st.T_w_b))  # the whole reported attitude
+        if self.obstacles is not None and st.time >= self._next_survey:
+            self._next_survey = st.time + SURVEY_PERIOD
+            self.obstacles.insert(self.runner.survey(st.time), sensor_w=(st.T_w_b @ self.rig.T_b_l)[:3, 3])
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
             for fix in self.runner.step(st.time):
                 self._localized(fix, st)
@@ -380,12 +402,19 @@ class FlightLoop:
         """Fly a min-snap trajectory through ``items`` (the plan's head); report each item reached
         to the state machine. Returns False if the plan changed on the way (re-plan)."""
         st = self.vehicle.state()
-        seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity, items, v_max=self.v_max, a_max=self.a_max,
-                           clearance=self.mission.inspection.crossing_clearance,
-                           time_allocation=self.settings.time_allocation)
+        seen = self._seen()
+        try:
+            seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity, items, v_max=self.v_max,
+                               a_max=self.a_max, clearance=self.mission.inspection.crossing_clearance,
+                               time_allocation=self.settings.time_allocation, seen=seen)
+        except ObstacleBlocked:
+            self.legs_refused += 1
+            raise
+        self.legs_bent += seg.detours > 0
         traj = seg.trajectory
         k = 0
         version = self.sm.plan_version  # a change of the plan on the way means: re-plan
+        seen_version = -1 if self.obstacles is None else self.obstacles.version
         # no trajectory: the vehicle is at the items already (a re-plan that came as it arrived,
         # tower A's second waypoint): it goes on to the photo, not round the same leg forever
         if traj is None:
@@ -396,6 +425,13 @@ class FlightLoop:
         for t, st in ([] if traj is None else self._follow(traj, lambda: items[min(k, len(items) - 1)].yaw)):
             if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
                 return False
+            if (traj is not None and seen is not None and self.obstacles is not None
+                    and self.obstacles.version != seen_version):  # new occupied voxels: the rest re-checked
+                seen_version = self.obstacles.version
+                if not self._rest_clear(traj, t, seen):
+                    self.legs_replanned += 1
+                    self.say(f"[{self.now():7.1f} s] the LiDAR sees an obstacle on the rest of the leg: re-planning")
+                    return False
             while k < len(items) - 1 and t >= seg.item_times[k] - 1e-9:
                 if not self._search_may_end(items[k]):
                     return False
@@ -413,6 +449,18 @@ class FlightLoop:
                 return False
             self.sm.reached(self.vehicle.state().time)
         return True
+
+    def _seen(self) -> SeenVolumes | None:
+        """The safety volumes with the obstacle map, at the mission's margin (None: no map)."""
+        if self.obstacles is None:
+            return None
+        return SeenVolumes.of(self.geom.volumes, self.obstacles, self.mission.inspection.safety_margin)
+
+    def _rest_clear(self, traj: MinSnapTrajectory, t: float, seen: SeenVolumes) -> bool:
+        """Whether ``traj`` from its time ``t`` on stays clear of the volumes and the map as it is
+        now (sampled as the planner checks: SAFETY_CHECK_DT, at the limits' speed)."""
+        times = np.append(np.arange(t, traj.total_time, SAFETY_CHECK_DT), traj.total_time)
+        return seen.samples_clear(traj.evaluate(times, 0), float(np.linalg.norm(self.v_max)) * SAFETY_CHECK_DT)
 
     def _search_may_end(self, item: PlanItem) -> bool:
         """Before ``item``, the plan's head, is reported reached: True to go on. Where reaching it
@@ -877,6 +925,7 @@ class FlightLoop:
                           "reason": tr.reason} for tr in self.sm.transitions],
             timesync=timesync_record(self.vehicle, self.sensors),
             battery=self.battery.record(),
+            obstacle_map=self._obstacle_record(),
             preflight=None if self.preflight_result is None else self.preflight_result.as_record(),
             px4_parameters=None if self.autopilot_setup is None else self.autopilot_setup.record())
         refused = self.preflight_result is not None and not self.preflight_result.passed
@@ -885,6 +934,14 @@ class FlightLoop:
                           perception=perception_record(self.runner, self.sensor_errors),
                           insulators=insulator_records(self.registry, photos), photos=self.photos.records,
                           sensors_health=self.sensors.health(), flight=details)
+
+    def _obstacle_record(self) -> dict[str, Any]:
+        """What the obstacle map held and did (summary.json)."""
+        if self.obstacles is None:
+            return {"enabled": False}
+        return {"enabled": True, **self.obstacles.record(), "margin_m": self.mission.inspection.safety_margin,
+                "legs_bent": self.legs_bent, "legs_replanned": self.legs_replanned,
+                "legs_refused": self.legs_refused}
 
     def _abort_record(self) -> dict[str, Any] | None:
         ctx = self.sm.aborted

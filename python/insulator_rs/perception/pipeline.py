@@ -219,20 +219,27 @@ class PerceptionPipeline:
     def paired_points_w(self, time: float) -> np.ndarray:
         """The buffered scans' points within the pairing window of ``time``, each moved to W with
         the pose at its own time."""
-        knots_t, knots_T = self.poses.knots()
         parts = []
         for scan in self.scans:
             near = np.abs(scan.times - time) <= self.pairing_window
-            if not np.any(near):
-                continue
-            # the history clamps outside its span (a point newer than the newest pose): as PoseTrack
-            t = np.clip(np.asarray(scan.times, dtype=np.float64)[near], knots_t[0], knots_t[-1])
-            T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
-            # fusion_core's deskew (slerp + lerp per point) to L at the newest pose, then to W
-            pts_l = ir.deskew(np.asarray(scan.points_l)[near], t, knots_t, knots_T, float(knots_t[-1]), T_b_l)
-            T_w_l = knots_T[-1] @ T_b_l
-            parts.append(pts_l @ T_w_l[:3, :3].T + T_w_l[:3, 3])
+            if np.any(near):
+                parts.append(self.scan_points_w(scan, near))
         return np.vstack(parts) if parts else np.zeros((0, 3))
+
+    def scan_points_w(self, scan: LidarScan, select: np.ndarray | None = None) -> np.ndarray:
+        """The points of ``scan`` (those ``select`` picks, a boolean mask; all by default), each
+        moved to W with the pose at its own time (the pose history's; empty before any pose)."""
+        if len(self.poses) == 0:
+            return np.zeros((0, 3))
+        knots_t, knots_T = self.poses.knots()
+        keep = np.ones(len(scan.times), dtype=bool) if select is None else select
+        # the history clamps outside its span (a point newer than the newest pose): as PoseTrack
+        t = np.clip(np.asarray(scan.times, dtype=np.float64)[keep], knots_t[0], knots_t[-1])
+        T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
+        # fusion_core's deskew (slerp + lerp per point) to L at the newest pose, then to W
+        pts_l = ir.deskew(np.asarray(scan.points_l)[keep], t, knots_t, knots_T, float(knots_t[-1]), T_b_l)
+        T_w_l = knots_T[-1] @ T_b_l
+        return pts_l @ T_w_l[:3, :3].T + T_w_l[:3, 3]
 
     def _nearest_scan_w(self, time: float) -> np.ndarray:
         """The buffered scan nearest ``time`` (within the pairing window), all its points moved to

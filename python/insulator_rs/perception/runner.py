@@ -133,6 +133,14 @@ class PerceptionRunner:
             return f"detector failed for {timeout:.0f} s ({self.detector_error})"
         return None
 
+    def survey(self, now: float) -> np.ndarray:
+        """The newest scan's points not taken before, in W (deskewed with the pose history), for
+        the obstacle map; they go to perception's buffer as well, through the same intake, so
+        perception (and a replay of the recorded flight) sees the same scans either way. A
+        sensor error costs this survey only (counted, handed on)."""
+        new = self._take_scan(self._ask_scan(now), now)
+        return np.zeros((0, 3)) if new is None or not len(new) else self.pipeline.scan_points_w(new)
+
     # -- internals ------------------------------------------------------------------------
     def _sensor_error(self, exc: SensorError) -> None:
         self.counts.sensor_errors += 1
@@ -146,15 +154,18 @@ class PerceptionRunner:
             self._sensor_error(exc)
             return None
 
-    def _take_scan(self, scan: LidarScan | None, now: float) -> None:
+    def _take_scan(self, scan: LidarScan | None, now: float) -> LidarScan | None:
+        """The new part of ``scan`` (None: nothing new), handed to the pipeline; an ask that
+        brought nothing new is kept for :meth:`lost`."""
         new = self.intake.take(scan)
         if new is None:
             if self.lidar_unanswered_since is None:
                 self.lidar_unanswered_since = now
             self.lidar_unanswered_until = now
-            return
+            return None
         self.lidar_unanswered_since = self.lidar_unanswered_until = None
         self.pipeline.add_scan(new)
+        return new
 
     def _detect(self, image: np.ndarray) -> np.ndarray | None:
         """The detector's boxes on ``image``; None (counted, the failure kept for :meth:`lost`)

@@ -11,6 +11,7 @@ import numpy as np
 
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.minsnap import MinSnapTrajectory, plan_min_snap_safe
+from insulator_rs.planning.obstacle_map import SeenVolumes, clear_polyline
 from insulator_rs.planning.routes import route
 from insulator_rs.planning.safety import SafetyVolumes
 
@@ -34,6 +35,7 @@ class Segment:
 
     trajectory: MinSnapTrajectory | None
     item_times: list[float]
+    detours: int = 0  # points added to bend the route round obstacles of the map
 
 
 def polyline(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, items: Sequence[Target],
@@ -53,14 +55,22 @@ def polyline(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, items: 
 
 def plan_segment(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, velocity: np.ndarray,
                  items: Sequence[Target], *,
-                 v_max: np.ndarray, a_max: np.ndarray, clearance: float, time_allocation: str) -> Segment:
+                 v_max: np.ndarray, a_max: np.ndarray, clearance: float, time_allocation: str,
+                 seen: SeenVolumes | None = None) -> Segment:
     """Plan the min-snap, safety-checked trajectory through ``items`` from ``start`` (W) moving
     at ``velocity`` (m/s, as measured: over the limits it starts by slowing down to them).
-    PlanningError when none is safe (the vehicle cannot stop before a safety volume)."""
+    ``seen``: the volumes with the LiDAR's obstacle map (:mod:`~insulator_rs.planning.obstacle_map`):
+    the route is bent round what it holds and the trajectory checked against it too; None: the
+    safety volumes only. PlanningError when none is safe (the vehicle cannot stop before a
+    safety volume, or no detour clears an obstacle seen)."""
     pts = polyline(line, volumes, start, items, clearance)
     if len(pts) < 2:
         return Segment(None, [])
-    traj = plan_min_snap_safe(pts, v_max, a_max, volumes, dt=SAFETY_CHECK_DT, v_start=velocity,
+    planned = len(pts)
+    if seen is not None:
+        pts = clear_polyline(pts, seen)
+    traj = plan_min_snap_safe(pts, v_max, a_max, volumes if seen is None else seen, dt=SAFETY_CHECK_DT,
+                              v_start=velocity,
                               max_deviation=MAX_PATH_DEVIATION, time_allocation=time_allocation)
     # items are among the trajectory's waypoints: the knot time of each
     knots = np.concatenate([[0.0], np.cumsum(traj.durations)])
@@ -70,4 +80,4 @@ def plan_segment(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, vel
         while j < len(traj.waypoints) and np.linalg.norm(traj.waypoints[j] - it.position) > 1e-6:
             j += 1
         item_times.append(float(knots[min(j, len(knots) - 1)]))
-    return Segment(traj, item_times)
+    return Segment(traj, item_times, len(pts) - planned)

@@ -91,6 +91,10 @@ class FlightDetails:
     # photos, fit, retakes, the detector's cost per check, and the insulators found without a fit
     # photo with why (their checks' reasons counted, the detector's errors); None before this field
     photo_checks: dict[str, Any] | None = None
+    # the LiDAR's obstacle map (planning/obstacle_map.py): enabled, voxel size, returns and voxels
+    # kept, occupied voxels, the margin, legs bent round an obstacle, left mid-way to re-plan, and
+    # refused; None for a flight before this field
+    obstacle_map: dict[str, Any] | None = None
 
 
 @dataclass

@@ -34,7 +34,7 @@ NO_HIT: int = -1
 #: The kinds of instance the simulator knows (free-form strings are refused so a
 #: typo cannot silently make an insulator invisible to ground truth).
 INSTANCE_KINDS: frozenset[str] = frozenset(
-    {"insulator", "tower", "conductor", "ground", "other"}
+    {"insulator", "tower", "conductor", "ground", "obstacle", "other"}
 )
 
 

@@ -119,6 +119,18 @@ class ConductorSpec:
 
 
 @dataclass(frozen=True)
+class ObstacleSpec:
+    """Something beside the tower that its model (GPS, maximum height and width) does not hold:
+    a pole, a guy wire, a mast, a straight piece of a neighbouring structure. A cylinder in W
+    from ``start`` to ``end`` (m) of ``radius`` (m); ``name`` for messages and the mesh."""
+
+    name: str
+    start: tuple[float, float, float]
+    end: tuple[float, float, float]
+    radius: float
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """One inspected tower at the origin of W, its neighbours and the ground.
 
@@ -135,6 +147,7 @@ class SceneSpec:
     insulators: InsulatorSpec
     conductors: ConductorSpec
     ground_size: float
+    obstacles: tuple[ObstacleSpec, ...] = ()
 
     @property
     def line_direction(self) -> tuple[float, float, float]:
@@ -225,13 +238,13 @@ class _Fields:
             raise self.error(name, f"must be a table, got {type(value).__name__}")
         return _Fields(value, self.source, f"{self.prefix}{name}.")
 
-    def sub_list(self, name: str) -> list[_Fields]:
+    def sub_list(self, name: str, *, most: int = bounds.MAX_CROSS_ARMS,
+                 why: str = "the tallest double-circuit towers carry 6 cross-arms") -> list[_Fields]:
         value = self._raw(name, None)
         if not isinstance(value, list) or not value or not all(isinstance(v, dict) for v in value):
             raise self.error(name, "must be a non-empty array of tables ([[...]])")
-        if len(value) > bounds.MAX_CROSS_ARMS:
-            raise self.error(name, f"at most {bounds.MAX_CROSS_ARMS} tables (the tallest "
-                                   f"double-circuit towers carry 6 cross-arms), got {len(value)}")
+        if len(value) > most:
+            raise self.error(name, f"at most {most} tables ({why}), got {len(value)}")
         return [_Fields(v, self.source, f"{self.prefix}{name}[{i}].") for i, v in enumerate(value)]
 
     def point(self, value: Any, name: str) -> tuple[float, float, float]:
@@ -342,13 +355,23 @@ def _parse_conductors(f: _Fields) -> ConductorSpec:
     return cond
 
 
+def _parse_obstacle(f: _Fields, index: int) -> ObstacleSpec:
+    f.reject_unknown(("name", "start", "end", "radius"))
+    start = f.point(f._raw("start", None), "start")
+    end = f.point(f._raw("end", None), "end")
+    if math.dist(start, end) < bounds.OBSTACLE_MIN_LENGTH:
+        raise f.error("end", f"must be at least {bounds.OBSTACLE_MIN_LENGTH} m from start, got {end}")
+    name = f.string("name") if "name" in f.table else f"obstacle {index}"
+    return ObstacleSpec(name=name, start=start, end=end, radius=f.number("radius", positive=True))
+
+
 def parse_scene(data: dict[str, Any], source: str) -> SceneSpec:
     """Validate a parsed TOML document (``source`` names it in errors) and build a :class:`SceneSpec`."""
     if not isinstance(data, dict):
         raise SceneError(f"{source}: expected a table at the top level, got {type(data).__name__}")
     root = _Fields(data, source, "")
     root.reject_unknown(("name", "neighbours", "ground_size", "body", "cross_arms", "insulators",
-                         "conductors"))
+                         "conductors", "obstacles"))
     name = root.string("name")
     raw_neighbours = root._raw("neighbours", None)
     if not isinstance(raw_neighbours, list) or len(raw_neighbours) != 2:
@@ -373,6 +396,9 @@ def parse_scene(data: dict[str, Any], source: str) -> SceneSpec:
     insulators = _parse_insulators(root.sub("insulators"))
     conductors = _parse_conductors(root.sub("conductors"))
     ground_size = root.number("ground_size", positive=True)
+    obstacles = () if "obstacles" not in data else tuple(
+        _parse_obstacle(f, i) for i, f in enumerate(root.sub_list(
+            "obstacles", most=bounds.MAX_OBSTACLES, why="poles and wires beside one tower, each meshed")))
     heights = sorted(a.height for a in arms)
     reach_needed = insulators.length + 2 * insulators.fitting_length
     for i, arm in enumerate(arms):
@@ -384,7 +410,8 @@ def parse_scene(data: dict[str, Any], source: str) -> SceneSpec:
             raise root.error("cross_arms", f"arms at {lower} m and {upper} m are closer than the "
                                            f"suspension string length {reach_needed} m")
     return SceneSpec(name=name, source=source, neighbours=(n0, n1), body=body, cross_arms=arms,
-                     insulators=insulators, conductors=conductors, ground_size=ground_size)
+                     insulators=insulators, conductors=conductors, ground_size=ground_size,
+                     obstacles=obstacles)
 
 
 def load_scene(path: str | Path) -> SceneSpec:

@@ -11,7 +11,8 @@ the ground. It returns the mesh and the ground truth of every insulator.
 Instance ids: 0 ground, 1..N the insulators (in the order of
 :attr:`Tower.insulators`), :data:`TOWER_STEEL_ID` the lattice,
 :data:`FITTINGS_ID` the insulator hardware, :data:`CONDUCTOR_ID_BASE` + k the
-k-th conductor or jumper.
+k-th conductor or jumper, :data:`OBSTACLE_ID_BASE` + k the scene's k-th obstacle (``[[obstacles]]``:
+things beside the tower that its model does not hold; built in W, not rotated with the tower).
 
 Tower-local frame: x across the line (the '+' side), y along the line (toward
 neighbour 1), z up; it is rotated into W by the line direction.
@@ -32,6 +33,8 @@ GROUND_ID = 0
 TOWER_STEEL_ID = 500
 FITTINGS_ID = 501
 CONDUCTOR_ID_BASE = 1000
+OBSTACLE_ID_BASE = 3000
+OBSTACLE_COLOR = (0.45, 0.36, 0.26)  # a weathered wooden pole
 
 GROUND_INFO = InstanceInfo(name="ground", kind="ground", color=(0.32, 0.40, 0.22))
 STEEL_INFO = InstanceInfo(name="tower steel", kind="tower", color=(0.55, 0.57, 0.58))
@@ -324,7 +327,10 @@ def build_tower(spec: SceneSpec) -> Tower:
     structure = Mesh.concatenate(local_parts).transformed(T)
     ground = plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (spec.ground_size, spec.ground_size),
                    instance_id=GROUND_ID, info=GROUND_INFO)
-    mesh = Mesh.concatenate([ground, structure])
+    obstacles = [cylinder(o.start, o.end, o.radius, instance_id=OBSTACLE_ID_BASE + k, segments=12,
+                          info=InstanceInfo(name=o.name, kind="obstacle", color=OBSTACLE_COLOR))
+                 for k, o in enumerate(spec.obstacles)]
+    mesh = Mesh.concatenate([ground, structure, *obstacles])
     # Ground truth as free properties too, so a consumer holding only the mesh has it.
     instances = dict(mesh.instances)
     for truth in truths:
