@@ -152,3 +152,25 @@ def test_a_frame_still_waiting_when_the_search_ends_goes_with_what_there_is_coun
     _run(runner, 10.03, 10.05)
     runner.finish(10.2)
     assert runner.pipeline.counters.frames == 1 and runner.pairing_short == 0
+
+
+def test_a_step_back_of_the_clock_is_taken_not_read_as_a_silent_lidar() -> None:
+    """Scans whose mapped times stepped back (PX4 SITL's lockstep clock stalled under load, the
+    companion's map ran ahead, then refitted) are taken whole and counted; a repeat of the newest
+    scan, or one overlapping it, still brings only what is new. Reference: the scans' own times."""
+    from insulator_rs.perception.pairing import CLOCK_STEP_BACK_S, ScanIntake
+
+    T_b_l = np.eye(4)
+
+    def scan(t0: float, t1: float) -> LidarScan:
+        return LidarScan(np.ones((5, 3)), np.linspace(t0, t1, 5), T_b_l, window_end=t1)
+
+    intake = ScanIntake()
+    assert intake.take(scan(10.0, 10.1)) is not None and intake.horizon == 10.1
+    assert intake.take(scan(10.0, 10.1)) is None  # the same newest scan handed again
+    part = intake.take(scan(10.05, 10.2))  # overlapping: its new points only
+    assert part is not None and np.all(part.times > 10.1) and intake.horizon == 10.2
+    assert intake.take(scan(9.5, 9.6)) is None  # within a second behind: old data, dropped
+    back = scan(10.2 - CLOCK_STEP_BACK_S - 3.0, 10.2 - CLOCK_STEP_BACK_S - 2.9)  # the map stepped back 4 s
+    assert intake.take(back) is back and intake.steps_back == 1 and intake.horizon == back.covered_until
+    assert intake.take(scan(back.covered_until, back.covered_until + 0.1)) is not None  # and on from there

@@ -27,7 +27,8 @@ def perception_record(runner: PerceptionRunner, sensor_errors: int | None = None
     """The runner's and its pipeline's counts (``sensor_errors``: the caller's total, photos included)."""
     c = runner.counts
     return PerceptionRecord(detection_events=c.events, frames_detected=c.frames, localizations=c.localizations,
-                            pairing_short=runner.pairing_short, pairing_timing=runner.pairing.timing(),
+                            pairing_short=runner.pairing_short,
+                            pairing_timing={**runner.pairing.timing(), "lidar_clock_steps_back": runner.intake.steps_back},
                             sensor_errors=c.sensor_errors if sensor_errors is None else sensor_errors,
                             counters=asdict(runner.pipeline.counters),
                             refused_not_insulator=dict(runner.pipeline.not_insulator))
