@@ -158,7 +158,7 @@ def test_a_step_back_of_the_clock_is_taken_not_read_as_a_silent_lidar() -> None:
     """Scans whose mapped times stepped back (PX4 SITL's lockstep clock stalled under load, the
     companion's map ran ahead, then refitted) are taken whole and counted; a repeat of the newest
     scan, or one overlapping it, still brings only what is new. Reference: the scans' own times."""
-    from insulator_rs.perception.pairing import CLOCK_STEP_BACK_S, ScanIntake
+    from insulator_rs.ports.sensors import CLOCK_STEP_BACK_S, ScanIntake
 
     T_b_l = np.eye(4)
 

@@ -27,10 +27,10 @@ from typing import Protocol
 import numpy as np
 
 from insulator_rs.exceptions import DetectorError, SensorError
-from insulator_rs.perception.pairing import FramePairing, PendingFrame, ScanIntake
+from insulator_rs.perception.pairing import FramePairing, PendingFrame
 from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
 from insulator_rs.ports.detector import BoxDetector
-from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, ScanIntake, Sensors
 
 
 class RunnerViewer(Protocol):

@@ -18,6 +18,8 @@ frame C, extrinsics ``T_b_l``/``T_b_c`` (4x4 float64, ``p_b = T_b_x @ p_x``).
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -75,6 +77,47 @@ class LidarScan:
 
     def __len__(self) -> int:
         return len(self.points_l)
+
+
+# s: a delivered scan that ends this far behind everything taken so far is not a repeat of the
+# newest one (a live source hands that again until the next is complete: 0.1 s behind at most)
+# but a step back of the clock its times were mapped with. Against PX4 SITL under load the
+# lockstep vehicle clock stalls while the host's runs on; the companion's map of it then runs
+# ahead, and once refitted steps back: every scan after that lay behind the horizon the ahead-run
+# had set, was dropped as old, and the LiDAR read as silent for 10-15 s (two live tower B
+# flights aborted "sensor lost"). A real autopilot's clock does not stall; the step is taken
+# (counted) rather than waited out.
+CLOCK_STEP_BACK_S = 1.0
+
+
+class ScanIntake:
+    """The points of each delivered scan that perception does not have yet.
+
+    A live source returns the same newest scan until the next is complete, and the simulator's
+    scans may overlap; only points newer than everything taken so far (the horizon) are new."""
+
+    def __init__(self) -> None:
+        self.horizon = -math.inf  # vehicle time of the newest LiDAR point taken
+        self.steps_back = 0  # scans taken whole after a step back of the clock (CLOCK_STEP_BACK_S)
+
+    def take(self, scan: LidarScan | None) -> LidarScan | None:
+        """The new part of ``scan``, None when nothing in it is new; advances the horizon (or
+        moves it back to a scan whose times the clock stepped back: taken whole, counted)."""
+        if scan is None or not math.isfinite(scan.covered_until):  # no point, no window: nothing
+            return None
+        if scan.covered_until <= self.horizon - CLOCK_STEP_BACK_S:
+            self.steps_back += 1
+            self.horizon = scan.covered_until
+            return scan
+        if not scan.covered_until > self.horizon:
+            return None
+        if scan.time_start <= self.horizon:
+            new = np.asarray(scan.times) > self.horizon
+            scan = LidarScan(np.asarray(scan.points_l)[new], np.asarray(scan.times)[new], scan.T_b_l,
+                             None if scan.intensity is None else np.asarray(scan.intensity)[new],
+                             window_end=scan.window_end)
+        self.horizon = scan.covered_until
+        return scan
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
-from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, ScanIntake, Sensors
 from insulator_rs.ports.vehicle import Vehicle, VehicleDecorator, VehicleState
 
 # Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
@@ -166,13 +166,21 @@ class RecordingSensors:
     """A :class:`~insulator_rs.ports.sensors.Sensors` decorator that records what ``inner``
     delivers (every detection frame and every scan the flight asks for), wired by the
     composition root: the flight does not know it is recorded. ``T_b_l``: the rig's LiDAR
-    extrinsics, recorded with the frames until a scan brings its own."""
+    extrinsics, recorded with the frames until a scan brings its own.
+
+    Of each scan, the part not delivered before is recorded (:class:`ScanIntake`, the rule
+    perception takes scans by): a live driver's scans never overlap, but the simulator's do
+    (each ask renders the last 100 ms), and two asks within 100 ms (the obstacle map's survey
+    and the pairing in one tick) gave two scans of one window whose first returns, drawn anew,
+    went back in time: the replay refused the recording as out of order. Perception takes the
+    same part of each scan, so the replay sees what the flight saw."""
 
     def __init__(self, inner: Sensors, recorder: McapRecorder, *, T_b_l: np.ndarray | None = None) -> None:
         self.inner = inner
         self.recorder = recorder
         self._T_b_c: np.ndarray | None = None
         self._T_b_l = None if T_b_l is None else np.asarray(T_b_l, dtype=np.float64)
+        self._intake = ScanIntake()
 
     def detection_frame(self, now: float) -> CameraFrame | None:
         frame = self.inner.detection_frame(now)
@@ -185,7 +193,9 @@ class RecordingSensors:
         scan = self.inner.lidar_scan(now)
         if scan is not None:
             self._T_b_l = scan.T_b_l
-            self.recorder.scan(scan, self._T_b_c)
+            new = self._intake.take(scan)
+            if new is not None:
+                self.recorder.scan(new, self._T_b_c)
         return scan
 
     def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
