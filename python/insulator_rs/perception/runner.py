@@ -138,7 +138,9 @@ class PerceptionRunner:
         the obstacle map; they go to perception's buffer as well, through the same intake, so
         perception (and a replay of the recorded flight) sees the same scans either way. A
         sensor error costs this survey only (counted, handed on)."""
-        new = self._take_scan(self._ask_scan(now), now)
+        # a survey that brings nothing is not a silent LiDAR: with nothing in range (above the
+        # tower, the Mid-360 looks at the sky) a live driver has no new scan with points to hand
+        new = self._take_scan(self._ask_scan(now), now, silence_counts=False)
         return np.zeros((0, 3)) if new is None or not len(new) else self.pipeline.scan_points_w(new)
 
     # -- internals ------------------------------------------------------------------------
@@ -154,11 +156,13 @@ class PerceptionRunner:
             self._sensor_error(exc)
             return None
 
-    def _take_scan(self, scan: LidarScan | None, now: float) -> LidarScan | None:
-        """The new part of ``scan`` (None: nothing new), handed to the pipeline; an ask that
-        brought nothing new is kept for :meth:`lost`."""
+    def _take_scan(self, scan: LidarScan | None, now: float, *, silence_counts: bool = True) -> LidarScan | None:
+        """The new part of ``scan`` (None: nothing new), handed to the pipeline; an ask for a
+        frame's points that brought nothing new is kept for :meth:`lost` (``silence_counts``)."""
         new = self.intake.take(scan)
         if new is None:
+            if not silence_counts:
+                return None
             if self.lidar_unanswered_since is None:
                 self.lidar_unanswered_since = now
             self.lidar_unanswered_until = now
