@@ -34,15 +34,18 @@ LIDAR_KEEP_SCANS = 30
 
 
 def merge_scans(scans: list[LidarScan]) -> LidarScan | None:
-    """Consecutive scans of one sensor as one (points and times concatenated, in order)."""
+    """Consecutive scans of one sensor as one (points and times concatenated, in order; the
+    window covered up to the newest one's, which an empty scan may hold alone)."""
     if not scans:
         return None
     if len(scans) == 1:
         return scans[0]
     intensity = (None if any(s.intensity is None for s in scans)
                  else np.concatenate([np.asarray(s.intensity) for s in scans]))
+    windows = [s.covered_until for s in scans if np.isfinite(s.covered_until)]
     return LidarScan(np.concatenate([np.asarray(s.points_l) for s in scans]),
-                     np.concatenate([np.asarray(s.times) for s in scans]), scans[-1].T_b_l, intensity)
+                     np.concatenate([np.asarray(s.times) for s in scans]), scans[-1].T_b_l, intensity,
+                     window_end=max(windows) if windows else None)
 
 
 class LiveSensors:
@@ -61,9 +64,9 @@ class LiveSensors:
     def lidar_scan(self, now: float) -> LidarScan | None:
         if self.lidar is None:
             return None
-        new = [scan for scan in self.lidar.scans_until(now) if scan.time_end > self._handed_until]
+        new = [scan for scan in self.lidar.scans_until(now) if scan.covered_until > self._handed_until]
         if new:
-            self._handed_until = new[-1].time_end
+            self._handed_until = new[-1].covered_until
         return merge_scans(new)
 
     def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:

@@ -381,8 +381,12 @@ class LivoxMid360:
         if times is None:
             self.unmapped_scans += 1
             return
+        # the window a whole scan covers, even one with no return: a LiDAR that sees only sky (above
+        # the tower during a crossing) still says time has passed, and a frame waiting for points
+        # there is due with none, not left waiting for a scan that will never hold any
+        window = None if scan.partial else self._map(np.array([scan.end_ns * 1e-9]))
         lidar = LidarScan(points_l=scan.points, times=times, T_b_l=self.T_b_l,
-                          intensity=scan.reflectivity)
+                          intensity=scan.reflectivity, window_end=None if window is None else float(window[0]))
         with self._lock:
             self._scans.append(lidar)
 
@@ -395,17 +399,18 @@ class LivoxMid360:
     # -- the Sensors side --------------------------------------------------------
 
     def lidar_scan(self, now: float) -> LidarScan | None:
-        """The newest complete scan ending at or before ``now`` (vehicle clock)."""
+        """The newest complete scan ending at or before ``now`` (vehicle clock); one with no
+        return counts when it knows its window (the sensor saw nothing in range there)."""
         with self._lock:
             for scan in reversed(self._scans):
-                if len(scan) and scan.time_end <= now:
+                if scan.covered_until <= now:  # nan (no point, no window) compares false
                     return scan
         return None
 
     def scans_until(self, now: float) -> list[LidarScan]:
         """The kept scans (the newest ``keep_scans``) ending at or before ``now``, oldest first."""
         with self._lock:
-            return [scan for scan in self._scans if len(scan) and scan.time_end <= now]
+            return [scan for scan in self._scans if scan.covered_until <= now]
 
     def imu(self) -> list[ImuBatch]:
         """IMU batches received since the last call."""
