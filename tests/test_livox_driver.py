@@ -394,3 +394,32 @@ def test_datagrams_before_the_vehicle_clock_exists_are_counted_not_fatal() -> No
     finally:
         sock.close()
         driver.close()
+
+
+def test_a_scan_of_sky_is_handed_on_with_its_window() -> None:
+    """Frames with no return (the Mid-360 above the tower mid-crossing sees only sky) still come
+    through as scans that know their window: the consumer learns time has passed (a frame waiting
+    there is due with no points) instead of being handed the last scan with points again and
+    reading the sensor as silent. Reference: the emitter's own frame grid (0.1 s windows)."""
+    sim = frames(4)
+    empty = [LidarFrame(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32), np.zeros((0, 3)), f.t_start, f.t_end,
+                        f.T_w_l_start, f.T_w_l_end) for f in sim[2:]]
+    emitter = LivoxEmitter(clock=CLOCK)
+    emitter.start_at(sim[0].t_start)
+    rig = Rig(time_map=CLOCK.to_vehicle)
+    try:
+        for f in [*sim[:2], *empty, *frames(2, t0=sim[-1].t_end)]:
+            rig.feed(emitter.add_frame(f))
+        rig.feed(emitter.finish())
+        rig.settle()
+        scans = list(rig.driver._scans)
+        newest_before_points = rig.driver.lidar_scan(sim[-1].t_end + 1e-6)
+    finally:
+        rig.close()
+    sky = [s for s in scans if len(s) == 0]
+    assert len(sky) >= 1 and all(np.isfinite(s.window_end) for s in sky)
+    # every scan's window ends on the sensor's 0.1 s grid, after its last point
+    ends = np.array([s.covered_until for s in scans])
+    assert np.all(np.diff(ends) > 0)
+    assert all(s.window_end >= s.time_end for s in scans if len(s) and s.window_end is not None)  # partial: none
+    assert newest_before_points is not None and len(newest_before_points) == 0  # the sky, not an old scan
