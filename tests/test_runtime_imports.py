@@ -48,6 +48,7 @@ OPTIONAL = {
     "replay/": "bags",  # replay flights, fleet re-processing (Ray), progress bars, Rerun logs
     "app/replay_command.py": "bags",
     "app/calibrate_command.py": "bags",  # calibrate time-offset reads a recorded flight
+    "evaluation/fault_matrix.py": "bags",  # the fault matrix reads each cell's recording back
     "drivers/gstreamer_camera.py": "gstreamer",  # GStreamer pipelines through PyGObject (--camera gst:...)
     "detection/train.py": "train",  # the offline training tools (Ultralytics + PyTorch)
     "app/train_command.py": "train",

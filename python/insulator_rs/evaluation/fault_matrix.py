@@ -352,6 +352,11 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
     for name in moments:
         if name not in MOMENTS:
             raise ValueError(f"moment: {name!r} is not one of {', '.join(MOMENTS)}")
+    import importlib.util
+
+    if importlib.util.find_spec("mcap") is None:  # every cell's recording is read back
+        raise ValueError("the fault matrix records each cell and reads it back: install the bags extra "
+                         "(pip install 'insulator_rs[bags]')")
     wall0 = wallclock.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     scene, mission = small_scene(out / "scene", PACKAGE / "scenes", PACKAGE / "missions")
