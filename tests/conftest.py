@@ -26,3 +26,13 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE") or ("ci" if os.enviro
 def rng() -> np.random.Generator:
     """A freshly seeded generator, so each test is reproducible on its own."""
     return np.random.default_rng(20251122)
+
+
+@pytest.fixture(scope="session")
+def reference_flight(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201 (sitl_reference_flight.py)
+    """The small scene flown once through PX4 SITL for the whole session, read by three SITL tests
+    (``tests/sitl_reference_flight.py``). Here, not imported into each module: a session fixture
+    imported into several modules is one fixture per module, and would fly once each."""
+    from sitl_reference_flight import fly_once_for_the_session
+
+    return fly_once_for_the_session(tmp_path_factory)

@@ -199,35 +199,18 @@ def test_gcs_on_px4_sitl_gets_statustext_and_every_photo_marker():
     assert len(gcs.of("HEARTBEAT", CAMERA_COMPONENT)) >= 2  # 1 Hz, forwarded
 
 
-def test_small_scene_flight_against_px4_sitl_shows_every_photo_on_its_gcs(tmp_path):
-    """The small-scene inspection flown through PX4 (``inspect --connection ... --sim-sensors``)
-    with a ground station on PX4's own GCS port: it gets a STATUSTEXT and a CAMERA_IMAGE_CAPTURED
-    for every photo of the report, the mission's phase changes, and the camera's information."""
-    import json
-
-    from test_mission_inspect import small_scene
-    from test_px4_sitl import ARGS, SPEED
-
-    from insulator_rs.app.cli import main
-    from px4_sitl import mission_at_home
-
-    scene, mission = small_scene(tmp_path)
-    mission.write_text(mission.read_text() + "confirmations = 1\n")
-    mission = mission_at_home(mission, tmp_path / "at_home.toml")
-    out = tmp_path / "report"
-    with Px4Sitl(FOLDER, speed=SPEED, workdir=tmp_path / "px4", first_instance=3) as px4:
-        with GcsListener(("127.0.0.1", GCS_PORT + px4.instance), recover_images=True) as gcs:
-            assert gcs.wait_for(lambda: gcs.of("HEARTBEAT", 1), 10.0)
-            rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
-                       "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"])
-            time.sleep(1.0)
-    s = json.loads((out / "summary.json").read_text())
+def test_small_scene_flight_against_px4_sitl_shows_every_photo_on_its_gcs(reference_flight):
+    """The small-scene inspection flown through PX4 (``inspect --connection ... --sim-sensors``;
+    the session's one reference flight, ``sitl_reference_flight``) with a ground station on PX4's
+    own GCS port: it gets a STATUSTEXT and a CAMERA_IMAGE_CAPTURED for every photo of the
+    report, the mission's phase changes, and the camera's information."""
+    s, gcs, rc = reference_flight.summary, reference_flight.gcs, reference_flight.rc
     assert rc == 0 and s["status"] == "finished", s["status"]
     photos = s["photos"]
     assert len(photos) >= 4
     caps = gcs.of("CAMERA_IMAGE_CAPTURED", CAMERA_COMPONENT)
     print(f"{len(photos)} photos; the GCS got {len(caps)} CAMERA_IMAGE_CAPTURED, "
-          f"{len(gcs.statustexts())} STATUSTEXT; {gcs.count()[(px4.instance + 1, CAMERA_COMPONENT, 'HEARTBEAT')]} "
+          f"{len(gcs.statustexts())} STATUSTEXT; {gcs.count()[(reference_flight.instance + 1, CAMERA_COMPONENT, 'HEARTBEAT')]} "
           f"camera heartbeats; asked again for images {gcs.images_requested}; the GCS socket dropped "
           f"{gcs.drops_at_close} datagrams")
     # every photo reached the GCS: sent as taken, or sent again when the GCS asked by index (the

@@ -8,7 +8,8 @@
 * ``test_sitl_flight_sets_verifies_and_restores_the_parameters``: the small scene flown through
   PX4 with a ground station on PX4's GCS link: every tower value (NAV_DLL_ACT included) set and
   verified before arming, put back after PX4's landing, and PX4 itself, asked afterwards, holds
-  its old values again.
+  its old values again (the session's one reference flight, ``sitl_reference_flight``, which
+  two other SITL tests read too).
 * ``test_companion_killed_mid_crossing_px4_returns_clear_of_the_tower``: the mission's process
   (``insulator-rs inspect`` in a subprocess) is SIGKILLed while PX4 reports the vehicle over the
   tower's safety box, in the top crossing. From PX4's own positions (LOCAL_POSITION_NED on its
@@ -16,7 +17,7 @@
   descends while over a safety volume's footprint, no sample is inside the safety box or a
   conductor corridor (the mission file's geometry, rebuilt here), and it lands at home.
 
-Each test starts its own PX4 (``px4_sitl.Px4Sitl``) and kills it however the test ends; all are
+Each other test starts its own PX4 (``px4_sitl.Px4Sitl``) and kills it however the test ends; all are
 skipped, saying so, when the SITL folder is absent.
 """
 
@@ -40,7 +41,6 @@ from test_px4_sitl import ARGS, SPEED, px4  # noqa: F401  (px4: the fixture)
 from test_px4_sitl import pytestmark as sitl_pytestmark
 
 import insulator_rs
-from insulator_rs.app.cli import main
 
 # the SITL tests' own marks, speed, flight arguments and fresh-PX4 fixture
 pytestmark = sitl_pytestmark
@@ -148,20 +148,11 @@ def _inspect_args(tmp_path, px4) -> tuple[list[str], object]:
              "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"], load_mission(mission))
 
 
-def _read_back(connection: str, names: list[str]) -> dict[str, object]:
-    """PX4's values now, through the client's own parameter protocol (a fresh connection)."""
-    from insulator_rs.mavlink.client import connect_vehicle
-
-    with connect_vehicle(connection, time_scale=SPEED) as vehicle:
-        return {name: vehicle.parameters.read(name) for name in names}
-
-
-def test_sitl_flight_sets_verifies_and_restores_the_parameters(px4, tmp_path) -> None:
-    args, _ = _inspect_args(tmp_path, px4)
-    with GcsListener(("127.0.0.1", GCS_PORT + px4.instance)):  # a ground station on PX4's data link
-        rc = main(args)
-    s = json.loads((tmp_path / "report" / "summary.json").read_text())
-    assert rc == 0 and s["status"] == "finished", s["status"]
+def test_sitl_flight_sets_verifies_and_restores_the_parameters(reference_flight) -> None:
+    """The session's one reference flight (``sitl_reference_flight``: a ground station on PX4's
+    data link); PX4's values read back through a fresh connection once it has landed."""
+    s = reference_flight.summary
+    assert reference_flight.rc == 0 and s["status"] == "finished", s.get("status")
     record = s["px4_parameters"]
     print(json.dumps(record, indent=1))
     assert record["ground_station"] is True and record["restore"] == "restored"
@@ -170,9 +161,8 @@ def test_sitl_flight_sets_verifies_and_restores_the_parameters(px4, tmp_path) ->
     assert by_name["RTL_RETURN_ALT"]["old"] == 30.0 and by_name["RTL_CONE_ANG"]["old"] == 45  # PX4's defaults
     for r in record["parameters"]:
         assert r["error"] is None and r["restored"] == r["old"] and r["set"] is not None, r
-    after = _read_back(px4.connection, list(by_name))
-    assert after == {name: r["old"] for name, r in by_name.items()}
-    assert FAILSAFE_LINE not in px4.log()
+    assert reference_flight.parameters_after == {name: r["old"] for name, r in by_name.items()}
+    assert FAILSAFE_LINE not in reference_flight.px4_log
 
 
 def _local_to_w(local_ned: np.ndarray, home: object, tower: object) -> np.ndarray:
