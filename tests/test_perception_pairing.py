@@ -174,3 +174,46 @@ def test_a_step_back_of_the_clock_is_taken_not_read_as_a_silent_lidar() -> None:
     back = scan(10.2 - CLOCK_STEP_BACK_S - 3.0, 10.2 - CLOCK_STEP_BACK_S - 2.9)  # the map stepped back 4 s
     assert intake.take(back) is back and intake.steps_back == 1 and intake.horizon == back.covered_until
     assert intake.take(scan(back.covered_until, back.covered_until + 0.1)) is not None  # and on from there
+
+
+def test_a_frame_waits_for_the_poses_of_its_window_too() -> None:
+    """A recording's odometry may come later than its scans (a replay feeds each stream in its
+    own time order): the frame is held until the pose history reaches its window's end too,
+    so no point of it is moved to W with a pose clamped at the newest. Reference: the times
+    the test feeds."""
+    runner = _runner(RenderingLidar(simulator_rig()))
+    still = pose_from_yaw(np.zeros(3), 0.0)
+    for t in np.arange(9.0, 10.05, CONTROL_PERIOD):
+        runner.add_pose(PoseStamped(float(t), still))
+    runner.step(10.03)  # the frame; poses end at 10.0
+    for now in (10.13, 10.18):
+        runner.step(now)  # its window is over and the LiDAR covers it, the poses do not
+        assert runner.pipeline.counters.frames == 0 and runner.waiting
+    runner.add_pose(PoseStamped(10.15, still))
+    runner.step(10.2)
+    assert runner.pipeline.counters.frames == 1 and runner.pairing_short == 0
+
+
+def test_a_frame_outside_the_pose_history_is_refused_not_placed_at_a_clamped_pose() -> None:
+    """Outside the pose history's span a pose would be clamped to its oldest or newest (5 m off
+    at 5 m/s one second out): such a frame is counted ``outside_poses`` and localizes nothing;
+    points past the newest pose by more than POSE_GAP_S are not paired."""
+    from insulator_rs.poses import POSE_GAP_S, PoseHistory
+
+    rig = simulator_rig()
+    pipeline = PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, insulator_length=2.0)
+    for t in np.arange(20.0, 22.0, CONTROL_PERIOD):
+        pipeline.add_pose(PoseStamped(float(t), pose_from_yaw(np.array([5.0 * t, 0.0, 10.0]), 0.0)))
+    times = np.linspace(14.9, 22.5, 400)
+    pts = np.column_stack([np.full(400, 5.0), np.zeros(400), np.zeros(400)])
+    pipeline.add_scan(LidarScan(pts, times, rig.T_b_l))
+    cam = rig.camera
+    box = np.array([[10.0, 10.0, 50.0, 50.0, 0.9]])
+    for t in (15.0, 22.0 + 2 * POSE_GAP_S):  # before the oldest pose; past the newest
+        frame = CameraFrame(t, np.zeros((cam.height, cam.width, 3), np.uint8), cam, rig.T_b_c)
+        assert pipeline.process(frame, box) == []
+    assert pipeline.counters.outside_poses == 2 and pipeline.counters.unpaired == 0
+    newest = pipeline.poses.newest.time
+    paired_times = times[(np.abs(times - 21.95) <= pipeline.pairing_window) & (times <= newest + POSE_GAP_S)]
+    assert len(pipeline.paired_points_w(21.95)) == len(paired_times) > 0
+    assert PoseHistory().covers(1.0) is False

@@ -220,6 +220,11 @@ def _exp_so3(w: np.ndarray) -> np.ndarray:
 
 # s of poses a history keeps: a scan (0.1 s) paired with a frame up to a second old fits easily.
 POSE_HISTORY_SECONDS = 5.0
+# s a point or frame may lie past the newest pose and still be placed by it (clamped): one pose
+# period of a 10 Hz odometry. Past that, at 5 m/s, the clamped pose would be 0.5 m off.
+POSE_GAP_S = 0.1
+# s: stamps on one clock compared (float sums of control periods)
+TIME_TOLERANCE = 1e-9
 
 
 class PoseHistory:
@@ -250,6 +255,17 @@ class PoseHistory:
         while self._times[0] < t - self.span:
             self._times.popleft()
             self._poses.popleft()
+
+    def covers(self, time: float, gap: float = POSE_GAP_S) -> bool:
+        """Whether ``time`` lies within the history, or at most ``gap`` s past its newest pose
+        (the next pose is on its way): outside, :meth:`pose_at` would clamp, a wrong pose."""
+        return bool(self.covering(np.array([float(time)]), gap)[0])
+
+    def covering(self, times: np.ndarray, gap: float = POSE_GAP_S) -> np.ndarray:
+        """:meth:`covers` for each of ``times`` (N,) -> (N,) bool."""
+        if not self._times:
+            return np.zeros(len(times), dtype=bool)
+        return (times >= self._times[0] - TIME_TOLERANCE) & (times <= self._times[-1] + gap)
 
     @property
     def newest(self) -> PoseStamped | None:

@@ -1,8 +1,10 @@
 """The one pairing rule: which LiDAR points go with a detection frame, and when the frame is due.
 
 A frame is paired with the points of both sides of its instant (+- the pipeline's pairing
-window, per-point times). It is handed to perception once the window past it is over and a
-scan reaches the window's end (a live 10 Hz driver delivers the scan covering it up to a frame
+window, per-point times). It is handed to perception once the window past it is over, a
+scan reaches the window's end and so does the pose history (each point is moved to W with the
+pose at its own time: a recording's odometry may come later than the scans; a point past the
+newest pose would otherwise be placed at it) (a live 10 Hz driver delivers the scan covering it up to a frame
 period and its reorder grace later; the simulator renders it at once; a replay delivers each
 recorded scan once the replay's clock has passed what it covers). A frame still short
 :data:`PAIRING_WAIT` s after its window goes with what is there, counted as short: a LiDAR that
@@ -69,15 +71,16 @@ class FramePairing:
         """Whether the oldest frame's window is over, so the newest scan should be asked for."""
         return bool(self.pending) and now >= self.pending[0].frame.time + self.window - TIME_EPS
 
-    def due(self, now: float, horizon: float) -> list[PendingFrame]:
-        """The frames to hand to perception at ``now``, given the LiDAR ``horizon`` reached."""
+    def due(self, now: float, horizon: float, pose_horizon: float = math.inf) -> list[PendingFrame]:
+        """The frames to hand to perception at ``now``, given the LiDAR ``horizon`` and the pose
+        history's newest time (``pose_horizon``) reached."""
         out = []
         while self.pending:
             head = self.pending[0]
             due = head.frame.time + self.window
             if now < due - TIME_EPS:
                 break
-            if horizon < due - PAIRING_SLACK:
+            if min(horizon, pose_horizon) < due - PAIRING_SLACK:
                 if now < due + PAIRING_WAIT:
                     break
                 if len(head.boxes):  # a frame without boxes needed its scans asked for, not its points

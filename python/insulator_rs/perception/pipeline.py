@@ -41,6 +41,7 @@ from typing import Any, Literal, cast
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.box_groups import string_boxes
 from insulator_rs.perception.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
 from insulator_rs.poses import PoseHistory
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
@@ -129,6 +130,9 @@ class PerceptionCounters:
 
     frames: int = 0
     unpaired: int = 0
+    # frames whose instant the pose history does not cover (older than its oldest pose, or past
+    # its newest by more than poses.POSE_GAP_S): refused, as a clamped pose would misplace them
+    outside_poses: int = 0
     few_points: int = 0  # boxes with fewer than MIN_POINTS_PER_BOX culled points (no event)
     accumulating: int = 0  # box events of a track still short of EVENTS_PER_LOCALIZATION
     tracks: int = 0  # tracks started (a box whose anchor matched none within ASSOCIATION_GATE)
@@ -208,6 +212,9 @@ class PerceptionPipeline:
         if len(self.poses) == 0:
             self.counters.unpaired += 1
             return []
+        if not self.poses.covers(frame.time):
+            self.counters.outside_poses += 1
+            return []
         points_w = self.paired_points_w(frame.time) if self.deskew else self._nearest_scan_w(frame.time)
         if len(points_w) == 0:
             self.counters.unpaired += 1
@@ -217,11 +224,12 @@ class PerceptionPipeline:
         return self._event_w(boxes, points_w, T_w_b, frame.camera, frame.T_b_c, frame.time)
 
     def paired_points_w(self, time: float) -> np.ndarray:
-        """The buffered scans' points within the pairing window of ``time``, each moved to W with
-        the pose at its own time."""
+        """The buffered scans' points within the pairing window of ``time`` and the pose
+        history's span, each moved to W with the pose at its own time."""
         parts = []
         for scan in self.scans:
-            near = np.abs(scan.times - time) <= self.pairing_window
+            times = np.asarray(scan.times)
+            near = (np.abs(times - time) <= self.pairing_window) & self.poses.covering(times)
             if np.any(near):
                 parts.append(self.scan_points_w(scan, near))
         return np.vstack(parts) if parts else np.zeros((0, 3))
@@ -275,8 +283,10 @@ class PerceptionPipeline:
         T_c_w = np.linalg.inv(T_w_c)
         culled = ir.points_in_boxes(points_w, T_c_w, camera, boxes)
         T_b_w = np.linalg.inv(T_w_b)
+        # a string boxed in parts: each part is an event, its scale judged on the parts together
+        whole = string_boxes(boxes)
         out = []
-        for box, idx in zip(boxes, culled):
+        for box, idx, whole_box in zip(boxes, culled, whole):
             if len(idx) < MIN_POINTS_PER_BOX:
                 self.counters.few_points += 1
                 continue
@@ -303,7 +313,7 @@ class PerceptionPipeline:
                 continue
             center = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
             axis = T_w_b[:3, :3] @ np.asarray(est.direction)
-            if not self._scale_plausible(center, axis, box, T_c_w, camera):
+            if not self._scale_plausible(center, axis, whole_box, T_c_w, camera):
                 self.counters.implausible += 1
                 continue
             if not self._looks_like_insulator(acc_b, est, center, axis, box, T_c_w, camera, track):

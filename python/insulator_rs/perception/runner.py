@@ -219,7 +219,9 @@ class PerceptionRunner:
         if not self.pairing.waiting_for_points(now):
             return []
         self._take_scan(self._ask_scan(now), now)
-        return self._process(self.pairing.due(now, self.intake.horizon))
+        newest = self.pipeline.poses.newest
+        pose_horizon = -math.inf if newest is None else newest.time
+        return self._process(self.pairing.due(now, self.intake.horizon, pose_horizon))
 
     def _process(self, frames: list[PendingFrame]) -> list[LocalizedInsulator]:
         fixes: list[LocalizedInsulator] = []
