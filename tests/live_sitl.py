@@ -192,6 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tower-b", type=int, default=3, help="tower B flights")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--head", default="", help="sensor head arguments, one string (e.g. '--log head.jsonl')")
+    p.add_argument("--record", action="store_true",
+                   help="record each flight (flight.mcap in its folder: a miss can then be replayed)")
     p.add_argument("extra", nargs="*", help="more inspect arguments (after --)")
     args = p.parse_args(argv)
     folder = sitl_folder()
@@ -209,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
             scene = REPO / "python" / "insulator_rs" / "scenes" / "tower_b.toml"
             mission = REPO / "python" / "insulator_rs" / "missions" / "tower_b.toml"
         with Px4Sitl(folder, workdir=work / "px4") as px4:
-            result = fly_live(px4, work, Path(scene), mission, extra=args.extra, head_args=shlex.split(args.head))
+            extra = [*args.extra, *(["--record", str(work / "flight.mcap")] if args.record else [])]
+            result = fly_live(px4, work, Path(scene), mission, extra=extra, head_args=shlex.split(args.head))
         ok = (result.returncode == 0 and result.status == "finished" and max(result.errors) < 0.30
               and result.false_finds == 0 and not result.failsafe)
         print(f"{kind} {i}: {'PASS' if ok else 'FAIL'} {result.line()}", flush=True)
