@@ -41,7 +41,6 @@ from typing import Any, Literal, cast
 import numpy as np
 
 import insulator_rs as ir
-from insulator_rs.perception.box_groups import string_boxes
 from insulator_rs.perception.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
 from insulator_rs.poses import PoseHistory
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
@@ -283,10 +282,8 @@ class PerceptionPipeline:
         T_c_w = np.linalg.inv(T_w_c)
         culled = ir.points_in_boxes(points_w, T_c_w, camera, boxes)
         T_b_w = np.linalg.inv(T_w_b)
-        # a string boxed in parts: each part is an event, its scale judged on the parts together
-        whole = string_boxes(boxes)
         out = []
-        for box, idx, whole_box in zip(boxes, culled, whole):
+        for box, idx in zip(boxes, culled):
             if len(idx) < MIN_POINTS_PER_BOX:
                 self.counters.few_points += 1
                 continue
@@ -313,7 +310,7 @@ class PerceptionPipeline:
                 continue
             center = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
             axis = T_w_b[:3, :3] @ np.asarray(est.direction)
-            if not self._scale_plausible(center, axis, whole_box, T_c_w, camera):
+            if not self._scale_plausible(center, axis, box, T_c_w, camera):
                 self.counters.implausible += 1
                 continue
             if not self._looks_like_insulator(acc_b, est, center, axis, box, T_c_w, camera, track):
