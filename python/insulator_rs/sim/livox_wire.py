@@ -55,7 +55,10 @@ class LidarStream:
     """A simulated Mid-360 streaming its datagrams: :meth:`due` renders the shots up to ``now``
     (vehicle clock) and returns the chunks of datagrams whose arrival time has come, each with
     that time (the chunk's last sample + ``LATENCY_S``). ``restart_span``: how far before
-    ``now`` the stream starts, at the first call and after ``SILENCE_S`` without one.
+    ``now`` the stream starts, at the first call and after ``silence_s`` (default
+    :data:`SILENCE_S`) without one; ``silence_s=math.inf``: never restarted, a gap between
+    calls is rendered and sent late (a caller that calls continuously, whose gaps are its own
+    stalls).
 
     The shots are rendered in slices of ``1 / slice_rate`` s (the 10 Hz scan windows of the
     datagrams do not depend on it: the shot grid is global). ``ahead``: render a slice once it
@@ -64,7 +67,8 @@ class LidarStream:
 
     def __init__(self, mesh: Mesh, pose: PoseSource, T_b_l: np.ndarray, *, clock: SensorClock | None = None,
                  faults: Faults | None = None, seed: int = 0, data_type: int = 1,
-                 restart_span: float = RESTART_SPAN_S, slice_rate: float = 10.0, ahead: bool = True) -> None:
+                 restart_span: float = RESTART_SPAN_S, slice_rate: float = 10.0, ahead: bool = True,
+                 silence_s: float = SILENCE_S) -> None:
         self.mesh = mesh
         self.pose = pose
         self.ahead = ahead
@@ -73,6 +77,7 @@ class LidarStream:
                                     faults=faults or Faults(), data_type=data_type)
         self.seed = seed
         self.restart_span = float(restart_span)
+        self.silence_s = float(silence_s)
         self.frames = 0
         self.restarts = 0
         self._rendered_until: float | None = None  # vehicle time where the next frame starts
@@ -89,7 +94,7 @@ class LidarStream:
 
     def _render(self, now: float) -> None:
         period = self.lidar.frame_period
-        if self._rendered_until is None or now - self._last_call > SILENCE_S:
+        if self._rendered_until is None or now - self._last_call > self.silence_s:
             # (re)start on the frame grid, dropping what a silent sensor never sent
             self._rendered_until = math.floor((now - self.restart_span) / period + 1e-9) * period
             self.emitter.start_at(self._rendered_until)

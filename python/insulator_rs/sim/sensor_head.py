@@ -326,9 +326,15 @@ class SensorHead:
         sensor_clock = sensor_clock or SensorClock()
         sensor_clock = HostCrystalClock(offset_s=sensor_clock.offset_s, drift=sensor_clock.drift, telemetry=self.clock)
         # 20 ms slices rendered once over: PX4's pose of the past, interpolated (at most a
-        # telemetry period carried forward), sent a render time late
+        # telemetry period carried forward), sent a render time late. Never restarted: this
+        # thread calls continuously, so a gap between its calls is the head's own stall on a
+        # loaded box (head logs of three soak flights: 1-3 s, 3-18 times a flight), not a
+        # silent sensor. Restarted after 2 s, as the in-process stream is, the stall left a hole
+        # of 2-3 s in the scans (the receiver's resyncs: 5-58 a flight where frames went
+        # unpaired, 0 where none did); a real Mid-360 sends on through the host's stalls, so
+        # the span is rendered and sent late (the pose feed keeps 10 s of PX4's poses).
         self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
-                                  slice_rate=LIDAR_SLICE_RATE, ahead=False)
+                                  slice_rate=LIDAR_SLICE_RATE, ahead=False, silence_s=math.inf)
         self.camera = Camera(rig.camera, rig.T_b_c)
         self.mesh = mesh
         self.lidar_to = lidar_to
@@ -430,7 +436,8 @@ class SensorHead:
             print(f"sensor head: {text}", file=sys.stderr, flush=True)
 
     def stats(self) -> dict[str, object]:
-        return {"lidar_frames": self.stream.frames, "datagrams": self.datagrams, "camera_images": self.images, "camera_late_dropped": self.camera_late,
+        return {"lidar_frames": self.stream.frames, "lidar_stream_starts": self.stream.restarts,
+                "datagrams": self.datagrams, "camera_images": self.images, "camera_late_dropped": self.camera_late,
                 "camera_render_ms": round(float(np.mean(self.render_ms)), 1) if self.render_ms else None,
                 "camera_render_p90_ms": round(float(np.percentile(self.render_ms, 90)), 1) if self.render_ms else None,
                 "lidar_late_ms_p50_p99": [round(float(np.percentile(self.lidar_late_s, q)) * 1e3, 1) for q in (50, 99)]
