@@ -64,6 +64,9 @@ CAMERA_LATENCY_S = 0.25
 PX4_GCS_PORT = 18570
 #: Pose samples kept (s of 50 Hz telemetry).
 HISTORY = 500
+#: s of a stall of the head's LiDAR thread rendered and sent late rather than dropped: within
+#: the pose feed's HISTORY of PX4 poses (500 at ~50 Hz: 10 s)
+LIDAR_CATCH_UP_S = 8.0
 #: LiDAR shots are rendered in slices of 1/this s, each once it is over.
 LIDAR_SLICE_RATE = 50.0
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
@@ -326,15 +329,16 @@ class SensorHead:
         sensor_clock = sensor_clock or SensorClock()
         sensor_clock = HostCrystalClock(offset_s=sensor_clock.offset_s, drift=sensor_clock.drift, telemetry=self.clock)
         # 20 ms slices rendered once over: PX4's pose of the past, interpolated (at most a
-        # telemetry period carried forward), sent a render time late. Never restarted: this
-        # thread calls continuously, so a gap between its calls is the head's own stall on a
-        # loaded box (head logs of three soak flights: 1-3 s, 3-18 times a flight), not a
-        # silent sensor. Restarted after 2 s, as the in-process stream is, the stall left a hole
-        # of 2-3 s in the scans (the receiver's resyncs: 5-58 a flight where frames went
-        # unpaired, 0 where none did); a real Mid-360 sends on through the host's stalls, so
-        # the span is rendered and sent late (the pose feed keeps 10 s of PX4's poses).
+        # telemetry period carried forward), sent a render time late. This thread calls
+        # continuously, so a gap between its calls is the head's own stall on a loaded box
+        # (head logs of three soak flights: 1-3 s, 3-18 times a flight), not a silent sensor.
+        # Restarted after 2 s, as the in-process stream is, the stall left a hole of 2-3 s in
+        # the scans (the receiver's resyncs: 5-58 a flight where frames went unpaired, 0 where
+        # none did); a real Mid-360 sends on through the host's stalls, so the span is rendered
+        # and sent late, up to LIDAR_CATCH_UP_S (past it the stream restarts, so a head that
+        # cannot keep up falls behind by a bounded span, not for ever)
         self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
-                                  slice_rate=LIDAR_SLICE_RATE, ahead=False, silence_s=math.inf)
+                                  slice_rate=LIDAR_SLICE_RATE, ahead=False, silence_s=LIDAR_CATCH_UP_S)
         self.camera = Camera(rig.camera, rig.T_b_c)
         self.mesh = mesh
         self.lidar_to = lidar_to
