@@ -1,12 +1,13 @@
 """The one pairing rule: which LiDAR points go with a detection frame, and when the frame is due.
 
 A frame is paired with the points of both sides of its instant (+- the pipeline's pairing
-window, per-point times). It is handed to perception once the window past it is over, a
-scan reaches the window's end and so does the pose history (each point is moved to W with the
-pose at its own time: a recording's odometry may come later than the scans; a point past the
-newest pose would otherwise be placed at it) (a live 10 Hz driver delivers the scan covering it up to a frame
-period and its reorder grace later; the simulator renders it at once; a replay delivers each
-recorded scan once the replay's clock has passed what it covers). A frame still short
+window, per-point times). It is handed to perception once the window past it is over and both
+a scan and the pose history reach the window's end. Poses, because each point is moved to W
+with the pose at its own time, and a recording's odometry may come later than its scans: a
+point past the newest pose would be placed at it. Scans: a live 10 Hz driver delivers the scan
+covering the window's end up to a frame period and its reorder grace later, the simulator
+renders it at once, a replay delivers each recorded scan once the replay's clock has passed
+what it covers. A frame still short
 :data:`PAIRING_WAIT` s after its window goes with what is there, counted as short: a LiDAR that
 stopped delivering costs the pairing, never the flight.
 
