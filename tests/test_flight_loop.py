@@ -151,3 +151,50 @@ def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(t
     by_id = {r["id"]: r for r in s["insulators"]}
     assert not by_id[skipped[0]["insulator_id"]]["inspected"]
     assert s["insulators_found"] == 2 and s["insulators_inspected"] == 1
+
+
+def test_a_find_as_the_leg_passes_a_waypoint_is_flown_to_not_counted_done(tmp_path, monkeypatch):
+    """A string localized in the very tick that passes an exploration waypoint puts its
+    inspection waypoints at the plan's head; the loop then reached "the head" and so counted the
+    string's first waypoint flown, its photo never taken (CI, session 12: over MAVLink under
+    load, a string inspected from one of its two waypoints and reported inspected). Reference:
+    the flight's own plan: every inspection waypoint of the string gets its first shot.
+    The find is made at the moment the loop reports a scan waypoint passed (before it reaches
+    it), from the scene's true centre of the near-side string."""
+    from insulator_rs.flight.loop import FlightLoop
+    from insulator_rs.mission.state_machine import State
+    from insulator_rs.planning.exploration import PlanKind
+    from insulator_rs.sim.towers import load_tower
+
+    scene, mission = small_scene(tmp_path)
+    truth = load_tower(str(scene)).insulators
+    original = FlightLoop._search_may_end
+    injected = []
+
+    def find_on_passing(self, item):
+        go_on = original(self, item)
+        if not injected and item.kind == PlanKind.SCAN and self.sm.state == State.EXPLORE and self.sm.target() is item:
+            st = self.vehicle.state()
+            near = min(truth, key=lambda ins: float(np.linalg.norm(ins.center - st.position)))
+            for _ in range(10):  # as many observations as the mission's registry confirms on
+                if self.sm.localized(near.center, np.array([0.0, 0.0, 1.0]), st.position, st.time) == "new":
+                    injected.append(self.registry.nearest(near.center)[0].id)
+                    break
+        return go_on
+
+    monkeypatch.setattr(FlightLoop, "_search_may_end", find_on_passing)
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
+               "--detect-period", "0.5"])
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 0 and s["status"] == "finished", s["status"]
+    assert len(injected) == 1, "no scan waypoint was passed in exploration: the test did not act"
+    iid = injected[0]
+    planned = [w for w in s["inspection_waypoints"] if w["insulator_id"] == iid]
+    first = [p for p in s["photos"] if p["insulator_id"] == iid and p.get("attempt", 1) == 1]
+    assert len(planned) == 2 and len(first) == len(planned), (
+        [(p["file"], p["attempt"], p["position"]) for p in s["photos"]], s["transitions"])
+    for w in planned:  # each waypoint its own shot, taken there (settled within a metre)
+        assert min(np.linalg.norm(np.subtract(p["position"], w["position"])) for p in first) < 1.0, (w, first)
+    everyone = [p for p in s["photos"] if p.get("attempt", 1) == 1]
+    assert len(everyone) == 2 * s["insulators_inspected"]

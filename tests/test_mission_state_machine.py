@@ -190,3 +190,15 @@ def test_an_unreachable_inspection_waypoint_is_skipped_not_the_mission():
     kinds = fly_to_end(sm, 3.0)
     assert kinds[-1] == "land" and kinds.count("inspect") == 1
     assert not sm.registry.insulators[0].inspected
+
+
+def test_reaching_an_item_a_find_has_displaced_is_refused():
+    """The flight reports the item it flew to; a find since then put its inspection waypoints
+    in front of it, so reaching it must not count the new head (an unflown waypoint) as done."""
+    sm = machine()
+    flown_to = sm.target()
+    assert sm.localized(NEAR, AXIS, flown_to.position, 1.0) == "new"
+    assert sm.target() is not flown_to and sm.target().kind == "inspect"
+    with pytest.raises(RuntimeError, match="no longer the plan's head"):
+        sm.reached(1.5, flown_to)
+    assert sm.reached(2.0, sm.target()).kind == "inspect"  # the head itself is reached as before

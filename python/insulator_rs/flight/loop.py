@@ -419,9 +419,9 @@ class FlightLoop:
         # tower A's second waypoint): it goes on to the photo, not round the same leg forever
         if traj is None:
             for it in items[:-1]:
-                if not self._search_may_end(it):
+                if not self._search_may_end(it) or not self._still_head(it):
                     return False
-                self.sm.reached(st.time)
+                self.sm.reached(st.time, it)
         for t, st in ([] if traj is None else self._follow(traj, lambda: items[min(k, len(items) - 1)].yaw)):
             if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
                 return False
@@ -433,9 +433,9 @@ class FlightLoop:
                     self.say(f"[{self.now():7.1f} s] the LiDAR sees an obstacle on the rest of the leg: re-planning")
                     return False
             while k < len(items) - 1 and t >= seg.item_times[k] - 1e-9:
-                if not self._search_may_end(items[k]):
+                if not self._search_may_end(items[k]) or not self._still_head(items[k]):
                     return False
-                self.sm.reached(self.vehicle.state().time)
+                self.sm.reached(self.vehicle.state().time, items[k])
                 k += 1
                 if self.sm.plan_version != version:
                     return False
@@ -445,10 +445,18 @@ class FlightLoop:
         if last.kind == PlanKind.INSPECT and last.waypoint is not None:
             self.take_photo(last.waypoint)
         if self.sm.target() is last:
-            if not self._search_may_end(last):
+            if not self._search_may_end(last) or not self._still_head(last):
                 return False
-            self.sm.reached(self.vehicle.state().time)
+            self.sm.reached(self.vehicle.state().time, last)
         return True
+
+    def _still_head(self, item: PlanItem) -> bool:
+        """Whether ``item``, just flown to, is still the plan's head. Why: a find during the
+        tick that got there (or the hover of :meth:`_search_may_end`) puts its inspection
+        waypoints in front of it; reaching the head then counted one of those as flown, its
+        photo never taken (CI, session 12: a string photographed from one of its two waypoints
+        and reported inspected). False: re-plan, the new waypoints first."""
+        return self.sm.target() is item
 
     def _seen(self) -> SeenVolumes | None:
         """The safety volumes with the obstacle map, at the mission's margin (None: no map)."""

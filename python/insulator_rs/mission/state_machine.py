@@ -180,10 +180,15 @@ class InspectionStateMachine:
         self.plan_version += 1
         self._derive(time, "take-off complete")
 
-    def reached(self, time: float) -> PlanItem:
-        """The vehicle reached the plan's head; returns it (an "inspect" item means: take the photo)."""
+    def reached(self, time: float, item: PlanItem | None = None) -> PlanItem:
+        """The vehicle reached the plan's head; returns it (an "inspect" item means: take the photo).
+        ``item``: the item the caller flew to; refused unless it is still the head (a find may
+        have put its inspection waypoints in front of it meanwhile, and reaching one of those
+        unflown would count a photo never taken)."""
         if self.state in (State.HOLD, State.ABORT, State.IDLE) or not self.plan:
             raise RuntimeError(f"reached: no active target in state {self.state.value}")
+        if item is not None and self.plan[0] is not item:
+            raise RuntimeError(f"reached: {item.kind} item is no longer the plan's head ({self.plan[0].kind} is)")
         item = self.plan.pop(0)
         self.visited.append(item)
         reason = f"reached {item.kind} waypoint"
