@@ -99,7 +99,8 @@ class LiveFlight:
                 f"localizations {s.get('localizations')}, pairing_short {s.get('pairing_short')}, "
                 f"pairing timing {s.get('pairing_timing')}, "
                 f"perception {s.get('perception')}, lidar drift_ppm {h.get('lidar_clock_drift_ppm')}, "
-                f"timesync {s.get('timesync')}")
+                f"timesync {s.get('timesync')}, candidates "
+                f"{[(c['observations'], [round(x, 1) for x in c['center']]) for c in s.get('candidates', [])]}")
 
 
 def gstreamer_available() -> bool:

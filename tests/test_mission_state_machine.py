@@ -202,3 +202,20 @@ def test_reaching_an_item_a_find_has_displaced_is_refused():
     with pytest.raises(RuntimeError, match="no longer the plan's head"):
         sm.reached(1.5, flown_to)
     assert sm.reached(2.0, sm.target()).kind == "inspect"  # the head itself is reached as before
+
+
+def test_unconfirmed_localizations_are_reported_as_candidates():
+    """What the registry holds without its confirmations goes to the summary's ``candidates``
+    (most observed first), so the crew knows where a string may hang that the run never confirmed."""
+    from insulator_rs.flight.record import candidate_records
+
+    reg = InsulatorRegistry(LINE, gate=1.5, confirmations=3)
+    reg.observe(NEAR, AXIS)
+    reg.observe(FAR, AXIS), reg.observe(FAR + 0.1, AXIS)
+    for _ in range(3):
+        reg.observe(NEAR2, AXIS)  # confirmed: an insulator, not a candidate
+    got = candidate_records(reg)
+    assert [c["observations"] for c in got] == [2, 1]
+    np.testing.assert_allclose(got[0]["center"], FAR + 0.05)
+    assert got[0]["side"] == -1 and got[1]["side"] == 1
+    assert len(reg.insulators) == 1

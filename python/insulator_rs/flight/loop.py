@@ -50,7 +50,8 @@ from insulator_rs.flight.gimbal import aim_at, gimballed_T_b_c, stabilised_T_b_c
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photos import InspectionPhotos
 from insulator_rs.flight.preflight import PreflightResult, preflight_checks
-from insulator_rs.flight.record import camera_record, insulator_records, perception_record, timesync_record
+from insulator_rs.flight.record import (camera_record, candidate_records, insulator_records, perception_record,
+                                        timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
@@ -941,6 +942,7 @@ class FlightLoop:
                           method=s.method, flight_time_s=0.0 if refused else st.time - self.t_start,
                           perception=perception_record(self.runner, self.sensor_errors),
                           insulators=insulator_records(self.registry, photos), photos=self.photos.records,
+                          candidates=candidate_records(self.registry),
                           sensors_health=self.sensors.health(), flight=details)
 
     def _obstacle_record(self) -> dict[str, Any]:

@@ -40,6 +40,13 @@ def insulator_records(registry: InsulatorRegistry, photos: dict[int, list[str]])
             for ins in registry.insulators]
 
 
+def candidate_records(registry: InsulatorRegistry) -> list[dict[str, Any]]:
+    """The registry's unconfirmed localizations, most observed first."""
+    return [{"center": ins.center.tolist(), "axis": ins.axis.tolist(), "observations": ins.observations,
+             "side": ins.side}
+            for ins in sorted(registry.candidates, key=lambda ins: -ins.observations)]
+
+
 def timesync_record(vehicle: Any, sensors: Any) -> TimesyncRecord:
     """How the companion knew vehicle time: the clock live sensors were stamped with (TIMESYNC
     or its telemetry fallback), else the MAVLink client's TIMESYNC map, else source ``none``

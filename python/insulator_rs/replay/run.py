@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.exceptions import BagError
-from insulator_rs.flight.record import insulator_records, perception_record
+from insulator_rs.flight.record import candidate_records, insulator_records, perception_record
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
@@ -170,6 +170,7 @@ class ReplayRun:
                           method=self.settings.method, flight_time_s=duration,
                           perception=perception_record(self.runner),
                           insulators=insulator_records(self.registry, {}),  # a replay takes no photos
+                          candidates=candidate_records(self.registry),
                           sensors_health=self.sensors.health(), replay=details)
 
     def finish(self) -> RunSummary:

@@ -133,6 +133,9 @@ class RunSummary:
     error: str | None = None
     flight: FlightDetails | None = None
     replay: ReplayDetails | None = None
+    # localizations the registry holds without their confirmations: where a string may hang
+    # that the run never confirmed (centre, axis, observations, side); the crew's places to look
+    candidates: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def insulators_found(self) -> int:
@@ -158,7 +161,8 @@ class RunSummary:
             if details is not None:
                 out.update({f.name: getattr(details, f.name) for f in fields(details)})
         out.update({"insulators_found": self.insulators_found, "insulators_inspected": self.insulators_inspected,
-                    "insulators": [jsonable(r) for r in self.insulators], "photos": self.photos})
+                    "insulators": [jsonable(r) for r in self.insulators], "photos": self.photos,
+                    "candidates": self.candidates})
         return jsonable(out)
 
 
