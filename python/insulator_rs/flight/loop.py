@@ -53,6 +53,7 @@ from insulator_rs.flight.preflight import PreflightResult, preflight_checks
 from insulator_rs.flight.record import (camera_record, candidate_records, insulator_records, perception_record,
                                         timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
+from insulator_rs.flight.second_look import SecondLook, look_events, look_target
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
@@ -171,6 +172,8 @@ class FlightLoop:
         self.photos = InspectionPhotos(self.report, mission.inspection.insulator_length,
                                        exif_camera=rig.exif_camera(), inspection=rig.inspection)
         self.waypoints: list[InspectionWaypoint] = []
+        self.second_looks: list[SecondLook] = []  # flight/second_look.py
+        self._looked: list[Insulator] = []  # the candidates looked at (the records themselves)
         self._search_end: PlanItem | None = None  # the item where the search ended, once caught up
         self.status = "running"
         self.abort_reason: str | None = None
@@ -201,14 +204,18 @@ class FlightLoop:
 
     # -- helpers -------------------------------------------------------------------------
     def _waypoints(self, ins: Insulator) -> list[InspectionWaypoint]:
+        wps = self._viewpoints(ins)
+        self.waypoints.extend(wps)
+        return wps
+
+    def _viewpoints(self, ins: Insulator) -> list[InspectionWaypoint]:
+        """The inspection waypoints of ``ins`` (PlanningError when none is safe)."""
         p = self.mission.inspection
-        wps = inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=self.geom.line,
+        return inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=self.geom.line,
                                    volumes=self.geom.volumes, count=p.waypoints_per_insulator,
                                    inspection_distance=p.inspection_distance,
                                    insulator_length=p.insulator_length, fov=self.fov,
                                    camera=self.photo_model, inspection=self.inspection)
-        self.waypoints.extend(wps)
-        return wps
 
     def _cost(self, a: np.ndarray, b: np.ndarray) -> float:
         return float(rest_to_rest_times(a, b, self.v_max, self.a_max))
@@ -476,15 +483,91 @@ class FlightLoop:
         ends the search (only crossings back and the landing follow) and perception still holds
         frames taken up to now, the vehicle first hovers at ``item`` until they are handed on
         (:meth:`_perception_caught_up`), and False says: re-plan from there (a find of those
-        frames is inspected first; else the item is reached at once). Once per item."""
-        if not self.sm.head_ends_search() or self._search_end is item:
+        frames is inspected first; else the item is reached at once). Once per item. Then, there
+        and where a side's passes end, a candidate the passes saw too few times gets a second
+        look (:meth:`_second_look`, flight/second_look.py), and False: re-plan."""
+        ends_search = self.sm.head_ends_search()
+        if not ends_search and not self.sm.head_ends_side():
             return True
-        self._search_end = item
-        arrival = self.vehicle.state().time
-        if self.runner.caught_up(arrival):
+        if ends_search and self._search_end is not item:
+            self._search_end = item
+            arrival = self.vehicle.state().time
+            if not self.runner.caught_up(arrival):
+                self._perception_caught_up(item, arrival)
+                return False
+        # where a side's passes end (perception caught up where the search ends): a string they
+        # saw too few times is looked at again, one a call (False: re-plan from the viewpoint,
+        # back here or to the find's waypoints)
+        target = look_target(self.registry.candidates, self.geom.line, self.vehicle.state().position,
+                             self.mission.max_width, self._looked)
+        if target is None:
             return True
-        self._perception_caught_up(item, arrival)
+        self._looked.append(target)
+        self._second_look(target)
         return False
+
+    def _second_look(self, candidate: Insulator) -> None:
+        """Fly to ``candidate``'s first inspection viewpoint, settle, and watch it for
+        :func:`look_events` detection events and their LiDAR points (flight/second_look.py);
+        ended by a find (the plan changes: its waypoints come first), cut short by a hold, an
+        abort, lost health or an obstacle on the way. The look goes into summary.json."""
+        before = candidate.observations
+        try:
+            view = self._viewpoints(candidate)[0]
+            st = self.vehicle.state()
+            seen = self._seen()
+            seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity,
+                               [PlanItem(PlanKind.INSPECT, view.position, view.yaw, candidate.side)],
+                               v_max=self.v_max, a_max=self.a_max,
+                               clearance=self.mission.inspection.crossing_clearance,
+                               time_allocation=self.settings.time_allocation, seen=seen)
+        except PlanningError as exc:
+            self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, before,
+                                                candidate.confirmed, f"not flown: {exc}"))
+            return
+        self.say(f"[{self.now():7.1f} s] a second look at a candidate seen {before} times at "
+                 f"{np.round(candidate.center, 2).tolist()}")
+        version = self.sm.plan_version
+        seen_version = -1 if self.obstacles is None else self.obstacles.version
+
+        def cut_short() -> str | None:
+            if self.sm.plan_version != version:
+                return None  # a find: its inspection follows (the look did its job)
+            if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
+                return f"cut short: {self.sm.state.value}"
+            return None
+
+        note = None
+        if seg.trajectory is not None:
+            for t, _ in self._follow(seg.trajectory, lambda: view.yaw):
+                note = cut_short()
+                if note is not None or self.sm.plan_version != version:
+                    break
+                if seen is not None and self.obstacles is not None and self.obstacles.version != seen_version:
+                    seen_version = self.obstacles.version
+                    if not self._rest_clear(seg.trajectory, t, seen):
+                        note = "cut short: the LiDAR sees an obstacle on the way"
+                        break
+        # settled first (the frames of a braking, turning body box the string badly), then the
+        # events, then their LiDAR points (a frame's come up to PAIRING_WAIT s after its window)
+        if note is None and self.sm.plan_version == version and self._settle(view, 0.0) is None:
+            note = "cut short: abort"
+        events0, budget = self.runner.counts.events, look_events(self.mission.inspection.confirmations, before)
+        st = self.vehicle.state()
+        # a bound in vehicle time too: a detector that stops asking must not hold the vehicle here
+        limit = st.time + budget * max(self.settings.detect_period, CONTROL_PERIOD) + PHOTO_SETTLE_TIMEOUT
+        while (note is None and self.sm.plan_version == version and st.time < limit
+               and self.runner.counts.events - events0 < budget):
+            st = self.tick(view.position, None, view.yaw)
+            note = cut_short()
+        watched = st.time
+        deadline = watched + self.runner.pipeline.pairing_window + PAIRING_WAIT
+        while (note is None and self.sm.plan_version == version and st.time < deadline
+               and not self.runner.caught_up(watched)):
+            st = self.tick(view.position, None, view.yaw)
+            note = cut_short()
+        self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, candidate.observations,
+                                            candidate.confirmed, note))
 
     def _perception_caught_up(self, item: PlanItem, arrival: float) -> None:
         """Hover at ``item`` until perception has handed on every frame taken up to ``arrival``,
@@ -935,6 +1018,7 @@ class FlightLoop:
             timesync=timesync_record(self.vehicle, self.sensors),
             battery=self.battery.record(),
             obstacle_map=self._obstacle_record(),
+            second_looks=[look.as_record() for look in self.second_looks],
             preflight=None if self.preflight_result is None else self.preflight_result.as_record(),
             px4_parameters=None if self.autopilot_setup is None else self.autopilot_setup.record())
         refused = self.preflight_result is not None and not self.preflight_result.passed

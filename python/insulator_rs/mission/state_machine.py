@@ -301,6 +301,13 @@ class InspectionStateMachine:
         return (self.state != State.FINISH and bool(self.plan) and self.plan[0].kind != PlanKind.LAND
                 and not any(it.kind in (PlanKind.SCAN, PlanKind.INSPECT, PlanKind.RETURN) for it in self.plan[1:]))
 
+    def head_ends_side(self) -> bool:
+        """Whether reaching the plan's head ends a side's passes: it is a pass corner (scan) and a
+        crossing follows it (the first side's top pass; the last side's is also where the search
+        ends, :meth:`head_ends_search`)."""
+        return (self.state != State.FINISH and len(self.plan) > 1 and self.plan[0].kind == PlanKind.SCAN
+                and self.plan[1].kind == PlanKind.CROSS)
+
     def next_leg(self) -> list[PlanItem]:
         """The plan's items flown as one trajectory: from the head up to and including the first
         inspection waypoint (a photo ends a leg), stopping before the landing."""

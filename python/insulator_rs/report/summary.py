@@ -95,6 +95,10 @@ class FlightDetails:
     # kept, occupied voxels, the margin, legs bent round an obstacle, left mid-way to re-plan, and
     # refused; None for a flight before this field
     obstacle_map: dict[str, Any] | None = None
+    # the second looks at candidates before the search ended (flight/second_look.py): per look
+    # the candidate's id (0 unless confirmed), centre, localizations before and after, whether
+    # confirmed, and a note when cut short or not flown; None for a flight before this field
+    second_looks: list[dict[str, Any]] | None = None
 
 
 @dataclass

@@ -1,0 +1,94 @@
+"""The second look: before the search ends, a string seen too few times to be confirmed is
+flown to and watched for a few detection events.
+
+Why: at the mission's defaults (4 confirmations, 1 Hz detection) the live-sensor flight
+against PX4 SITL missed the far-side string of the small scene in 7 of 25 flights, and in the
+misses whose summary listed candidates (session 13, CI's among them) the string was there, an
+unconfirmed candidate seen 2-3 times within 0.2 m of the truth. The last side's passes are
+its only chance: once the search ends a find only refines the registry. From the string's first
+inspection viewpoint (``inspection_distance``, 6 m, against the passes' 12+ m) the LiDAR puts
+several times the points on it and the camera looks straight at it, so a real string is
+localized at most events and confirmed; a ghost of the lattice stays a candidate.
+
+When: where a side's search ends (the last pass corner before the crossing) and where the
+whole search ends, once perception has handed on the frames taken up to there. Session 14's
+first soak flight missed the far-side string seen once in its side's passes (a candidate
+1 time, 0.02 m from the truth), while the near string, seen as seldom in its passes, got 19
+localizations hovering at its inspection waypoints: the distance and the hover make the
+difference, so a candidate seen once is looked at too.
+
+Which candidates: on the side the vehicle is on (the other side's passes are behind the
+crossing), and off the tower's body. The last rule because the small tower's peak (a lattice on
+the tower's axis) is a 1-2-time candidate in every live flight, and tower A's body members at
+1.4-2.1 m from the axis were candidates too: looked at, they cost a minute each and could be
+confirmed as false finds. A string hangs from an arm's tip: a tower's widest arms reach
+``max_width / 2`` and its body at the arms' heights is far narrower, so a candidate within
+:data:`BODY_FRACTION` of ``max_width`` of the axis (laterally, across the line) is taken for the
+body. Tower A: 2.5 m, its strings at 4.2-5 m; the small scene: 1.5 m, its strings at 3 m and
+its peak at 0.4-0.9 m. At most :data:`MAX_LOOKS` a flight, the most seen first: a look is about
+20 s of flight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from insulator_rs.geodesy import LineFrame
+from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION
+from insulator_rs.tracking.registry import Insulator
+
+#: looks a flight at most
+MAX_LOOKS = 3
+#: detection events watched beyond the least that could confirm (a frame cut by the image edge,
+#: a box the scale check refuses): session 14's first live look watched 5 events and got one
+#: localization, the pipeline's new track needing EVENTS_PER_LOCALIZATION events first
+LOOK_MARGIN_EVENTS = 3
+#: a candidate closer to the tower's axis than this share of ``max_width`` is on its body
+BODY_FRACTION = 0.25
+
+
+@dataclass(frozen=True)
+class SecondLook:
+    """One look, for summary.json: the candidate (registry id, 0 unless confirmed; centre in W) and its
+    localizations before and after, whether it was confirmed, and why a look was cut short
+    or not flown (None: flown to its end)."""
+
+    insulator_id: int
+    center: np.ndarray
+    observations_before: int
+    observations_after: int
+    confirmed: bool
+    note: str | None = None
+
+    def as_record(self) -> dict[str, Any]:
+        return {"insulator_id": self.insulator_id, "center": np.round(self.center, 3).tolist(),
+                "observations_before": self.observations_before, "observations_after": self.observations_after,
+                "confirmed": self.confirmed, "note": self.note}
+
+
+def look_target(candidates: list[Insulator], line: LineFrame, position: np.ndarray, max_width: float,
+                looked: list[Insulator]) -> Insulator | None:
+    """The candidate to look at next from ``position`` (W), the search ending there: of the
+    registry's unconfirmed ``candidates``, those on ``position``'s side of the line and off the
+    body, not in ``looked`` (the records themselves:
+    a candidate's id is 0 until it is confirmed); the most seen.
+    None when there is none or MAX_LOOKS are spent."""
+    if len(looked) >= MAX_LOOKS:
+        return None
+    side = line.side(position)
+    off_body = BODY_FRACTION * max_width
+    eligible = [c for c in candidates
+                if not any(c is seen for seen in looked) and not c.confirmed
+                and line.side(c.center) == side and abs(float(line.to_line(c.center)[1])) >= off_body]
+    return max(eligible, key=lambda c: c.observations, default=None)
+
+
+def look_events(confirmations: int, observations: int) -> int:
+    """Detection events to watch a candidate seen ``observations`` times for, once settled at
+    its viewpoint: the localizations it still lacks (the registry confirms at ``confirmations``),
+    the events a new track of the pipeline accumulates before its first, and the margin. The
+    look ends sooner when the candidate is confirmed."""
+    return max(confirmations - observations, 1) + EVENTS_PER_LOCALIZATION - 1 + LOOK_MARGIN_EVENTS
