@@ -11,10 +11,12 @@ from test_mission_inspect import small_scene
 from insulator_rs.app.cli import main
 import pytest
 
-from insulator_rs.flight.second_look import BODY_FRACTION, MAX_LOOKS, look_target
+from insulator_rs.flight.second_look import (BODY_FRACTION, LOOK_BELOW, LOOK_DISTANCE, MAX_LOOKS, look_target,
+                                             look_viewpoint)
 from insulator_rs.geodesy import line_frame
 from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.planning.exploration import PATH_CLEARANCE
 from insulator_rs.tracking.registry import Insulator
 
 ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
@@ -108,3 +110,23 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     assert len(planned) == 2 and len(shots) == 2, (planned, shots)
     assert any(np.linalg.norm(np.subtract(c["center"], ghost)) < 0.1 for c in s["candidates"])
     assert s["insulators_found"] == 2
+
+
+def test_the_viewpoint_is_out_across_the_line_below_the_candidate_clear_and_facing_it(tmp_path):
+    """Reference: the small scene's mission geometry (its safety volumes, checked by their own
+    ``points_clear``) and plain vector arithmetic for the distance, height and heading."""
+    _, mission = small_scene(tmp_path)
+    geom = MissionGeometry.from_mission(load_mission(mission))
+    floor = float(geom.takeoff[2]) + 3.0
+    for lateral in (3.0, -3.0, 4.5):
+        for z in (9.0, 4.0):
+            c = geom.line.to_world(np.array([0.4, lateral, z]))
+            p, yaw = look_viewpoint(c, geom.line, geom.volumes, min_height=floor)
+            assert geom.line.side(p) == geom.line.side(c)
+            off = p - c
+            assert np.hypot(off[0], off[1]) >= LOOK_DISTANCE - 1e-9
+            assert abs(float(off @ geom.line.along)) < 1e-9  # straight out across the line
+            assert p[2] == pytest.approx(max(z - LOOK_BELOW, floor))
+            assert geom.volumes.points_clear(p[None, :], PATH_CLEARANCE)[0]
+            facing = np.array([np.cos(yaw), np.sin(yaw)])
+            assert facing @ (-off[:2] / np.hypot(off[0], off[1])) == pytest.approx(1.0)

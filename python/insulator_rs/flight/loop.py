@@ -53,7 +53,7 @@ from insulator_rs.flight.preflight import PreflightResult, preflight_checks
 from insulator_rs.flight.record import (camera_record, candidate_records, insulator_records, perception_record,
                                         timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
-from insulator_rs.flight.second_look import SecondLook, look_events, look_target
+from insulator_rs.flight.second_look import SecondLook, look_events, look_target, look_viewpoint
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
@@ -507,17 +507,17 @@ class FlightLoop:
         return False
 
     def _second_look(self, candidate: Insulator) -> None:
-        """Fly to ``candidate``'s first inspection viewpoint, settle, and watch it for
+        """Fly to ``candidate``'s look viewpoint (:meth:`_look_view`), settle, and watch it for
         :func:`look_events` detection events and their LiDAR points (flight/second_look.py);
         ended by a find (the plan changes: its waypoints come first), cut short by a hold, an
         abort, lost health or an obstacle on the way. The look goes into summary.json."""
         before = candidate.observations
         try:
-            view = self._viewpoints(candidate)[0]
+            view = self._look_view(candidate)
             st = self.vehicle.state()
             seen = self._seen()
             seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity,
-                               [PlanItem(PlanKind.INSPECT, view.position, view.yaw, candidate.side)],
+                               [view],
                                v_max=self.v_max, a_max=self.a_max,
                                clearance=self.mission.inspection.crossing_clearance,
                                time_allocation=self.settings.time_allocation, seen=seen)
@@ -568,6 +568,12 @@ class FlightLoop:
             note = cut_short()
         self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, candidate.observations,
                                             candidate.confirmed, note))
+
+    def _look_view(self, candidate: Insulator) -> PlanItem:
+        """The viewpoint of a second look (flight/second_look.py), as an item of no plan."""
+        position, yaw = look_viewpoint(candidate.center, self.geom.line, self.geom.volumes,
+                                       min_height=float(self.geom.takeoff[2]) + MIN_PASS_HEIGHT)
+        return PlanItem(PlanKind.SCAN, position, yaw, candidate.side)
 
     def _perception_caught_up(self, item: PlanItem, arrival: float) -> None:
         """Hover at ``item`` until perception has handed on every frame taken up to ``arrival``,
@@ -635,7 +641,7 @@ class FlightLoop:
                 self.say(f"[{self.now():7.1f} s] photo of insulator {wp.insulator_id} unfit "
                          f"({', '.join(check.reasons)}): retake {attempt} of {retakes}")
 
-    def _settle(self, wp: InspectionWaypoint, hold: float) -> VehicleState | None:
+    def _settle(self, wp: InspectionWaypoint | PlanItem, hold: float) -> VehicleState | None:
         """Hold ``wp`` for at least ``hold`` s until settled (heading, speed) or PHOTO_SETTLE_TIMEOUT;
         the settled state, None when the mission aborted meanwhile."""
         t0 = self.vehicle.state().time

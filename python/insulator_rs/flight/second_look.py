@@ -31,12 +31,16 @@ its peak at 0.4-0.9 m. At most :data:`MAX_LOOKS` a flight, the most seen first: 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from insulator_rs.exceptions import PlanningError
 from insulator_rs.geodesy import LineFrame
+from insulator_rs.planning.exploration import PATH_CLEARANCE
+from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION
 from insulator_rs.tracking.registry import Insulator
 
@@ -48,6 +52,15 @@ MAX_LOOKS = 3
 LOOK_MARGIN_EVENTS = 3
 #: a candidate closer to the tower's axis than this share of ``max_width`` is on its body
 BODY_FRACTION = 0.25
+#: m, horizontally out from the candidate across the line, and below it: where the passes
+#: localized strings (session 14's replay, box by box: 6-8 m off and 1-2.5 m below, whole boxes
+#: of 26-37 px with 8-18 LiDAR returns) and not where the photo is taken (6 m off at the
+#: string's height: boxes of its parts, 15 px, refused by the scale check, 2 localizations in
+#: 18 s). Below, the Mid-360's field of view (-7 to +52 deg) holds the whole string.
+LOOK_DISTANCE = 7.0
+LOOK_BELOW = 2.0
+#: m: how far past LOOK_DISTANCE the viewpoint may move out to clear the safety volumes
+LOOK_MAX_PUSH = 10.0
 
 
 @dataclass(frozen=True)
@@ -92,3 +105,21 @@ def look_events(confirmations: int, observations: int) -> int:
     the events a new track of the pipeline accumulates before its first, and the margin. The
     look ends sooner when the candidate is confirmed."""
     return max(confirmations - observations, 1) + EVENTS_PER_LOCALIZATION - 1 + LOOK_MARGIN_EVENTS
+
+
+def look_viewpoint(center: np.ndarray, line: LineFrame, volumes: SafetyVolumes, *,
+                   min_height: float) -> tuple[np.ndarray, float]:
+    """Where to watch a candidate at ``center`` (W) from, and the yaw that faces it: LOOK_DISTANCE
+    out across the line on its side and LOOK_BELOW under it (not under ``min_height``), moved out
+    in 0.5 m steps until PATH_CLEARANCE from ``volumes``. PlanningError when no point within
+    LOOK_MAX_PUSH is clear."""
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    out = line.side(c) * np.asarray(line.lateral, dtype=np.float64)
+    z = max(float(c[2]) - LOOK_BELOW, min_height)
+    for push in np.arange(0.0, LOOK_MAX_PUSH + 1e-9, 0.5):
+        p = c + out * (LOOK_DISTANCE + push)
+        p[2] = z
+        if bool(volumes.points_clear(p[None, :], PATH_CLEARANCE)[0]):
+            return p, math.atan2(float(c[1] - p[1]), float(c[0] - p[0]))
+    raise PlanningError(f"no viewpoint clear of the safety volumes within {LOOK_DISTANCE + LOOK_MAX_PUSH:.0f} m "
+                        f"of the candidate at {np.round(c, 2).tolist()}")
