@@ -11,8 +11,8 @@ from test_mission_inspect import small_scene
 from insulator_rs.app.cli import main
 import pytest
 
-from insulator_rs.flight.second_look import (BODY_FRACTION, LOOK_BELOW, LOOK_DISTANCE, MAX_LOOKS, look_target,
-                                             look_viewpoint)
+from insulator_rs.flight.second_look import (BODY_FRACTION, LOOK_BELOW, LOOK_DISTANCE, LOOK_SHIFT, LOOK_VIEWS,
+                                             MAX_LOOKS, look_target, look_viewpoints)
 from insulator_rs.geodesy import line_frame
 from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
@@ -61,15 +61,19 @@ def test_looks_are_bounded_per_flight():
     assert len(looked) == MAX_LOOKS
 
 
-@pytest.mark.parametrize("side", ["first", "last"])
-def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_path, monkeypatch, side):
+@pytest.mark.parametrize("side, first_view_blind", [("first", False), ("last", False), ("last", True)])
+def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_path, monkeypatch, side,
+                                                                          first_view_blind):
     """In process, the ground-truth stand-in detector: one string's localizations in the passes
     are dropped after the first (the live path's miss: session 14, the far string a candidate
     seen once), the take-off side's string (looked at where that side's passes end) or the
     other's (where the search ends); and a ghost seen 3 times is put on the tower's axis, the
-    peak's place. Reference: the scene's ground truth (the string found within 0.3 m and
+    peak's place. With ``first_view_blind`` the string's localizations are dropped while the
+    vehicle is at the look's first view too (the live hover whose frames fail together), so the
+    look must move on. Reference: the scene's ground truth (the string found within 0.3 m and
     photographed from each of its waypoints), the summary's second looks (one, at the string,
-    confirmed; none at the ghost, still a candidate)."""
+    confirmed from the first view or, blind there, the second; none at the ghost, still a
+    candidate)."""
     from insulator_rs.flight.loop import FlightLoop
     from insulator_rs.sim.towers import load_tower
 
@@ -82,14 +86,29 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     original = FlightLoop._localized
     kept = []
 
+    watch = FlightLoop._watch_from
+    first_watch: list[float] = []  # vehicle times: the first view's flight there and watch
+
+    def watch_from(self, view, candidate, version):
+        start = self.vehicle.state().time
+        note = watch(self, view, candidate, version)
+        if not first_watch:
+            first_watch.extend([start, self.vehicle.state().time])
+        return note
+
     def see_the_string_once(self, fix, st):
-        if not self._looked and float(np.linalg.norm(fix.center - string)) < 1.0:
+        on_string = float(np.linalg.norm(fix.center - string)) < 1.0
+        if not self._looked and on_string:
             if kept:
                 return  # the passes' localizations beyond the one the live path made: lost
             kept.append(fix.center)
             for _ in range(3):
                 self.registry.observe(ghost, np.array([0.0, 0.0, 1.0]))
+        if first_view_blind and self._looked and on_string and (not first_watch or fix.time <= first_watch[1]):
+            return  # the frames taken on the way to the first view and there: lost
         original(self, fix, st)
+
+    monkeypatch.setattr(FlightLoop, "_watch_from", watch_from)
 
     monkeypatch.setattr(FlightLoop, "_localized", see_the_string_once)
     out = tmp_path / "report"
@@ -102,6 +121,7 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     look = looks[0]
     assert np.linalg.norm(np.subtract(look["center"], string)) < 0.3 and look["observations_before"] == 1
     assert look["confirmed"] and look["note"] is None, look
+    assert look["views"] == (2 if first_view_blind else 1), look
     found = min(s["insulators"], key=lambda r: float(np.linalg.norm(np.subtract(r["center"], string))))
     assert np.linalg.norm(np.subtract(found["center"], string)) < 0.3
     assert found["id"] == look["insulator_id"]
@@ -112,21 +132,26 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     assert s["insulators_found"] == 2
 
 
-def test_the_viewpoint_is_out_across_the_line_below_the_candidate_clear_and_facing_it(tmp_path):
+def test_the_views_are_out_across_the_line_below_the_candidate_clear_and_facing_it(tmp_path):
     """Reference: the small scene's mission geometry (its safety volumes, checked by their own
-    ``points_clear``) and plain vector arithmetic for the distance, height and heading."""
+    ``points_clear``) and plain vector arithmetic for the distance, the shift along the line,
+    the height and the heading."""
     _, mission = small_scene(tmp_path)
     geom = MissionGeometry.from_mission(load_mission(mission))
     floor = float(geom.takeoff[2]) + 3.0
     for lateral in (3.0, -3.0, 4.5):
         for z in (9.0, 4.0):
             c = geom.line.to_world(np.array([0.4, lateral, z]))
-            p, yaw = look_viewpoint(c, geom.line, geom.volumes, min_height=floor)
-            assert geom.line.side(p) == geom.line.side(c)
-            off = p - c
-            assert np.hypot(off[0], off[1]) >= LOOK_DISTANCE - 1e-9
-            assert abs(float(off @ geom.line.along)) < 1e-9  # straight out across the line
-            assert p[2] == pytest.approx(max(z - LOOK_BELOW, floor))
-            assert geom.volumes.points_clear(p[None, :], PATH_CLEARANCE)[0]
-            facing = np.array([np.cos(yaw), np.sin(yaw)])
-            assert facing @ (-off[:2] / np.hypot(off[0], off[1])) == pytest.approx(1.0)
+            views = look_viewpoints(c, geom.line, geom.volumes, min_height=floor)
+            assert len(views) == LOOK_VIEWS
+            shifts = []
+            for p, yaw in views:
+                assert geom.line.side(p) == geom.line.side(c)
+                off = p - c
+                shifts.append(float(off @ geom.line.along))
+                assert abs(float(off @ geom.line.lateral)) >= LOOK_DISTANCE - 1e-9  # out across the line
+                assert p[2] == pytest.approx(max(z - LOOK_BELOW, floor))
+                assert geom.volumes.points_clear(p[None, :], PATH_CLEARANCE)[0]
+                facing = np.array([np.cos(yaw), np.sin(yaw)])
+                assert facing @ (-off[:2] / np.hypot(off[0], off[1])) == pytest.approx(1.0)
+            assert shifts == pytest.approx([0.0, LOOK_SHIFT, -LOOK_SHIFT], abs=1e-9)  # straight out first

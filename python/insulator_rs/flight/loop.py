@@ -53,7 +53,7 @@ from insulator_rs.flight.preflight import PreflightResult, preflight_checks
 from insulator_rs.flight.record import (camera_record, candidate_records, insulator_records, perception_record,
                                         timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
-from insulator_rs.flight.second_look import SecondLook, look_events, look_target, look_viewpoint
+from insulator_rs.flight.second_look import SecondLook, look_events, look_target, look_viewpoints
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
@@ -507,20 +507,14 @@ class FlightLoop:
         return False
 
     def _second_look(self, candidate: Insulator) -> None:
-        """Fly to ``candidate``'s look viewpoint (:meth:`_look_view`), settle, and watch it for
-        :func:`look_events` detection events and their LiDAR points (flight/second_look.py);
+        """Watch ``candidate`` from its look viewpoints in turn (flight/second_look.py), each
+        for :func:`look_events` detection events once settled, then wait for their LiDAR points;
         ended by a find (the plan changes: its waypoints come first), cut short by a hold, an
         abort, lost health or an obstacle on the way. The look goes into summary.json."""
         before = candidate.observations
         try:
-            view = self._look_view(candidate)
-            st = self.vehicle.state()
-            seen = self._seen()
-            seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity,
-                               [view],
-                               v_max=self.v_max, a_max=self.a_max,
-                               clearance=self.mission.inspection.crossing_clearance,
-                               time_allocation=self.settings.time_allocation, seen=seen)
+            views = look_viewpoints(candidate.center, self.geom.line, self.geom.volumes,
+                                    min_height=float(self.geom.takeoff[2]) + MIN_PASS_HEIGHT)
         except PlanningError as exc:
             self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, before,
                                                 candidate.confirmed, f"not flown: {exc}"))
@@ -528,52 +522,70 @@ class FlightLoop:
         self.say(f"[{self.now():7.1f} s] a second look at a candidate seen {before} times at "
                  f"{np.round(candidate.center, 2).tolist()}")
         version = self.sm.plan_version
-        seen_version = -1 if self.obstacles is None else self.obstacles.version
-
-        def cut_short() -> str | None:
-            if self.sm.plan_version != version:
-                return None  # a find: its inspection follows (the look did its job)
-            if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
-                return f"cut short: {self.sm.state.value}"
-            return None
-
-        note = None
-        if seg.trajectory is not None:
-            for t, _ in self._follow(seg.trajectory, lambda: view.yaw):
-                note = cut_short()
-                if note is not None or self.sm.plan_version != version:
-                    break
-                if seen is not None and self.obstacles is not None and self.obstacles.version != seen_version:
-                    seen_version = self.obstacles.version
-                    if not self._rest_clear(seg.trajectory, t, seen):
-                        note = "cut short: the LiDAR sees an obstacle on the way"
-                        break
-        # settled first (the frames of a braking, turning body box the string badly), then the
-        # events, then their LiDAR points (a frame's come up to PAIRING_WAIT s after its window)
-        if note is None and self.sm.plan_version == version and self._settle(view, 0.0) is None:
-            note = "cut short: abort"
-        events0, budget = self.runner.counts.events, look_events(self.mission.inspection.confirmations, before)
+        note, flown = None, 0
+        for position, yaw in views:
+            if note is not None or self.sm.plan_version != version:
+                break  # cut short, or a find: its inspection follows (the look did its job)
+            view = PlanItem(PlanKind.SCAN, position, yaw, candidate.side)
+            note = self._watch_from(view, candidate, version)
+            flown += 1
         st = self.vehicle.state()
-        # a bound in vehicle time too: a detector that stops asking must not hold the vehicle here
-        limit = st.time + budget * max(self.settings.detect_period, CONTROL_PERIOD) + PHOTO_SETTLE_TIMEOUT
-        while (note is None and self.sm.plan_version == version and st.time < limit
-               and self.runner.counts.events - events0 < budget):
-            st = self.tick(view.position, None, view.yaw)
-            note = cut_short()
         watched = st.time
         deadline = watched + self.runner.pipeline.pairing_window + PAIRING_WAIT
+        # the last view's LiDAR points (a frame's come up to PAIRING_WAIT s after its window)
         while (note is None and self.sm.plan_version == version and st.time < deadline
                and not self.runner.caught_up(watched)):
             st = self.tick(view.position, None, view.yaw)
-            note = cut_short()
+            note = self._look_cut_short(version)
         self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, candidate.observations,
-                                            candidate.confirmed, note))
+                                            candidate.confirmed, note, flown))
 
-    def _look_view(self, candidate: Insulator) -> PlanItem:
-        """The viewpoint of a second look (flight/second_look.py), as an item of no plan."""
-        position, yaw = look_viewpoint(candidate.center, self.geom.line, self.geom.volumes,
-                                       min_height=float(self.geom.takeoff[2]) + MIN_PASS_HEIGHT)
-        return PlanItem(PlanKind.SCAN, position, yaw, candidate.side)
+    def _look_cut_short(self, version: int) -> str | None:
+        """Why a look stops here (None: it goes on, or a find changed the plan ``version``)."""
+        if self.sm.plan_version != version:
+            return None
+        if self.sm.state in (State.HOLD, State.ABORT) or not self._healthy():
+            return f"cut short: {self.sm.state.value}"
+        return None
+
+    def _watch_from(self, view: PlanItem, candidate: Insulator, version: int) -> str | None:
+        """Fly to ``view`` (the obstacle map rechecked on the way), settle (a braking, turning
+        body's frames box a string badly) and watch ``candidate`` for :func:`look_events` events,
+        in vehicle time too (a detector that stops asking must not hold the vehicle here).
+        Why the look stopped early (None: watched to the end, or a find)."""
+        st = self.vehicle.state()
+        seen = self._seen()
+        try:
+            seg = plan_segment(self.geom.line, self.geom.volumes, st.position, st.velocity, [view],
+                               v_max=self.v_max, a_max=self.a_max,
+                               clearance=self.mission.inspection.crossing_clearance,
+                               time_allocation=self.settings.time_allocation, seen=seen)
+        except PlanningError as exc:
+            return f"not flown: {exc}"
+        seen_version = -1 if self.obstacles is None else self.obstacles.version
+        if seg.trajectory is not None:
+            for t, _ in self._follow(seg.trajectory, lambda: view.yaw):
+                note = self._look_cut_short(version)
+                if note is not None or self.sm.plan_version != version:
+                    return note
+                if seen is not None and self.obstacles is not None and self.obstacles.version != seen_version:
+                    seen_version = self.obstacles.version
+                    if not self._rest_clear(seg.trajectory, t, seen):
+                        return "cut short: the LiDAR sees an obstacle on the way"
+        if self.sm.plan_version != version:
+            return None
+        if self._settle(view, 0.0) is None:
+            return "cut short: abort"
+        events0 = self.runner.counts.events
+        budget = look_events(self.mission.inspection.confirmations, candidate.observations)
+        st = self.vehicle.state()
+        limit = st.time + budget * max(self.settings.detect_period, CONTROL_PERIOD) + PHOTO_SETTLE_TIMEOUT
+        while self.sm.plan_version == version and st.time < limit and self.runner.counts.events - events0 < budget:
+            st = self.tick(view.position, None, view.yaw)
+            note = self._look_cut_short(version)
+            if note is not None:
+                return note
+        return None
 
     def _perception_caught_up(self, item: PlanItem, arrival: float) -> None:
         """Hover at ``item`` until perception has handed on every frame taken up to ``arrival``,

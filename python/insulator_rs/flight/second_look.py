@@ -5,10 +5,17 @@ Why: at the mission's defaults (4 confirmations, 1 Hz detection) the live-sensor
 against PX4 SITL missed the far-side string of the small scene in 7 of 25 flights, and in the
 misses whose summary listed candidates (session 13, CI's among them) the string was there, an
 unconfirmed candidate seen 2-3 times within 0.2 m of the truth. The last side's passes are
-its only chance: once the search ends a find only refines the registry. From the string's first
-inspection viewpoint (``inspection_distance``, 6 m, against the passes' 12+ m) the LiDAR puts
-several times the points on it and the camera looks straight at it, so a real string is
-localized at most events and confirmed; a ghost of the lattice stays a candidate.
+its only chance: once the search ends a find only refines the registry.
+
+Where from: not the photo's viewpoint. Replayed box by box, the live network at 320 x 240 boxes
+a string 6 m off at its own height in fragments (15 px, refused by the scale check), while the
+passes, 6-8 m off and 1-2 m below, gave whole boxes (26-37 px, 8-18 LiDAR returns): the look
+watches from :data:`LOOK_DISTANCE` out and :data:`LOOK_BELOW` under the candidate. And from more
+than one place: a hover's frames fail together (session 14, soak 4: at one viewpoint 4 of 9
+frames boxed nothing on the string and 2 boxed a fragment; the look gained 2 localizations of
+the 3 it lacked), so when one view has not confirmed it the look moves :data:`LOOK_SHIFT` along
+the line (about 27 degrees round the candidate: another background, another box) and watches
+again, up to :data:`LOOK_VIEWS` views.
 
 When: where a side's search ends (the last pass corner before the crossing) and where the
 whole search ends, once perception has handed on the frames taken up to there. Session 14's
@@ -25,8 +32,8 @@ confirmed as false finds. A string hangs from an arm's tip: a tower's widest arm
 ``max_width / 2`` and its body at the arms' heights is far narrower, so a candidate within
 :data:`BODY_FRACTION` of ``max_width`` of the axis (laterally, across the line) is taken for the
 body. Tower A: 2.5 m, its strings at 4.2-5 m; the small scene: 1.5 m, its strings at 3 m and
-its peak at 0.4-0.9 m. At most :data:`MAX_LOOKS` a flight, the most seen first: a look is about
-20 s of flight.
+its peak at 0.4-0.9 m. At most :data:`MAX_LOOKS` a flight, the most seen first: a view is about
+15 s of flight, a look at most :data:`LOOK_VIEWS` of them.
 """
 
 from __future__ import annotations
@@ -61,13 +68,17 @@ LOOK_DISTANCE = 7.0
 LOOK_BELOW = 2.0
 #: m: how far past LOOK_DISTANCE the viewpoint may move out to clear the safety volumes
 LOOK_MAX_PUSH = 10.0
+#: views a look at most: straight out, then LOOK_SHIFT along the line either way
+LOOK_VIEWS = 3
+#: m along the line between views (at LOOK_DISTANCE: about 27 degrees round the candidate)
+LOOK_SHIFT = 3.5
 
 
 @dataclass(frozen=True)
 class SecondLook:
     """One look, for summary.json: the candidate (registry id, 0 unless confirmed; centre in W) and its
-    localizations before and after, whether it was confirmed, and why a look was cut short
-    or not flown (None: flown to its end)."""
+    localizations before and after, whether it was confirmed, the views it was watched from, and
+    why a look was cut short or not flown (None: flown to its end)."""
 
     insulator_id: int
     center: np.ndarray
@@ -75,11 +86,12 @@ class SecondLook:
     observations_after: int
     confirmed: bool
     note: str | None = None
+    views: int = 0
 
     def as_record(self) -> dict[str, Any]:
         return {"insulator_id": self.insulator_id, "center": np.round(self.center, 3).tolist(),
                 "observations_before": self.observations_before, "observations_after": self.observations_after,
-                "confirmed": self.confirmed, "note": self.note}
+                "confirmed": self.confirmed, "views": self.views, "note": self.note}
 
 
 def look_target(candidates: list[Insulator], line: LineFrame, position: np.ndarray, max_width: float,
@@ -107,19 +119,26 @@ def look_events(confirmations: int, observations: int) -> int:
     return max(confirmations - observations, 1) + EVENTS_PER_LOCALIZATION - 1 + LOOK_MARGIN_EVENTS
 
 
-def look_viewpoint(center: np.ndarray, line: LineFrame, volumes: SafetyVolumes, *,
-                   min_height: float) -> tuple[np.ndarray, float]:
-    """Where to watch a candidate at ``center`` (W) from, and the yaw that faces it: LOOK_DISTANCE
-    out across the line on its side and LOOK_BELOW under it (not under ``min_height``), moved out
-    in 0.5 m steps until PATH_CLEARANCE from ``volumes``. PlanningError when no point within
-    LOOK_MAX_PUSH is clear."""
+def look_viewpoints(center: np.ndarray, line: LineFrame, volumes: SafetyVolumes, *,
+                    min_height: float) -> list[tuple[np.ndarray, float]]:
+    """Where to watch a candidate at ``center`` (W) from, in order, each with the yaw that faces
+    it: LOOK_DISTANCE out across the line on its side and LOOK_BELOW under it (not under
+    ``min_height``), then LOOK_SHIFT along the line either way; each moved out in 0.5 m steps
+    until PATH_CLEARANCE from ``volumes``, and left out when no point within LOOK_MAX_PUSH is
+    clear. PlanningError when none is."""
     c = np.asarray(center, dtype=np.float64).reshape(3)
     out = line.side(c) * np.asarray(line.lateral, dtype=np.float64)
+    along = np.asarray(line.along, dtype=np.float64)
     z = max(float(c[2]) - LOOK_BELOW, min_height)
-    for push in np.arange(0.0, LOOK_MAX_PUSH + 1e-9, 0.5):
-        p = c + out * (LOOK_DISTANCE + push)
-        p[2] = z
-        if bool(volumes.points_clear(p[None, :], PATH_CLEARANCE)[0]):
-            return p, math.atan2(float(c[1] - p[1]), float(c[0] - p[0]))
-    raise PlanningError(f"no viewpoint clear of the safety volumes within {LOOK_DISTANCE + LOOK_MAX_PUSH:.0f} m "
-                        f"of the candidate at {np.round(c, 2).tolist()}")
+    views = []
+    for shift in (0.0, LOOK_SHIFT, -LOOK_SHIFT)[:LOOK_VIEWS]:
+        for push in np.arange(0.0, LOOK_MAX_PUSH + 1e-9, 0.5):
+            p = c + out * (LOOK_DISTANCE + push) + along * shift
+            p[2] = z
+            if bool(volumes.points_clear(p[None, :], PATH_CLEARANCE)[0]):
+                views.append((p, math.atan2(float(c[1] - p[1]), float(c[0] - p[0]))))
+                break
+    if not views:
+        raise PlanningError(f"no viewpoint clear of the safety volumes within {LOOK_DISTANCE + LOOK_MAX_PUSH:.0f} m "
+                            f"of the candidate at {np.round(c, 2).tolist()}")
+    return views
