@@ -99,7 +99,7 @@ class LiveFlight:
                 f"localizations {s.get('localizations')}, pairing_short {s.get('pairing_short')}, "
                 f"pairing timing {s.get('pairing_timing')}, "
                 f"perception {s.get('perception')}, lidar drift_ppm {h.get('lidar_clock_drift_ppm')}, "
-                f"timesync {s.get('timesync')}, candidates "
+                f"timesync {s.get('timesync')}, companion stalls {_stalls(s)}, candidates "
                 f"{[(c['observations'], [round(x, 1) for x in c['center']]) for c in s.get('candidates', [])]}")
 
 
@@ -124,6 +124,14 @@ def camera_source(url: str) -> str:
     if gstreamer_available():
         return f"souphttpsrc location={url} is-live=true do-timestamp=true ! multipartdemux ! jpegdec"
     return url
+
+
+def _stalls(summary: dict[str, Any]) -> str:
+    """The companion's stalls of a summary (flight/stall_watch.py): count, longest, total."""
+    st = summary.get("companion_stalls")
+    if not st:
+        return "not watched"
+    return f"{st['count']} (max {st['max_s']} s, total {st['total_s']} s)"
 
 
 def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: list[str] = (),

@@ -9,6 +9,7 @@ about what any correct flight must show, not exact figures.
 
 import json
 import time
+from pathlib import Path
 
 import pytest
 from test_mission_inspect import small_scene
@@ -113,6 +114,11 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
         assert st in states
     assert s["flight_time_s"] > 30 and (out / "trajectory.png").stat().st_size > 10_000
     assert "finished" in capsys.readouterr().out
+    # an outside autopilot fails safe when the companion stalls: the flight watched for it
+    # (flight/stall_watch.py; stalls on a loaded box are counted, not failed)
+    stalls = s["companion_stalls"]
+    assert stalls["threshold_s"] == 0.5 and len(stalls["longest"]) == min(stalls["count"], 5)
+    assert Path(stalls["stacks"]) == out / "companion_stalls.txt" and Path(stalls["stacks"]).is_file()
 
 
 @pytest.mark.slow

@@ -39,6 +39,7 @@ from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
 from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.geometry import MissionGeometry
@@ -336,6 +337,7 @@ def run(args: argparse.Namespace) -> int:
                                                  file_url_prefix=f"{Path(args.out).resolve().as_uri()}/")
     link_stats = getattr(vehicle, "link_stats", None) if mavlink else None  # the MAVLink adapter's counters
     recorder = None
+    stall_watch = None
     if args.record is not None:  # recording wraps the ports: the flight does not know it is recorded
         from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
         from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
@@ -352,6 +354,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
                           overwrite=args.overwrite, photo_camera=photo_camera, observer=observer)
+        if mavlink:  # an outside autopilot fails safe when our setpoint thread stalls: watch for it
+            stall_watch = loop.stall_watch = StallWatch(dump=Path(args.out) / STALL_STACKS).start()
         code = 0
         try:
             loop.fly()
@@ -371,6 +375,8 @@ def run(args: argparse.Namespace) -> int:
             summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
             write_score(args.out, score)
     finally:
+        if stall_watch is not None:
+            stall_watch.stop()
         if observer is not None:
             observer.close()
         vehicle.close()  # MAVLink: stops the threads and the simulated PX4 it started

@@ -53,6 +53,7 @@ from insulator_rs.flight.preflight import PreflightResult, preflight_checks
 from insulator_rs.flight.record import (camera_record, candidate_records, insulator_records, perception_record,
                                         timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
+from insulator_rs.flight.stall_watch import StallWatch
 from insulator_rs.flight.second_look import SecondLook, look_events, look_target, look_viewpoints
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
@@ -173,6 +174,8 @@ class FlightLoop:
                                        exif_camera=rig.exif_camera(), inspection=rig.inspection)
         self.waypoints: list[InspectionWaypoint] = []
         self.second_looks: list[SecondLook] = []  # flight/second_look.py
+        # the companion's stalls (flight/stall_watch.py), set by whoever flies an outside autopilot
+        self.stall_watch: StallWatch | None = None
         self._looked: list[Insulator] = []  # the candidates looked at (the records themselves)
         self._search_end: PlanItem | None = None  # the item where the search ended, once caught up
         self.status = "running"
@@ -1038,7 +1041,8 @@ class FlightLoop:
             obstacle_map=self._obstacle_record(),
             second_looks=[look.as_record() for look in self.second_looks],
             preflight=None if self.preflight_result is None else self.preflight_result.as_record(),
-            px4_parameters=None if self.autopilot_setup is None else self.autopilot_setup.record())
+            px4_parameters=None if self.autopilot_setup is None else self.autopilot_setup.record(),
+            companion_stalls=None if self.stall_watch is None else self.stall_watch.record())
         refused = self.preflight_result is not None and not self.preflight_result.passed
         return RunSummary(run="flight", status=self.status, detector=detector_name(self.detector),
                           method=s.method, flight_time_s=0.0 if refused else st.time - self.t_start,

@@ -87,6 +87,10 @@ class FlightDetails:
     # the pre-flight gate before arming (flight/preflight.py): passed, and per check its name,
     # outcome (passed / failed / not_applicable) and reason; None when the flight never got to it
     preflight: dict[str, Any] | None = None
+    # the companion's own stalls while it flew an outside autopilot (flight/stall_watch.py):
+    # threshold, count, longest, total, the longest few with their times, and the file of the
+    # stacks written during them; None in process (nothing to fail safe) and before this field
+    companion_stalls: dict[str, Any] | None = None
     # every photo checked on itself (perception/photo_check.py; flight/photos.py check_summary):
     # photos, fit, retakes, the detector's cost per check, and the insulators found without a fit
     # photo with why (their checks' reasons counted, the detector's errors); None before this field
