@@ -676,11 +676,16 @@ class FlightLoop:
         if st is None:
             return None
         zoom = None
+        ins = next((i for i in self.registry.insulators if i.id == wp.insulator_id), None)
+        # a single shot aims at the string's centre as the registry knows it now: the localizations
+        # since the waypoint was planned moved it (measured: 8 cm, 3.6 % of a frame the string
+        # fills to 90 %); a tile keeps its planned place along the string
+        target = ins.center if ins is not None and wp.tiles == 1 else wp.target
         if self.inspection is None:
             pitch, gimbal_yaw = wp.gimbal_pitch, 0.0
             T_b_c = stabilised_T_b_c(st.T_w_b, self.rig.T_b_c, wp.gimbal_pitch)
         else:  # aimed from where the vehicle settled, at the zoom the shot was framed for
-            pitch, gimbal_yaw, T_b_c = aim_at(st.T_w_b, self.inspection.T_b_c, wp.target, self.inspection.gimbal)
+            pitch, gimbal_yaw, T_b_c = aim_at(st.T_w_b, self.inspection.T_b_c, target, self.inspection.gimbal)
             if wp.focal_px is not None:
                 zoom = self.inspection.at_focal(wp.focal_px)
         try:
@@ -691,10 +696,9 @@ class FlightLoop:
         if frame is None:
             self.say(f"[{self.now():7.1f} s] photo of insulator {wp.insulator_id}: no image from the camera")
             return None
-        ins = next((i for i in self.registry.insulators if i.id == wp.insulator_id), None)
         axis = None if ins is None else ins.axis
         T_c_w = np.linalg.inv(st.T_w_b @ frame.T_b_c)
-        view = expected_view(frame.camera, T_c_w, wp.target, wp.target if ins is None else ins.center,
+        view = expected_view(frame.camera, T_c_w, target, wp.target if ins is None else ins.center,
                              np.array([0.0, 0.0, 1.0]) if axis is None else axis,
                              self.mission.inspection.insulator_length, required_span=MIN_FILL,
                              tiled=wp.tiles > 1)

@@ -26,6 +26,9 @@ a bag replay and the studies call, so that what is measured offline is what flie
    low-score ones only continue them): the network's weak boxes on tower steel never reach
    the registry on their own, while a string seen once clearly is followed through its
    weaker views.
+7. **Axis**: the fitted line lies on the surface the LiDAR saw; the centre handed on is moved
+   behind it to the string's axis (``surface_offset``: the visible half of a circular section,
+   its radius from the returns' spread across the line of sight).
 
 Use it live (``add_pose`` every control tick, ``add_scan`` for each scan, ``process`` for
 each frame with its boxes) or with a frame and a scan taken at one known pose
@@ -42,6 +45,7 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.perception.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
+from insulator_rs.perception.surface_offset import surface_to_axis
 from insulator_rs.poses import PoseHistory
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
@@ -325,6 +329,9 @@ class PerceptionPipeline:
                 self.counters.unconfirmed += 1
                 continue
             self.counters.localizations += 1
+            # the fitted line lies on the surface the LiDAR saw: report the string's axis behind it
+            offset_b = surface_to_axis(acc_b, np.asarray(est.center), np.asarray(est.direction), self.T_b_l[:3, 3])
+            center = center + T_w_b[:3, :3] @ offset_b
             out.append(LocalizedInsulator(center, axis / np.linalg.norm(axis), int(est.n_points), float(time)))
         return out
 
