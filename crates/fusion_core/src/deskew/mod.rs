@@ -281,6 +281,20 @@ impl Motion {
         out
     }
 
+    /// Index of the segment holding `t` (as [`Self::start_segment`]), walked from the
+    /// caller's cursor `k` (left there): nearly ordered times move it a step at most.
+    #[inline(always)]
+    fn seek(&self, t: f64, k: &mut usize) -> usize {
+        let last = self.segments.len() - 1;
+        while *k < last && t >= self.segments[*k + 1].t0 {
+            *k += 1;
+        }
+        while *k > 0 && t < self.segments[*k].t0 {
+            *k -= 1;
+        }
+        *k
+    }
+
     /// Segment cursor to start a chunk from.
     fn start_segment(&self, t: f64) -> usize {
         self.segments.partition_point(|sg| sg.t0 <= t).saturating_sub(1)
@@ -411,7 +425,7 @@ fn fused<P: PointCloud + Sync + ?Sized>(
     let n_boxes = setup.as_ref().map_or(0, |s| s.1.len());
     // Per chunk: deskew, project and cull the chunk while it is in cache. Each chunk returns
     // its own points (no NaN prefill of the whole cloud); one chunk is the cloud as it is.
-    let (mut clouds, lists): (Vec<Vec<[f64; 3]>>, Vec<Vec<Vec<usize>>>) = chunks(points.len())
+    let parts: Vec<simd::ChunkResult> = chunks(points.len())
         .into_par_iter()
         .map(|range| {
             let cull = setup.as_ref().and_then(|(projector, boxes, union)| {
@@ -429,7 +443,8 @@ fn fused<P: PointCloud + Sync + ?Sized>(
                 (cloud, vec![Vec::new(); n_boxes])
             }
         })
-        .unzip();
+        .collect();
+    let (mut clouds, lists): (Vec<_>, Vec<_>) = parts.into_iter().unzip();
     let out = if clouds.len() == 1 {
         clouds.pop().unwrap_or_default()
     } else {

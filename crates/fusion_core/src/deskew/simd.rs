@@ -121,35 +121,33 @@ const EPS_SHORT: f64 = 0.005;
 /// `R_A(t) (p + d) = Qᵀ Rz(ε) [Rz(phi_c) b p + Rz(phi_c) f]`, `ε = omega (t - t_c)` (see
 /// [`Segment::omega`]). Per point: a 3x3 rotation and offset, a 2-D rotation by the small ε
 /// (sin/cos by series), the rotation back by `Qᵀ` and the translation, linear in t.
-struct TileLanes<S: Simd> {
+#[derive(Clone, Copy)]
+struct TileLanes {
     /// `ε = t · omega + eps_off`.
-    omega: S::f64s,
-    eps_off: S::f64s,
-    bt: [[S::f64s; 3]; 3],
-    ft: [S::f64s; 3],
-    qt: [[S::f64s; 3]; 3],
+    omega: f64,
+    eps_off: f64,
+    bt: [[f64; 3]; 3],
+    ft: [f64; 3],
+    qt: [[f64; 3]; 3],
     /// Translation `c0 + s (c1 - c0)` as `lin0 + t · lin1`.
-    lin0: [S::f64s; 3],
-    lin1: [S::f64s; 3],
+    lin0: [f64; 3],
+    lin1: [f64; 3],
     /// |ε| <= [`EPS_SHORT`]: the short series.
     short: bool,
-    sin_c: [S::f64s; 4],
-    cos_c: [S::f64s; 5],
-    one: S::f64s,
 }
 
 /// Taylor coefficients of sin ε / ε and cos ε in ε².
 const SIN_C: [f64; 4] = [1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0];
 const COS_C: [f64; 5] = [1.0, -0.5, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0];
 
-impl<S: Simd> TileLanes<S> {
-    /// Lanes for the points of segment `sg` with times in `[lo, hi]`; `None` when their
-    /// angles spread more than `EPS_MAX` either side of the centre.
+impl TileLanes {
+    /// The tile form for the points of segment `sg` with times in `[lo, hi]`; `None` when
+    /// their angles spread more than `EPS_MAX` either side of the centre.
     #[inline(always)]
-    fn new(simd: S, sg: &Segment, lo: f64, hi: f64) -> Option<Self> {
+    fn new(sg: &Segment, lo: f64, hi: f64) -> Option<Self> {
         let tc = 0.5 * (lo + hi);
         let eps_max = sg.omega.abs() * 0.5 * (hi - lo);
-        if !(eps_max <= EPS_MAX) {
+        if eps_max.is_nan() || eps_max > EPS_MAX {
             return None;
         }
         let (sn, cs) = (sg.omega * (tc - sg.t0)).sin_cos();
@@ -159,48 +157,47 @@ impl<S: Simd> TileLanes<S> {
         let ft = [cs * sg.f[0] - sn * sg.f[1], sn * sg.f[0] + cs * sg.f[1], sg.f[2]];
         let lin1 = sg.dc.map(|v| v * sg.inv_dt);
         let lin0 = [0, 1, 2].map(|j| sg.c0[j] - sg.t0 * lin1[j]);
-        let sp = |v: f64| simd.splat_f64s(v);
         Some(Self {
-            omega: sp(sg.omega),
-            eps_off: sp(-sg.omega * tc),
-            bt: [row0.map(sp), row1.map(sp), b[2].map(sp)],
-            ft: ft.map(sp),
-            qt: sg.qt.map(|r| r.map(sp)),
-            lin0: lin0.map(sp),
-            lin1: lin1.map(sp),
+            omega: sg.omega,
+            eps_off: -sg.omega * tc,
+            bt: [row0, row1, b[2]],
+            ft,
+            qt: sg.qt,
+            lin0,
+            lin1,
             short: eps_max <= EPS_SHORT,
-            sin_c: SIN_C.map(sp),
-            cos_c: COS_C.map(sp),
-            one: sp(1.0),
         })
     }
 
     /// [`Motion::apply`] on lanes of points (x, y, z) measured at `t`, all in this segment
     /// and tile.
     #[inline(always)]
-    fn apply(&self, simd: S, x: S::f64s, y: S::f64s, z: S::f64s, t: S::f64s) -> [S::f64s; 3] {
+    fn apply<S: Simd>(&self, simd: S, x: S::f64s, y: S::f64s, z: S::f64s, t: S::f64s) -> [S::f64s; 3] {
+        let sp = |v: f64| simd.splat_f64s(v);
         let fma = |a, b, c| simd.mul_add_e_f64s(a, b, c);
-        let eps = fma(t, self.omega, self.eps_off);
+        let one = sp(1.0);
+        let eps = fma(t, sp(self.omega), sp(self.eps_off));
         let e2 = simd.mul_f64s(eps, eps);
-        let (sc, cc) = (&self.sin_c, &self.cos_c);
+        let (sc, cc) = (SIN_C.map(sp), COS_C.map(sp));
         let (sin_e, cos_e) = if self.short {
-            (simd.mul_f64s(eps, fma(e2, sc[1], self.one)), fma(e2, fma(e2, cc[2], cc[1]), self.one))
+            (simd.mul_f64s(eps, fma(e2, sc[1], one)), fma(e2, fma(e2, cc[2], cc[1]), one))
         } else {
             (
-                simd.mul_f64s(eps, fma(e2, fma(e2, fma(e2, sc[3], sc[2]), sc[1]), self.one)),
-                fma(e2, fma(e2, fma(e2, fma(e2, cc[4], cc[3]), cc[2]), cc[1]), self.one),
+                simd.mul_f64s(eps, fma(e2, fma(e2, fma(e2, sc[3], sc[2]), sc[1]), one)),
+                fma(e2, fma(e2, fma(e2, fma(e2, cc[4], cc[3]), cc[2]), cc[1]), one),
             )
         };
-        let row = |r: &[S::f64s; 3], o| fma(r[2], z, fma(r[1], y, fma(r[0], x, o)));
+        let row = |r: &[f64; 3], o: f64| fma(sp(r[2]), z, fma(sp(r[1]), y, fma(sp(r[0]), x, sp(o))));
         let y0 = row(&self.bt[0], self.ft[0]);
         let y1 = row(&self.bt[1], self.ft[1]);
         let y2 = row(&self.bt[2], self.ft[2]);
         let z0 = simd.negate_mul_add_e_f64s(sin_e, y1, simd.mul_f64s(cos_e, y0));
         let z1 = fma(cos_e, y1, simd.mul_f64s(sin_e, y0));
-        let mut out = [self.one; 3];
+        let mut out = [one; 3];
         for (j, o) in out.iter_mut().enumerate() {
             let q = &self.qt[j];
-            *o = fma(q[2], y2, fma(q[1], z1, fma(q[0], z0, fma(t, self.lin1[j], self.lin0[j]))));
+            let lin = fma(t, sp(self.lin1[j]), sp(self.lin0[j]));
+            *o = fma(sp(q[2]), y2, fma(sp(q[1]), z1, fma(sp(q[0]), z0, lin)));
         }
         out
     }
@@ -288,6 +285,7 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
         let proj = cull.map(|c| ProjLanes::new(simd, c.projector));
         let union = cull.map(|c| UnionLanes::new(simd, c.union));
         let mut tile = Tile::new();
+        let mut cursor = range.clone().next().map_or(0, |i| motion.start_segment(times[i]));
         let mut start = range.start;
         while start < range.end {
             let n = TILE.min(range.end - start);
@@ -309,21 +307,20 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                 tl.z[n..].fill(0.0);
             }
             let (tmin, tmax) = tl.t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| (lo.min(t), hi.max(t)));
-            let k_lo = motion.start_segment(tmin);
-            let k_hi = if tmax < motion.segments[k_lo].t1 { k_lo } else { motion.start_segment(tmax) };
-            // One set of lanes per segment the tile's times touch (one for ordered times but
+            let k_lo = motion.seek(tmin, &mut cursor);
+            let k_hi = if tmax < motion.segments[k_lo].t1 { k_lo } else { motion.seek(tmax, &mut k_lo.clone()) };
+            // One tile form per segment the tile's times touch (one for ordered times but
             // at a knot), each about the centre of the tile's times inside its segment.
-            let mut segs: [Option<(TileLanes<S>, S::f64s)>; MAX_TILE_SEGMENTS] = Default::default();
+            let mut segs: [Option<(TileLanes, f64)>; MAX_TILE_SEGMENTS] = [None; MAX_TILE_SEGMENTS];
             let mut fast = k_hi - k_lo < MAX_TILE_SEGMENTS;
             if fast {
                 for (slot, k) in segs.iter_mut().zip(k_lo..=k_hi) {
                     let sg = &motion.segments[k];
-                    let lanes = TileLanes::new(simd, sg, tmin.max(sg.t0), tmax.min(sg.t1));
-                    let Some(lanes) = lanes else {
+                    let Some(form) = TileLanes::new(sg, tmin.max(sg.t0), tmax.min(sg.t1)) else {
                         fast = false;
                         break;
                     };
-                    *slot = Some((lanes, simd.splat_f64s(sg.t0)));
+                    *slot = Some((form, sg.t0));
                 }
             }
             if fast {
@@ -334,14 +331,11 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                 let (ox, _) = S::as_mut_simd_f64s(&mut tl.ox);
                 let (oy, _) = S::as_mut_simd_f64s(&mut tl.oy);
                 let (oz, _) = S::as_mut_simd_f64s(&mut tl.oz);
-                let (us, _) = S::as_mut_simd_f64s(&mut tl.u);
-                let (vs, _) = S::as_mut_simd_f64s(&mut tl.v);
-                let (ms, _) = S::as_mut_simd_f64s(&mut tl.m);
                 let first = segs[0].as_ref();
-                let lanes = (xs.iter().zip(ys).zip(zs).zip(ts))
-                    .zip(ox.iter_mut().zip(oy.iter_mut()).zip(oz.iter_mut()))
-                    .zip(us.iter_mut().zip(vs.iter_mut()).zip(ms.iter_mut()).zip(tl.any.iter_mut()));
-                for (((((x, y), z), t), ((ox, oy), oz)), (((u, v), m), any)) in lanes {
+                // Two passes over the tile (deskew, then project): short loop bodies whose
+                // iterations are independent, so the core overlaps many of them.
+                let lanes = (xs.iter().zip(ys).zip(zs).zip(ts)).zip(ox.iter_mut().zip(oy.iter_mut()).zip(oz.iter_mut()));
+                for ((((x, y), z), t), ((ox, oy), oz)) in lanes {
                     let mut p = match first {
                         Some((seg, _)) => seg.apply(simd, *x, *y, *z, *t),
                         None => [*x; 3],
@@ -349,20 +343,29 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                     for (seg, t0) in segs[1..].iter().flatten() {
                         // Lanes at or past this segment's first knot take its motion.
                         let q = seg.apply(simd, *x, *y, *z, *t);
-                        let later = simd.greater_than_or_equal_f64s(*t, *t0);
+                        let later = simd.greater_than_or_equal_f64s(*t, simd.splat_f64s(*t0));
                         p = [0, 1, 2].map(|j| simd.select_f64s(later, q[j], p[j]));
                     }
                     [*ox, *oy, *oz] = p;
-                    if let (Some(pl), Some(un)) = (&proj, &union) {
-                        let [pu, pv] = pl.pixel(simd, p);
+                }
+                if let (Some(pl), Some(un)) = (&proj, &union) {
+                    let (ox, _) = S::as_simd_f64s(&tl.ox);
+                    let (oy, _) = S::as_simd_f64s(&tl.oy);
+                    let (oz, _) = S::as_simd_f64s(&tl.oz);
+                    let (us, _) = S::as_mut_simd_f64s(&mut tl.u);
+                    let (vs, _) = S::as_mut_simd_f64s(&mut tl.v);
+                    let (ms, _) = S::as_mut_simd_f64s(&mut tl.m);
+                    let lanes = (ox.iter().zip(oy).zip(oz)).zip(us.iter_mut().zip(vs.iter_mut()).zip(ms.iter_mut()).zip(tl.any.iter_mut()));
+                    for (((x, y), z), (((u, v), m), any)) in lanes {
+                        let [pu, pv] = pl.pixel(simd, [*x, *y, *z]);
                         (*u, *v) = (pu, pv);
                         (*m, *any) = un.contains(simd, pu, pv);
                     }
                 }
             } else {
-                let mut cursor = k_lo;
+                let mut k = k_lo;
                 for j in 0..n {
-                    let p = motion.apply([tl.x[j], tl.y[j], tl.z[j]], tl.t[j], &mut cursor);
+                    let p = motion.apply([tl.x[j], tl.y[j], tl.z[j]], tl.t[j], &mut k);
                     [tl.ox[j], tl.oy[j], tl.oz[j]] = p;
                     if let Some(c) = cull {
                         [tl.u[j], tl.v[j]] = c.projector.pixel(p).unwrap_or([f64::NAN; 2]);
@@ -587,7 +590,7 @@ mod tests {
                     continue;
                 }
                 let sg = &self.motion.segments[k];
-                let Some(lanes) = TileLanes::new(simd, sg, lo, hi) else { continue };
+                let Some(lanes) = TileLanes::new(sg, lo, hi) else { continue };
                 fast += 1;
                 let mut t = Tile::new();
                 for (j, (p, &tt)) in block.iter().zip(tblock).enumerate() {
@@ -627,7 +630,7 @@ mod tests {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
         let pts = (0..n)
             .map(|_| {
-                let (az, el) = (rng.random_range(-3.14..3.14f64), rng.random_range(-0.12..0.9f64));
+                let (az, el) = (rng.random_range(-std::f64::consts::PI..std::f64::consts::PI), rng.random_range(-0.12..0.9f64));
                 let r = rng.random_range(0.5..range);
                 [r * el.cos() * az.cos(), r * el.cos() * az.sin(), r * el.sin()]
             })
