@@ -387,6 +387,26 @@ enum Path {
     Simd,
     /// [`simd::scalar_chunk`] only.
     Scalar,
+    /// The AVX2 + FMA kernel even where the CPU has AVX-512 (tests: the path of CPUs without
+    /// it); the dispatched one on other CPUs.
+    #[cfg(test)]
+    Avx2,
+}
+
+/// [`deskew_points_in_boxes`] on the AVX2 kernel (see [`Path::Avx2`]).
+#[cfg(test)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn deskew_points_in_boxes_avx2<P: PointCloud + Sync + ?Sized>(
+    points: &P,
+    times: &[f64],
+    stream: &PoseStream,
+    t_ref: f64,
+    t_b_l: &Isometry3<f64>,
+    t_c_l: &Isometry3<f64>,
+    cam: &CameraModel,
+    boxes: &[PixelBox],
+) -> Result<CloudAndLists> {
+    fused(points, times, stream, t_ref, t_b_l, Some((t_c_l, cam, boxes)), Path::Avx2)
 }
 
 /// The camera, its pose and the boxes of a fused call.
@@ -435,6 +455,8 @@ fn fused<P: PointCloud + Sync + ?Sized>(
             let (cloud, lists) = match path {
                 Path::Simd => simd::fused_chunk(chunk),
                 Path::Scalar => simd::scalar_chunk(chunk),
+                #[cfg(test)]
+                Path::Avx2 => simd::avx2_chunk(chunk),
             };
             // No box on the image: every list empty.
             if lists.len() == n_boxes {
