@@ -117,6 +117,46 @@ struct Segment {
     /// Translation part `R_M t_k + t_M` at both ends.
     c0: [f64; 3],
     c1: [f64; 3],
+    /// The same segment in axis-angle form, for the SIMD tiles ([`simd`]): slerp turns
+    /// `R(q0)` about the fixed unit axis `a` of `q1 q0*` at the constant rate `omega`, so
+    /// `R_A(t) = Qᵀ Rz(omega (t - t0)) Q R(q0)` with `Q` the rotation whose rows are
+    /// `(e1, e2, a)`. `b = Q R(q0)`, `f = b d`, `qt = Qᵀ`, `dc = c1 - c0`.
+    omega: f64,
+    b: [[f64; 3]; 3],
+    f: [f64; 3],
+    qt: [[f64; 3]; 3],
+    dc: [f64; 3],
+    /// End time of the segment (the next knot).
+    t1: f64,
+}
+
+/// Axis-angle form of one segment (see [`Segment::omega`]): `(omega, b, f, qt)` for knot
+/// rotations `q0`, `q1` (same hemisphere), `inv_dt` and the offset `d`.
+#[allow(clippy::type_complexity)]
+fn axis_angle_form(q0: [f64; 4], q1: [f64; 4], inv_dt: f64, d: [f64; 3]) -> (f64, [[f64; 3]; 3], [f64; 3], [[f64; 3]; 3]) {
+    use nalgebra::{Quaternion, Vector3};
+    let (w0, v0) = (q0[0], Vector3::new(q0[1], q0[2], q0[3]));
+    let (w1, v1) = (q1[0], Vector3::new(q1[1], q1[2], q1[3]));
+    // r = q1 ⊗ conj(q0): scalar part = dot >= 0, vector part = sin θ · axis.
+    let rw = w1 * w0 + v1.dot(&v0);
+    let rv = w0 * v1 - w1 * v0 - v1.cross(&v0);
+    let sin_half = rv.norm();
+    let (a, omega) = if sin_half > 0.0 {
+        (rv / sin_half, 2.0 * sin_half.atan2(rw) * inv_dt)
+    } else {
+        (Vector3::z(), 0.0)
+    };
+    // e1 ⊥ a, e2 = a × e1: rows (e1, e2, a) form a rotation taking a to +z.
+    let helper = if a.x.abs() < 0.6 { Vector3::x() } else { Vector3::y() };
+    let e1 = helper.cross(&a).normalize();
+    let e2 = a.cross(&e1);
+    let q = nalgebra::Matrix3::from_rows(&[e1.transpose(), e2.transpose(), a.transpose()]);
+    let r0 = UnitQuaternion::new_unchecked(Quaternion::new(q0[0], q0[1], q0[2], q0[3])).to_rotation_matrix();
+    let b = q * r0.matrix();
+    let f = b * Vector3::from(d);
+    let qt = q.transpose();
+    let rows = |m: &nalgebra::Matrix3<f64>| [0, 1, 2].map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]);
+    (omega, rows(&b), [f[0], f[1], f[2]], rows(&qt))
 }
 
 /// The relative motion `A(t)` of the module docstring over a whole pose stream.
@@ -190,7 +230,11 @@ impl Motion {
                 let inv_sin = if theta < SMALL_ANGLE { 0.0 } else { 1.0 / theta.sin() };
                 let t0 = stream.times[k];
                 let series = series_coefficients(theta).map(|v| v * inv_sin);
-                Segment { t0, inv_dt: 1.0 / (stream.times[k + 1] - t0), q0, q1, theta, inv_sin, series, c0, c1 }
+                let t1 = stream.times[k + 1];
+                let inv_dt = 1.0 / (t1 - t0);
+                let (omega, b, f, qt) = axis_angle_form(q0, q1, inv_dt, [d[0], d[1], d[2]]);
+                let dc = [c1[0] - c0[0], c1[1] - c0[1], c1[2] - c0[2]];
+                Segment { t0, inv_dt, q0, q1, theta, inv_sin, series, c0, c1, omega, b, f, qt, dc, t1 }
             })
             .collect();
         Ok(Self { segments, d: [d[0], d[1], d[2]] })
@@ -237,6 +281,20 @@ impl Motion {
         out
     }
 
+    /// Index of the segment holding `t` (as [`Self::start_segment`]), walked from the
+    /// caller's cursor `k` (left there): nearly ordered times move it a step at most.
+    #[inline(always)]
+    fn seek(&self, t: f64, k: &mut usize) -> usize {
+        let last = self.segments.len() - 1;
+        while *k < last && t >= self.segments[*k + 1].t0 {
+            *k += 1;
+        }
+        while *k > 0 && t < self.segments[*k].t0 {
+            *k -= 1;
+        }
+        *k
+    }
+
     /// Segment cursor to start a chunk from.
     fn start_segment(&self, t: f64) -> usize {
         self.segments.partition_point(|sg| sg.t0 <= t).saturating_sub(1)
@@ -248,7 +306,10 @@ fn check_inputs<P: PointCloud + ?Sized>(points: &P, times: &[f64], stream: &Pose
         return Err(invalid("times", format!("{} times for {} points", times.len(), points.len())));
     }
     let (lo, hi) = stream.span();
-    if let Some(i) = times.iter().position(|&t| !(t >= lo && t <= hi)) {
+    // Branch-free scan first (vectorises); the position only on failure.
+    let inside = |c: &[f64]| c.iter().fold(true, |ok, &t| ok & (t >= lo) & (t <= hi));
+    if !times.chunks(512).all(inside) {
+        let i = times.iter().position(|&t| !(t >= lo && t <= hi)).unwrap_or(0);
         return Err(invalid(
             "times",
             format!("point {i} at time {} is outside the pose stream [{lo}, {hi}] (NaN or not covered)", times[i]),
@@ -326,6 +387,26 @@ enum Path {
     Simd,
     /// [`simd::scalar_chunk`] only.
     Scalar,
+    /// The AVX2 + FMA kernel even where the CPU has AVX-512 (tests: the path of CPUs without
+    /// it); the dispatched one on other CPUs.
+    #[cfg(test)]
+    Avx2,
+}
+
+/// [`deskew_points_in_boxes`] on the AVX2 kernel (see [`Path::Avx2`]).
+#[cfg(test)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn deskew_points_in_boxes_avx2<P: PointCloud + Sync + ?Sized>(
+    points: &P,
+    times: &[f64],
+    stream: &PoseStream,
+    t_ref: f64,
+    t_b_l: &Isometry3<f64>,
+    t_c_l: &Isometry3<f64>,
+    cam: &CameraModel,
+    boxes: &[PixelBox],
+) -> Result<CloudAndLists> {
+    fused(points, times, stream, t_ref, t_b_l, Some((t_c_l, cam, boxes)), Path::Avx2)
 }
 
 /// The camera, its pose and the boxes of a fused call.
@@ -362,35 +443,39 @@ fn fused<P: PointCloud + Sync + ?Sized>(
     check_inputs(points, times, stream)?;
     let motion = Motion::new(stream, t_ref, t_b_l)?;
     let n_boxes = setup.as_ref().map_or(0, |s| s.1.len());
-    let mut out = vec![[f64::NAN; 3]; points.len()];
-    let ranges = chunks(points.len());
-    let mut parts: Vec<(Range<usize>, &mut [[f64; 3]])> = Vec::with_capacity(ranges.len());
-    let mut rest: &mut [[f64; 3]] = &mut out;
-    for r in ranges {
-        let (head, tail) = rest.split_at_mut(r.len());
-        parts.push((r, head));
-        rest = tail;
-    }
-    // Per chunk: deskew, project and cull the chunk while it is in cache.
-    let lists: Vec<Vec<Vec<usize>>> = parts
+    // Per chunk: deskew, project and cull the chunk while it is in cache. Each chunk returns
+    // its own points (no NaN prefill of the whole cloud); one chunk is the cloud as it is.
+    let parts: Vec<simd::ChunkResult> = chunks(points.len())
         .into_par_iter()
-        .map(|(range, slice)| {
+        .map(|range| {
             let cull = setup.as_ref().and_then(|(projector, boxes, union)| {
                 (union.x2 > union.x1 && union.y2 > union.y1).then_some(simd::Cull { projector, boxes, union })
             });
-            let chunk = simd::FusedChunk { points, times, range, motion: &motion, cull, out: slice };
-            let lists = match path {
+            let chunk = simd::FusedChunk { points, times, range, motion: &motion, cull };
+            let (cloud, lists) = match path {
                 Path::Simd => simd::fused_chunk(chunk),
                 Path::Scalar => simd::scalar_chunk(chunk),
+                #[cfg(test)]
+                Path::Avx2 => simd::avx2_chunk(chunk),
             };
             // No box on the image: every list empty.
             if lists.len() == n_boxes {
-                lists
+                (cloud, lists)
             } else {
-                vec![Vec::new(); n_boxes]
+                (cloud, vec![Vec::new(); n_boxes])
             }
         })
         .collect();
+    let (mut clouds, lists): (Vec<_>, Vec<_>) = parts.into_iter().unzip();
+    let out = if clouds.len() == 1 {
+        clouds.pop().unwrap_or_default()
+    } else {
+        let mut out = Vec::with_capacity(points.len());
+        for c in &clouds {
+            out.extend_from_slice(c);
+        }
+        out
+    };
     let mut merged: Vec<Vec<usize>> =
         (0..n_boxes).map(|k| Vec::with_capacity(lists.iter().map(|c| c[k].len()).sum())).collect();
     for part in lists {

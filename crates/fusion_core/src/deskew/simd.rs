@@ -1,32 +1,41 @@
 //! SIMD path of the fused deskew + project + cull ([`super::deskew_points_in_boxes`]): the
-//! arithmetic of the scalar reference ([`super::Motion::apply`], then
+//! results of the scalar reference ([`super::Motion::apply`], then
 //! [`crate::projection::Projector::pixel`]) on tiles of [`TILE`] points, in f64 lanes.
 //!
 //! Crate: `pulp`, not `wide`. `pulp::Arch::new().dispatch` detects the CPU once and runs one
-//! generic kernel compiled per instruction set behind `#[target_feature]` (AVX2 + FMA on
-//! x86-64, NEON on aarch64; other CPUs get the scalar reference, see [`fused_chunk`]), with no
-//! hand-written dispatch and no `unsafe` here. `wide` chooses its backend at compile time
-//! (`cfg(target_feature)`), so runtime dispatch with it takes hand-written `#[target_feature]`
-//! wrappers per level, and wide's 256-bit types still run as SSE halves inside them.
+//! generic kernel compiled per instruction set behind `#[target_feature]` (AVX-512 with the
+//! `x86-v4` feature, else AVX2 + FMA on x86-64, NEON on aarch64; other CPUs get the scalar
+//! reference, see [`fused_chunk`]), with no hand-written dispatch and no `unsafe` here. `wide`
+//! chooses its backend at compile time (`cfg(target_feature)`), so runtime dispatch with it
+//! takes hand-written `#[target_feature]` wrappers per level.
 //!
 //! Why f64 lanes, not f32: f32's spacing is 3.8e-6 m at 40 m, so the 1e-6 m deskew parity
-//! cannot hold at tower ranges, and 1.2e-4 px above u = 1024, so neither can 1e-4 px. The
-//! pose knots, the interpolation parameter and the slerp are f64 as in the scalar path.
+//! cannot hold at tower ranges, and 1.2e-4 px above u = 1024, so neither can 1e-4 px.
 //!
-//! Exactness: the deskew uses fused multiply-adds (it differs from the scalar path by float
-//! rounding, ~1e-14 m). The projection keeps the scalar path's operations in its order,
-//! unfused, so each deskewed point's pixel is bit-identical to `Projector::pixel` of it, and the
-//! culling of the SIMD cloud is exactly the scalar culling of that cloud.
+//! No slerp per point (issue 23): slerp turns `R(q0)` about the fixed axis of `q1 q0*` at a
+//! constant rate, so in a frame `Q` whose z is that axis the segment's rotation is
+//! `Qᵀ Rz(omega (t - t0)) Q R(q0)` ([`super::Segment::omega`]). Per tile (one `sin_cos`): the
+//! rotation at the centre angle of the tile's times. Per point: a 3x3 rotation + offset, a
+//! 2-D rotation by the small angle ε from the centre (Taylor series of sin/cos, exact to f64
+//! rounding for |ε| <= [`EPS_MAX`]; 4 terms below [`EPS_SHORT`]), `Qᵀ`, and the translation,
+//! linear in t. This is the exact slerp (no pose grid, no interpolation error), ~30 fused
+//! multiply-adds a point where the per-point slerp took ~50.
 //!
-//! Tiles that take the scalar reference instead (same results, per point): a tile whose times
-//! straddle a pose knot (one segment per tile keeps the knots in broadcast registers), and a
-//! segment rotating more than [`SERIES_ANGLE`] between knots (the scalar path's libm `sin`).
+//! Exactness: the deskew differs from the scalar path by float rounding (< 1e-9 m to 150 m,
+//! tested). The projection keeps the scalar path's operations in its order, unfused, so each
+//! deskewed point's pixel is bit-identical to `Projector::pixel` of it, and the culling of the
+//! SIMD cloud is exactly the scalar culling of that cloud.
+//!
+//! Tiles whose times touch 2-3 segments (a pose knot inside the tile, or times out of order)
+//! run the tile form of each and select lanes by time. Tiles that take the scalar reference
+//! instead (same results, per point): times over more than 3 segments, or angles spreading more
+//! than [`EPS_MAX`] from the centre (e.g. 128 ordered points over 0.64 ms past ~300 rad/s).
 
 use std::ops::Range;
 
 use pulp::{Arch, Simd, WithSimd};
 
-use super::{Motion, Segment, SERIES_ANGLE, SERIES_TERMS};
+use super::{Motion, Segment};
 use crate::camera::NEAR_LIMIT;
 use crate::culling::PixelBox;
 use crate::points::PointCloud;
@@ -34,7 +43,7 @@ use crate::projection::Projector;
 
 /// Points per tile: staged into SoA arrays, deskewed and projected lane by lane, written back.
 /// A multiple of every lane count (1, 2, 4, 8), so the lane loops have no tail.
-pub(super) const TILE: usize = 64;
+pub(super) const TILE: usize = 128;
 
 /// What to cull a chunk's deskewed points into (absent for a plain deskew).
 #[derive(Clone, Copy)]
@@ -45,40 +54,53 @@ pub(super) struct Cull<'a> {
     pub union: &'a PixelBox,
 }
 
-/// One chunk of the fused kernel: deskew `range` of `points` into `out` (the chunk's slice)
-/// and, with `cull`, return per box the ascending global indices of the points inside it.
+/// One chunk of the fused kernel: deskew `range` of `points` (returned in order) and, with
+/// `cull`, return per box the ascending global indices of the points inside it.
 pub(super) struct FusedChunk<'a, P: ?Sized> {
     pub points: &'a P,
     pub times: &'a [f64],
     pub range: Range<usize>,
     pub motion: &'a Motion,
     pub cull: Option<Cull<'a>>,
-    pub out: &'a mut [[f64; 3]],
 }
+
+/// A chunk's deskewed points and, per box, its points' global indices inside the box.
+pub(super) type ChunkResult = (Vec<[f64; 3]>, Vec<Vec<usize>>);
 
 /// Runs one chunk on the best instruction set of this CPU (the scalar reference where pulp
 /// finds no SIMD level).
-pub(super) fn fused_chunk<P: PointCloud + ?Sized>(chunk: FusedChunk<'_, P>) -> Vec<Vec<usize>> {
+pub(super) fn fused_chunk<P: PointCloud + ?Sized>(chunk: FusedChunk<'_, P>) -> ChunkResult {
     Arch::new().dispatch(chunk)
 }
 
+/// One chunk on the AVX2 + FMA kernel where the CPU has it (also under AVX-512), else as
+/// [`fused_chunk`]: the tests' way to the path of CPUs without AVX-512.
+#[cfg(test)]
+pub(super) fn avx2_chunk<P: PointCloud + ?Sized>(chunk: FusedChunk<'_, P>) -> ChunkResult {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v3) = pulp::x86::V3::try_new() {
+        return pulp::Simd::vectorize(v3, chunk);
+    }
+    fused_chunk(chunk)
+}
+
 /// The scalar reference for one chunk: [`Motion::apply`] per point, then the culling loop.
-pub(super) fn scalar_chunk<P: PointCloud + ?Sized>(chunk: FusedChunk<'_, P>) -> Vec<Vec<usize>> {
-    let FusedChunk { points, times, range, motion, cull, out } = chunk;
+pub(super) fn scalar_chunk<P: PointCloud + ?Sized>(chunk: FusedChunk<'_, P>) -> ChunkResult {
+    let FusedChunk { points, times, range, motion, cull } = chunk;
     let start = range.start;
+    let mut out = Vec::with_capacity(range.len());
     let mut k = range.clone().next().map_or(0, |i| motion.start_segment(times[i]));
     points.for_each_point_in(range, |i, p| {
-        out[i - start] = motion.apply(p, times[i], &mut k);
+        out.push(motion.apply(p, times[i], &mut k));
     });
-    let Some(c) = cull else { return Vec::new() };
-    let local: &[[f64; 3]] = out;
-    let mut lists = crate::culling::cull_range(local, 0..local.len(), c.projector, c.boxes, c.union);
+    let Some(c) = cull else { return (out, Vec::new()) };
+    let mut lists = crate::culling::cull_range(&out, 0..out.len(), c.projector, c.boxes, c.union);
     for list in &mut lists {
         for i in list.iter_mut() {
             *i += start;
         }
     }
-    lists
+    (out, lists)
 }
 
 /// One tile's points (staged), deskewed points and pixels, structure of arrays.
@@ -92,102 +114,110 @@ struct Tile {
     oz: [f64; TILE],
     u: [f64; TILE],
     v: [f64; TILE],
+    /// 1.0 where the pixel is inside the boxes' union, else 0.0.
+    m: [f64; TILE],
+    /// Per lane vector (at most [`TILE`] of them): whether any of its `m` is 1.0.
+    any: [bool; TILE],
 }
 
 impl Tile {
     fn new() -> Self {
         let a = [0.0; TILE];
-        Self { x: a, y: a, z: a, t: a, ox: a, oy: a, oz: a, u: a, v: a }
+        Self { x: a, y: a, z: a, t: a, ox: a, oy: a, oz: a, u: a, v: a, m: a, any: [false; TILE] }
     }
 }
 
-/// A segment of the motion, broadcast to lanes.
-struct SegLanes<S: Simd> {
-    t0: S::f64s,
-    inv_dt: S::f64s,
-    q0: [S::f64s; 4],
-    q1: [S::f64s; 4],
-    series: [S::f64s; SERIES_TERMS],
-    /// Below `SMALL_ANGLE`: normalised lerp instead of slerp (the scalar path's `inv_sin == 0`).
-    nlerp: bool,
-    c0: [S::f64s; 3],
-    c1: [S::f64s; 3],
-    d: [S::f64s; 3],
-    one: S::f64s,
-    two: S::f64s,
+/// Largest |ε| (rad) of a tile's points about its centre angle: the Taylor series of
+/// `sin ε` to ε^7 and `cos ε` to ε^8 below are exact to f64 rounding there (first omitted
+/// terms ε^9/9! < 3e-15, ε^10/10! < 3e-17, relative). A tile of time-ordered Mid-360 points
+/// (128 points, 0.64 ms) stays under it up to ~300 rad/s.
+const EPS_MAX: f64 = 0.1;
+/// Below this |ε| (rad) the short series serve: `sin ε ≈ ε - ε³/6` (first omitted term
+/// ε^5/120 < 3e-14, relative), `cos ε ≈ 1 - ε²/2 + ε^4/24` (ε^6/720 < 3e-17): 128 ordered
+/// Mid-360 points up to ~15 rad/s.
+const EPS_SHORT: f64 = 0.005;
+
+/// One segment's motion about a tile's centre angle `phi_c`, broadcast to lanes:
+/// `R_A(t) (p + d) = Qᵀ Rz(ε) [Rz(phi_c) b p + Rz(phi_c) f]`, `ε = omega (t - t_c)` (see
+/// [`Segment::omega`]). Per point: a 3x3 rotation and offset, a 2-D rotation by the small ε
+/// (sin/cos by series), the rotation back by `Qᵀ` and the translation, linear in t.
+#[derive(Clone, Copy)]
+struct TileLanes {
+    /// `ε = t · omega + eps_off`.
+    omega: f64,
+    eps_off: f64,
+    bt: [[f64; 3]; 3],
+    ft: [f64; 3],
+    qt: [[f64; 3]; 3],
+    /// Translation `c0 + s (c1 - c0)` as `lin0 + t · lin1`.
+    lin0: [f64; 3],
+    lin1: [f64; 3],
+    /// |ε| <= [`EPS_SHORT`]: the short series.
+    short: bool,
 }
 
-impl<S: Simd> SegLanes<S> {
+/// Taylor coefficients of sin ε / ε and cos ε in ε².
+const SIN_C: [f64; 4] = [1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0];
+const COS_C: [f64; 5] = [1.0, -0.5, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0];
+
+impl TileLanes {
+    /// The tile form for the points of segment `sg` with times in `[lo, hi]`; `None` when
+    /// their angles spread more than `EPS_MAX` either side of the centre.
     #[inline(always)]
-    fn new(simd: S, sg: &Segment, d: &[f64; 3]) -> Self {
+    fn new(sg: &Segment, lo: f64, hi: f64) -> Option<Self> {
+        let tc = 0.5 * (lo + hi);
+        let eps_max = sg.omega.abs() * 0.5 * (hi - lo);
+        if eps_max.is_nan() || eps_max > EPS_MAX {
+            return None;
+        }
+        let (sn, cs) = (sg.omega * (tc - sg.t0)).sin_cos();
+        let b = &sg.b;
+        let row0 = [0, 1, 2].map(|j| cs * b[0][j] - sn * b[1][j]);
+        let row1 = [0, 1, 2].map(|j| sn * b[0][j] + cs * b[1][j]);
+        let ft = [cs * sg.f[0] - sn * sg.f[1], sn * sg.f[0] + cs * sg.f[1], sg.f[2]];
+        let lin1 = sg.dc.map(|v| v * sg.inv_dt);
+        let lin0 = [0, 1, 2].map(|j| sg.c0[j] - sg.t0 * lin1[j]);
+        Some(Self {
+            omega: sg.omega,
+            eps_off: -sg.omega * tc,
+            bt: [row0, row1, b[2]],
+            ft,
+            qt: sg.qt,
+            lin0,
+            lin1,
+            short: eps_max <= EPS_SHORT,
+        })
+    }
+
+    /// [`Motion::apply`] on lanes of points (x, y, z) measured at `t`, all in this segment
+    /// and tile.
+    #[inline(always)]
+    fn apply<S: Simd>(&self, simd: S, x: S::f64s, y: S::f64s, z: S::f64s, t: S::f64s) -> [S::f64s; 3] {
         let sp = |v: f64| simd.splat_f64s(v);
-        Self {
-            t0: sp(sg.t0),
-            inv_dt: sp(sg.inv_dt),
-            q0: sg.q0.map(sp),
-            q1: sg.q1.map(sp),
-            series: sg.series.map(sp),
-            nlerp: sg.inv_sin == 0.0,
-            c0: sg.c0.map(sp),
-            c1: sg.c1.map(sp),
-            d: d.map(sp),
-            one: sp(1.0),
-            two: sp(2.0),
-        }
-    }
-
-    #[inline(always)]
-    fn horner(&self, simd: S, x2: S::f64s) -> S::f64s {
-        let c = &self.series;
-        let mut acc = c[SERIES_TERMS - 1];
-        for v in c[..SERIES_TERMS - 1].iter().rev() {
-            acc = simd.mul_add_e_f64s(acc, x2, *v);
-        }
-        acc
-    }
-
-    /// [`Motion::apply`] on lanes of points (x, y, z) measured at `t`, all in this segment.
-    #[inline(always)]
-    fn apply(&self, simd: S, x: S::f64s, y: S::f64s, z: S::f64s, t: S::f64s) -> [S::f64s; 3] {
-        let s = simd.mul_f64s(simd.sub_f64s(t, self.t0), self.inv_dt);
-        let r = simd.sub_f64s(self.one, s);
-        let (w0, w1) = if self.nlerp {
-            (r, s)
+        let fma = |a, b, c| simd.mul_add_e_f64s(a, b, c);
+        let one = sp(1.0);
+        let eps = fma(t, sp(self.omega), sp(self.eps_off));
+        let e2 = simd.mul_f64s(eps, eps);
+        let (sc, cc) = (SIN_C.map(sp), COS_C.map(sp));
+        let (sin_e, cos_e) = if self.short {
+            (simd.mul_f64s(eps, fma(e2, sc[1], one)), fma(e2, fma(e2, cc[2], cc[1]), one))
         } else {
             (
-                simd.mul_f64s(r, self.horner(simd, simd.mul_f64s(r, r))),
-                simd.mul_f64s(s, self.horner(simd, simd.mul_f64s(s, s))),
+                simd.mul_f64s(eps, fma(e2, fma(e2, fma(e2, sc[3], sc[2]), sc[1]), one)),
+                fma(e2, fma(e2, fma(e2, fma(e2, cc[4], cc[3]), cc[2]), cc[1]), one),
             )
         };
-        let mut q = [self.one; 4];
-        for (j, v) in q.iter_mut().enumerate() {
-            *v = simd.mul_add_e_f64s(w1, self.q1[j], simd.mul_f64s(w0, self.q0[j]));
-        }
-        if self.nlerp {
-            let n2 = simd.mul_add_e_f64s(
-                q[3],
-                q[3],
-                simd.mul_add_e_f64s(q[2], q[2], simd.mul_add_e_f64s(q[1], q[1], simd.mul_f64s(q[0], q[0]))),
-            );
-            let n = simd.div_f64s(self.one, simd.sqrt_f64s(n2));
-            q = q.map(|v| simd.mul_f64s(v, n));
-        }
-        let [w, qx, qy, qz] = q;
-        let v = [simd.add_f64s(x, self.d[0]), simd.add_f64s(y, self.d[1]), simd.add_f64s(z, self.d[2])];
-        // v + 2w(u×v) + 2u×(u×v), u = (qx, qy, qz), as in the scalar path.
-        let cross = |a: [S::f64s; 3]| {
-            [
-                simd.negate_mul_add_e_f64s(qz, a[1], simd.mul_f64s(qy, a[2])),
-                simd.negate_mul_add_e_f64s(qx, a[2], simd.mul_f64s(qz, a[0])),
-                simd.negate_mul_add_e_f64s(qy, a[0], simd.mul_f64s(qx, a[1])),
-            ]
-        };
-        let c = cross(v);
-        let cc = cross(c);
-        let mut out = v;
-        for j in 0..3 {
-            let rot = simd.mul_add_e_f64s(self.two, simd.mul_add_e_f64s(w, c[j], cc[j]), v[j]);
-            out[j] = simd.mul_add_e_f64s(s, self.c1[j], simd.mul_add_e_f64s(r, self.c0[j], rot));
+        let row = |r: &[f64; 3], o: f64| fma(sp(r[2]), z, fma(sp(r[1]), y, fma(sp(r[0]), x, sp(o))));
+        let y0 = row(&self.bt[0], self.ft[0]);
+        let y1 = row(&self.bt[1], self.ft[1]);
+        let y2 = row(&self.bt[2], self.ft[2]);
+        let z0 = simd.negate_mul_add_e_f64s(sin_e, y1, simd.mul_f64s(cos_e, y0));
+        let z1 = fma(cos_e, y1, simd.mul_f64s(sin_e, y0));
+        let mut out = [one; 3];
+        for (j, o) in out.iter_mut().enumerate() {
+            let q = &self.qt[j];
+            let lin = fma(t, sp(self.lin1[j]), sp(self.lin0[j]));
+            *o = fma(sp(q[2]), y2, fma(sp(q[1]), z1, fma(sp(q[0]), z0, lin)));
         }
         out
     }
@@ -262,18 +292,20 @@ impl<S: Simd> ProjLanes<S> {
 }
 
 impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
-    type Output = Vec<Vec<usize>>;
+    type Output = ChunkResult;
 
     #[inline(always)]
     fn with_simd<S: Simd>(self, simd: S) -> Self::Output {
         if S::IS_SCALAR {
             return scalar_chunk(self);
         }
-        let FusedChunk { points, times, range, motion, cull, out } = self;
+        let FusedChunk { points, times, range, motion, cull } = self;
+        let mut out = Vec::with_capacity(range.len());
         let mut lists: Vec<Vec<usize>> = vec![Vec::new(); cull.map_or(0, |c| c.boxes.len())];
         let proj = cull.map(|c| ProjLanes::new(simd, c.projector));
+        let union = cull.map(|c| UnionLanes::new(simd, c.union));
         let mut tile = Tile::new();
-        let last = motion.segments.len() - 1;
+        let mut cursor = range.clone().next().map_or(0, |i| motion.start_segment(times[i]));
         let mut start = range.start;
         while start < range.end {
             let n = TILE.min(range.end - start);
@@ -294,12 +326,24 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                 tl.y[n..].fill(0.0);
                 tl.z[n..].fill(0.0);
             }
-            let (tmin, tmax) = tl.t[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| (lo.min(t), hi.max(t)));
-            let k = motion.start_segment(tmin);
-            let sg = &motion.segments[k];
-            let one_segment = k == last || tmax < motion.segments[k + 1].t0;
-            if one_segment && sg.theta <= SERIES_ANGLE {
-                let seg = SegLanes::new(simd, sg, &motion.d);
+            let (tmin, tmax) = tl.t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| (lo.min(t), hi.max(t)));
+            let k_lo = motion.seek(tmin, &mut cursor);
+            let k_hi = if tmax < motion.segments[k_lo].t1 { k_lo } else { motion.seek(tmax, &mut k_lo.clone()) };
+            // One tile form per segment the tile's times touch (one for ordered times but
+            // at a knot), each about the centre of the tile's times inside its segment.
+            let mut segs: [Option<(TileLanes, f64)>; MAX_TILE_SEGMENTS] = [None; MAX_TILE_SEGMENTS];
+            let mut fast = k_hi - k_lo < MAX_TILE_SEGMENTS;
+            if fast {
+                for (slot, k) in segs.iter_mut().zip(k_lo..=k_hi) {
+                    let sg = &motion.segments[k];
+                    let Some(form) = TileLanes::new(sg, tmin.max(sg.t0), tmax.min(sg.t1)) else {
+                        fast = false;
+                        break;
+                    };
+                    *slot = Some((form, sg.t0));
+                }
+            }
+            if fast {
                 let (xs, _) = S::as_simd_f64s(&tl.x);
                 let (ys, _) = S::as_simd_f64s(&tl.y);
                 let (zs, _) = S::as_simd_f64s(&tl.z);
@@ -307,42 +351,61 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                 let (ox, _) = S::as_mut_simd_f64s(&mut tl.ox);
                 let (oy, _) = S::as_mut_simd_f64s(&mut tl.oy);
                 let (oz, _) = S::as_mut_simd_f64s(&mut tl.oz);
-                for ((((((x, y), z), t), ox), oy), oz) in
-                    xs.iter().zip(ys).zip(zs).zip(ts).zip(ox.iter_mut()).zip(oy.iter_mut()).zip(oz.iter_mut())
-                {
-                    [*ox, *oy, *oz] = seg.apply(simd, *x, *y, *z, *t);
+                let first = segs[0].as_ref();
+                // Two passes over the tile (deskew, then project): short loop bodies whose
+                // iterations are independent, so the core overlaps many of them.
+                let lanes = (xs.iter().zip(ys).zip(zs).zip(ts)).zip(ox.iter_mut().zip(oy.iter_mut()).zip(oz.iter_mut()));
+                for ((((x, y), z), t), ((ox, oy), oz)) in lanes {
+                    let mut p = match first {
+                        Some((seg, _)) => seg.apply(simd, *x, *y, *z, *t),
+                        None => [*x; 3],
+                    };
+                    for (seg, t0) in segs[1..].iter().flatten() {
+                        // Lanes at or past this segment's first knot take its motion.
+                        let q = seg.apply(simd, *x, *y, *z, *t);
+                        let later = simd.greater_than_or_equal_f64s(*t, simd.splat_f64s(*t0));
+                        p = [0, 1, 2].map(|j| simd.select_f64s(later, q[j], p[j]));
+                    }
+                    [*ox, *oy, *oz] = p;
                 }
-                if let Some(pl) = &proj {
+                if let (Some(pl), Some(un)) = (&proj, &union) {
                     let (ox, _) = S::as_simd_f64s(&tl.ox);
                     let (oy, _) = S::as_simd_f64s(&tl.oy);
                     let (oz, _) = S::as_simd_f64s(&tl.oz);
                     let (us, _) = S::as_mut_simd_f64s(&mut tl.u);
                     let (vs, _) = S::as_mut_simd_f64s(&mut tl.v);
-                    for ((((x, y), z), u), v) in ox.iter().zip(oy).zip(oz).zip(us.iter_mut()).zip(vs.iter_mut()) {
-                        [*u, *v] = pl.pixel(simd, [*x, *y, *z]);
+                    let (ms, _) = S::as_mut_simd_f64s(&mut tl.m);
+                    let lanes = (ox.iter().zip(oy).zip(oz)).zip(us.iter_mut().zip(vs.iter_mut()).zip(ms.iter_mut()).zip(tl.any.iter_mut()));
+                    for (((x, y), z), (((u, v), m), any)) in lanes {
+                        let [pu, pv] = pl.pixel(simd, [*x, *y, *z]);
+                        (*u, *v) = (pu, pv);
+                        (*m, *any) = un.contains(simd, pu, pv);
                     }
                 }
             } else {
-                let mut cursor = k;
+                let mut k = k_lo;
                 for j in 0..n {
-                    let p = motion.apply([tl.x[j], tl.y[j], tl.z[j]], tl.t[j], &mut cursor);
+                    let p = motion.apply([tl.x[j], tl.y[j], tl.z[j]], tl.t[j], &mut k);
                     [tl.ox[j], tl.oy[j], tl.oz[j]] = p;
                     if let Some(c) = cull {
                         [tl.u[j], tl.v[j]] = c.projector.pixel(p).unwrap_or([f64::NAN; 2]);
+                        tl.m[j] = if c.union.contains([tl.u[j], tl.v[j]]) { 1.0 } else { 0.0 };
                     }
                 }
+                tl.any.fill(true);
             }
-            let dst = &mut out[start - range.start..end - range.start];
-            for (j, d) in dst.iter_mut().enumerate() {
-                *d = [tl.ox[j], tl.oy[j], tl.oz[j]];
-            }
+            out.extend((0..n).map(|j| [tl.ox[j], tl.oy[j], tl.oz[j]]));
             if let Some(c) = cull {
-                for j in 0..n {
-                    let uv = [tl.u[j], tl.v[j]];
-                    if c.union.contains(uv) {
-                        for (b, list) in c.boxes.iter().zip(lists.iter_mut()) {
-                            if b.contains(uv) {
-                                list.push(start + j);
+                // Lane vectors with no pixel in the union are skipped whole.
+                let w = lanes::<S>();
+                for g in (0..n.div_ceil(w)).filter(|&g| tl.any[g]) {
+                    for j in g * w..((g + 1) * w).min(n) {
+                        if tl.m[j] != 0.0 {
+                            let uv = [tl.u[j], tl.v[j]];
+                            for (b, list) in c.boxes.iter().zip(lists.iter_mut()) {
+                                if b.contains(uv) {
+                                    list.push(start + j);
+                                }
                             }
                         }
                     }
@@ -350,13 +413,52 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
             }
             start = end;
         }
-        lists
+        (out, lists)
+    }
+}
+
+/// f64 lanes of `S`.
+#[inline(always)]
+const fn lanes<S: Simd>() -> usize {
+    std::mem::size_of::<S::f64s>() / std::mem::size_of::<f64>()
+}
+
+/// Most segments one tile's times may touch on the SIMD path (more: the scalar reference).
+const MAX_TILE_SEGMENTS: usize = 3;
+
+/// The boxes' union, broadcast to lanes: `PixelBox::contains` as a lane flag.
+struct UnionLanes<S: Simd> {
+    x1: S::f64s,
+    y1: S::f64s,
+    x2: S::f64s,
+    y2: S::f64s,
+    one: S::f64s,
+    zero: S::f64s,
+}
+
+impl<S: Simd> UnionLanes<S> {
+    #[inline(always)]
+    fn new(simd: S, b: &PixelBox) -> Self {
+        let sp = |v: f64| simd.splat_f64s(v);
+        Self { x1: sp(b.x1), y1: sp(b.y1), x2: sp(b.x2), y2: sp(b.y2), one: sp(1.0), zero: sp(0.0) }
+    }
+
+    /// 1.0 where `(u, v)` is inside (same comparisons as `PixelBox::contains`), else 0.0;
+    /// and whether any lane is.
+    #[inline(always)]
+    fn contains(&self, simd: S, u: S::f64s, v: S::f64s) -> (S::f64s, bool) {
+        let inside = simd.and_m64s(
+            simd.and_m64s(simd.greater_than_or_equal_f64s(u, self.x1), simd.less_than_f64s(u, self.x2)),
+            simd.and_m64s(simd.greater_than_or_equal_f64s(v, self.y1), simd.less_than_f64s(v, self.y2)),
+        );
+        let any = simd.first_true_m64s(inside) < lanes::<S>();
+        (simd.select_f64s(inside, self.one, self.zero), any)
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::super::{deskew_points_in_boxes, deskew_points_in_boxes_scalar, PoseStream};
+    use super::super::{deskew_points_in_boxes, deskew_points_in_boxes_avx2, deskew_points_in_boxes_scalar, Motion, PoseStream};
     use super::*;
     use crate::camera::CameraModel;
     use nalgebra::{Isometry3, Vector3};
@@ -430,16 +532,36 @@ mod tests {
         cam: &CameraModel,
         boxes: &[PixelBox],
     ) -> std::result::Result<(), TestCaseError> {
-        let (cloud, lists) = deskew_points_in_boxes(pts, times, s, t_ref, t_b_l, t_c_l, cam, boxes).unwrap();
         let (cloud_ref, lists_ref) = deskew_points_in_boxes_scalar(pts, times, s, t_ref, t_b_l, t_c_l, cam, boxes).unwrap();
-        for (a, b) in cloud.iter().zip(&cloud_ref) {
+        // The dispatched kernel (AVX-512 here where the CPU has it) and the AVX2 one.
+        let dispatched = deskew_points_in_boxes(pts, times, s, t_ref, t_b_l, t_c_l, cam, boxes).unwrap();
+        let avx2 = deskew_points_in_boxes_avx2(pts, times, s, t_ref, t_b_l, t_c_l, cam, boxes).unwrap();
+        for (cloud, lists) in [dispatched, avx2] {
+            check_against(&cloud, &lists, &cloud_ref, &lists_ref, t_c_l, cam, boxes)?;
+        }
+        Ok(())
+    }
+
+    /// One SIMD result against the scalar reference (see [`check_parity`]).
+    #[allow(clippy::too_many_arguments)]
+    fn check_against(
+        cloud: &[[f64; 3]],
+        lists: &[Vec<usize>],
+        cloud_ref: &[[f64; 3]],
+        lists_ref: &[Vec<usize>],
+        t_c_l: &Isometry3<f64>,
+        cam: &CameraModel,
+        boxes: &[PixelBox],
+    ) -> std::result::Result<(), TestCaseError> {
+        prop_assert_eq!(cloud.len(), cloud_ref.len());
+        for (a, b) in cloud.iter().zip(cloud_ref) {
             for j in 0..3 {
                 prop_assert_eq!(a[j].is_nan(), b[j].is_nan(), "{:?} vs {:?}", a, b);
                 prop_assert!(a[j].is_nan() || (a[j] - b[j]).abs() < DESKEW_TOL_M, "{:?} vs {:?}", a, b);
             }
         }
         let projector = Projector::new(t_c_l, cam);
-        let simd_px = Arch::new().dispatch(PixelOp { projector: &projector, pts: &cloud });
+        let simd_px = Arch::new().dispatch(PixelOp { projector: &projector, pts: cloud });
         for (p, got) in cloud.iter().zip(&simd_px) {
             let want = projector.pixel(*p).unwrap_or([f64::NAN; 2]);
             for j in 0..2 {
@@ -448,7 +570,7 @@ mod tests {
             }
         }
         prop_assert_eq!(lists.len(), lists_ref.len());
-        for ((a, b), bx) in lists.iter().zip(&lists_ref).zip(boxes) {
+        for ((a, b), bx) in lists.iter().zip(lists_ref).zip(boxes) {
             prop_assert!(a.windows(2).all(|w| w[0] < w[1]));
             for &i in a.iter().filter(|i| b.binary_search(i).is_err()).chain(b.iter().filter(|i| a.binary_search(i).is_err())) {
                 let uv = projector.pixel(cloud_ref[i]);
@@ -485,6 +607,130 @@ mod tests {
         .unwrap();
         assert_eq!(lists, lists_ref);
         assert_eq!(cloud.len(), cloud_ref.len());
+    }
+
+    /// The per-tile axis-angle lanes (`TileLanes`) against the scalar slerp (`Motion::apply`)
+    /// on time-ordered tiles: returns the largest deviation (m) and how many tiles took the
+    /// SIMD form (the rest would take the scalar reference).
+    struct TileCheck<'a> {
+        motion: &'a Motion,
+        pts: &'a [[f64; 3]],
+        times: &'a [f64],
+    }
+
+    impl WithSimd for TileCheck<'_> {
+        type Output = (f64, usize, usize);
+        fn with_simd<S: Simd>(self, simd: S) -> Self::Output {
+            let (mut worst, mut fast, mut total) = (0.0f64, 0, 0);
+            for (block, tblock) in self.pts.chunks(TILE).zip(self.times.chunks(TILE)) {
+                total += 1;
+                let (lo, hi) = (tblock[0], tblock[tblock.len() - 1]);
+                let k = self.motion.start_segment(lo);
+                if self.motion.start_segment(hi) != k {
+                    continue;
+                }
+                let sg = &self.motion.segments[k];
+                let Some(lanes) = TileLanes::new(sg, lo, hi) else { continue };
+                fast += 1;
+                let mut t = Tile::new();
+                for (j, (p, &tt)) in block.iter().zip(tblock).enumerate() {
+                    [t.x[j], t.y[j], t.z[j]] = *p;
+                    t.t[j] = tt;
+                }
+                t.t[block.len()..].fill(lo);
+                let (xs, _) = S::as_simd_f64s(&t.x);
+                let (ys, _) = S::as_simd_f64s(&t.y);
+                let (zs, _) = S::as_simd_f64s(&t.z);
+                let (ts, _) = S::as_simd_f64s(&t.t);
+                let (ox, _) = S::as_mut_simd_f64s(&mut t.ox);
+                let (oy, _) = S::as_mut_simd_f64s(&mut t.oy);
+                let (oz, _) = S::as_mut_simd_f64s(&mut t.oz);
+                for ((((((x, y), z), tt), ox), oy), oz) in
+                    xs.iter().zip(ys).zip(zs).zip(ts).zip(ox.iter_mut()).zip(oy.iter_mut()).zip(oz.iter_mut())
+                {
+                    [*ox, *oy, *oz] = lanes.apply(simd, *x, *y, *z, *tt);
+                }
+                let mut cursor = k;
+                for (j, (p, &tt)) in block.iter().zip(tblock).enumerate() {
+                    let want = self.motion.apply(*p, tt, &mut cursor);
+                    for (g, w) in [t.ox[j], t.oy[j], t.oz[j]].iter().zip(want) {
+                        worst = worst.max((g - w).abs());
+                    }
+                }
+            }
+            (worst, fast, total)
+        }
+    }
+
+    /// A Mid-360-like frame: `n` time-ordered points over 0.1 s out to `range` m, pose knots
+    /// at `rate_hz` turning at `omega` rad/s about a tilted axis (plus a wobble) and flying
+    /// at 12 m/s.
+    fn fast_turn(n: usize, range: f64, omega: f64, rate_hz: f64, seed: u64) -> (Vec<[f64; 3]>, Vec<f64>, PoseStream) {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        let pts = (0..n)
+            .map(|_| {
+                let (az, el) = (rng.random_range(-std::f64::consts::PI..std::f64::consts::PI), rng.random_range(-0.12..0.9f64));
+                let r = rng.random_range(0.5..range);
+                [r * el.cos() * az.cos(), r * el.cos() * az.sin(), r * el.sin()]
+            })
+            .collect();
+        let times: Vec<f64> = (0..n).map(|i| 0.1 * i as f64 / n as f64).collect();
+        let m = (0.1 * rate_hz).ceil() as usize;
+        let knots: Vec<f64> = (0..=m).map(|k| 0.1 * k as f64 / m as f64).collect();
+        let axis = Vector3::new(0.3, -0.5, 1.0).normalize();
+        let poses = knots
+            .iter()
+            .map(|&t| {
+                let wobble = Vector3::new((40.0 * t).sin(), (30.0 * t).cos(), 0.0) * 0.05;
+                Isometry3::new(Vector3::new(12.0 * t, -3.0 * t, 20.0), axis * (omega * t) + wobble)
+            })
+            .collect();
+        (pts, times, PoseStream::new(knots, poses).unwrap())
+    }
+
+    /// High angular rates (to 12 rad/s, 20-200 Hz odometry), points to 150 m, 20k and 2k
+    /// points a frame: every time-ordered tile inside one segment takes the SIMD form,
+    /// within 1e-9 m of the per-point slerp (the parity bound is 1e-6 m).
+    #[test]
+    fn tile_form_matches_slerp_at_high_angular_rate() {
+        let t_b_l = pose([0.1, 0.0, -0.1], [0.0, 0.1, 0.0]);
+        // 20k points a frame: |ε| <= 0.004 rad, the short series; 2k points: up to 0.04 rad.
+        for (seed, (&omega, n)) in [0.5, 3.0, 6.0, 12.0].iter().flat_map(|w| [(w, 20_000), (w, 2_000)]).enumerate() {
+            for rate_hz in [20.0, 50.0, 200.0] {
+                let (pts, times, s) = fast_turn(n, 150.0, omega, rate_hz, seed as u64);
+                let motion = Motion::new(&s, 0.1, &t_b_l).unwrap();
+                let (worst, fast, total) = Arch::new().dispatch(TileCheck { motion: &motion, pts: &pts, times: &times });
+                assert!(worst < 1e-9, "omega {omega} rad/s, {rate_hz} Hz: {worst} m");
+                // Tiles across a knot take the per-segment selects in the kernel, not this check.
+                assert!(fast + s.times.len() >= total, "omega {omega}: {fast} of {total} tiles");
+            }
+        }
+    }
+
+    /// The fused call at high angular rate against the scalar reference (points, pixels,
+    /// boxes), time-ordered Mid-360-like frames.
+    #[test]
+    fn simd_matches_scalar_at_high_angular_rate() {
+        let cam = CameraModel::new(1000.0, 1000.0, 640.0, 360.0, 1280, 720, [-0.1, 0.02, 0.001, -0.001, 0.0]).unwrap();
+        // Optical z = L's x, x = -y, y = -z (the bench's camera).
+        let r = nalgebra::Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
+        let t_c_l = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.0, -0.05, 0.0),
+            nalgebra::UnitQuaternion::from_matrix(&r),
+        );
+        let boxes = [
+            PixelBox::new(500.0, 200.0, 700.0, 500.0).unwrap(),
+            PixelBox::new(0.0, 0.0, 1280.0, 720.0).unwrap(),
+            PixelBox::new(100.0, 100.0, 400.0, 250.0).unwrap(),
+        ];
+        let t_b_l = pose([0.1, 0.0, -0.1], [0.0, 0.1, 0.0]);
+        for (seed, &omega) in [2.0, 8.0, 12.0].iter().enumerate() {
+            let (pts, times, s) = fast_turn(20_000, 120.0, omega, 20.0, 100 + seed as u64);
+            check_parity(&pts, &times, &s, 0.05, &t_b_l, &t_c_l, &cam, &boxes).unwrap();
+            let (_, lists) = deskew_points_in_boxes(&pts, &times, &s, 0.05, &t_b_l, &t_c_l, &cam, &boxes).unwrap();
+            assert!(lists[1].len() > 500, "{}", lists[1].len());
+        }
     }
 
     proptest! {
