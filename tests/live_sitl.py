@@ -135,9 +135,11 @@ def _stalls(summary: dict[str, Any]) -> str:
 
 
 def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: list[str] = (),
-             head_args: list[str] = (), confirmations: int | None = None) -> LiveFlight:
+             head_args: list[str] = (), confirmations: int | None = None,
+             inspection_extra: str = "") -> LiveFlight:
     """Fly ``mission`` over ``scene`` against ``px4`` with the live drivers (module docstring);
-    ``confirmations`` replaces the mission's (None: its own, the default 4)."""
+    ``confirmations`` replaces the mission's (None: its own, the default 4); ``inspection_extra``:
+    TOML lines appended to the mission's ``[inspection]`` (its last table), for an experiment."""
     import insulator_rs
     from insulator_rs.evaluation.scoring import MATCH_DISTANCE
     from insulator_rs.sim.towers import load_tower
@@ -148,7 +150,9 @@ def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: l
     assert 'rig = "simulator"' in text, mission
     live_mission = folder / "live_mission.toml"
     text = text.replace('rig = "simulator"', 'rig = "live_rig.toml"')
-    live_mission.write_text(text if confirmations is None else text + f"confirmations = {confirmations}\n")
+    if confirmations is not None:
+        text += f"confirmations = {confirmations}\n"
+    live_mission.write_text(text + (inspection_extra.strip() + "\n" if inspection_extra.strip() else ""))
     live_mission = mission_at_home(live_mission, folder / "at_home.toml")
     env = {**os.environ, "PYTHONPATH": str(Path(insulator_rs.__file__).parents[1])}
     port = free_udp_port()
@@ -203,6 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--head", default="", help="sensor head arguments, one string (e.g. '--log head.jsonl')")
     p.add_argument("--record", action="store_true",
                    help="record each flight (flight.mcap in its folder: a miss can then be replayed)")
+    p.add_argument("--inspection", default="",
+                   help="TOML lines appended to the mission's [inspection] (an experiment, e.g. 'photo_retakes = 0')")
     p.add_argument("extra", nargs="*", help="more inspect arguments (after --)")
     args = p.parse_args(argv)
     folder = sitl_folder()
@@ -221,13 +227,15 @@ def main(argv: list[str] | None = None) -> int:
             mission = REPO / "python" / "insulator_rs" / "missions" / "tower_b.toml"
         with Px4Sitl(folder, workdir=work / "px4") as px4:
             extra = [*args.extra, *(["--record", str(work / "flight.mcap")] if args.record else [])]
-            result = fly_live(px4, work, Path(scene), mission, extra=extra, head_args=shlex.split(args.head))
+            result = fly_live(px4, work, Path(scene), mission, extra=extra, head_args=shlex.split(args.head),
+                              inspection_extra=args.inspection)
         ok = (result.returncode == 0 and result.status == "finished" and max(result.errors) < 0.30
               and result.false_finds == 0 and not result.failsafe)
         print(f"{kind} {i}: {'PASS' if ok else 'FAIL'} {result.line()}", flush=True)
         # what the sensor head and the client said, beside the flight's report, and the load
         (work / "head.txt").write_text(result.head_output)
         (work / "client_stderr.txt").write_text(result.stderr)
+        (work / "client_stdout.txt").write_text(result.stdout)
         load = os.getloadavg()[0]
         if result.status == "no summary" or result.returncode != 0:
             print(f"  stderr: {result.stderr[-1500:]}\n  head: {result.head_output[-800:]}", flush=True)
