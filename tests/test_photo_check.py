@@ -234,3 +234,37 @@ def test_an_unfit_photo_is_retaken_a_bounded_number_of_times(tmp_path, monkeypat
          "errors": ["RuntimeError: detector crashed"]}]
     page = (out / "report.html").read_text()
     assert "detector failed (6x)" in page and "RuntimeError: detector crashed" in page
+
+
+@pytest.mark.slow
+def test_without_an_inspection_camera_an_unfit_photo_is_kept_not_retaken(tmp_path, monkeypatch):
+    """The small scene with the simulator rig less its [inspection_camera] (the live path's case:
+    the photo is the detection camera's frame) and a photo detector that fails on every photo:
+    each waypoint is shot once, the photo kept with its failed check, no retake flown; the flight
+    finishes with both strings inspected. (With the inspection camera the same failure is retaken
+    1 + photo_retakes times: the test above.)"""
+    from insulator_rs.app.cli import main
+    from insulator_rs.rig import RIGS_DIR
+    from test_mission_inspect import ARGS, small_scene
+
+    scene, mission = small_scene(tmp_path)
+    text = (RIGS_DIR / "simulator.toml").read_text()
+    (tmp_path / "fixed_rig.toml").write_text(text[:text.index("[inspection_camera]")] + text[text.index("[lidar]"):])
+    (tmp_path / "simulator_camera.yaml").write_text((RIGS_DIR / "simulator_camera.yaml").read_text())
+    mission.write_text(mission.read_text().replace('rig = "simulator"', 'rig = "fixed_rig.toml"'))
+    detect = GroundTruthDetector.__call__
+
+    def failing_on_photos(self, image):
+        if self.sensors.is_photo(image):
+            raise RuntimeError("detector crashed")
+        return detect(self, image)
+
+    monkeypatch.setattr(GroundTruthDetector, "__call__", failing_on_photos)
+    out = tmp_path / "report"
+    assert main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "finished" and s["insulators_inspected"] == 2
+    photos = s["photos"]
+    assert len(photos) == 2 * 2 and all(p["attempt"] == 1 for p in photos)
+    assert all(not p["check"]["fit"] and p["check"]["error"] == "RuntimeError: detector crashed" for p in photos)
+    assert s["photo_checks"]["retakes"] == 0 and s["photo_checks"]["fit"] == 0

@@ -45,6 +45,7 @@ message gives the range and the reason)::
                                   # (by the safe route out) before the rest of the plan would touch it
     photo_retakes = 2             # optional: times a photo the check finds unfit (cut, too small, off
                                   # centre, blurred, nothing detected) is taken again at its waypoint
+                                  # (with the rig's inspection camera; without one, never)
 """
 
 from __future__ import annotations
@@ -108,6 +109,8 @@ class InspectionParams:
     # A photo judged unfit on itself (perception/photo_check.py) is retaken this many times at
     # most: each retake re-settles and re-aims (a few seconds of hover); 2 cures a gust or a
     # settle cut short, and a fault that survives three shots will not go away with a fourth.
+    # Only with the rig's inspection camera: the detection camera's frame is not retaken
+    # (FlightLoop.take_photo says why).
     photo_retakes: int = 2
 
 

@@ -24,11 +24,14 @@ each rendered detection frame and photo (its insulators' boxes) stays here, for 
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import SensorError
@@ -38,7 +41,7 @@ from insulator_rs.sim.camera_render import Camera, Lighting
 from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.lidar import Mid360
 from insulator_rs.sim.mesh import Mesh
-from insulator_rs.ports.vehicle import Vehicle
+from insulator_rs.ports.vehicle import Vehicle, VehicleState
 
 #: m a multirotor's sensors stand above its body origin's ground pose on the landing gear (the
 #: pre-flight probe's pose: the simulated airframe's body origin sits on the ground)
@@ -46,6 +49,9 @@ LANDING_GEAR_HEIGHT = 0.2
 #: the pre-flight probe's seed offset: clear of the flight's frames (seed + n), scans (seed +
 #: 100 000 + n) and photos (seed + 200 000 + n)
 PROBE_SEED_OFFSET = 900_000
+#: reported states :func:`reported_pose` keeps to interpolate between (at 20-50 Hz, 1-3 s: more
+#: than a LiDAR frame and a camera's latency)
+REPORTED_HISTORY = 64
 #: T_w_b (4x4) of the airframe at a vehicle time (s), at or shortly before now.
 PoseSource = Callable[[float], np.ndarray]
 
@@ -76,12 +82,39 @@ def simulated_px4_true_pose(simulator: Any) -> PoseSource:
 
 
 def reported_pose(vehicle: Vehicle) -> PoseSource:
-    """The pose an outside autopilot reports (a SITL has no other truth to give), full attitude,
-    carried back to an earlier time along its reported velocity."""
+    """The pose an outside autopilot reports (a SITL has no other truth to give), full attitude:
+    between two reported states the pose interpolated (slerp, lerp), before the oldest kept one
+    or after the newest carried along its reported velocity and body rates.
+
+    The attitude matters: a sensor renders a 100 ms frame at times either side of the newest
+    state, and braking pitches a multirotor at 60+ deg/s. With the newest attitude for every
+    time (the position alone carried back), the simulated Mid-360 put a braking frame's ground
+    (12-25 m off) 0.5-3.5 m high, 7 degrees of pitch, which the obstacle map then kept as an
+    obstacle beside the landing approach (session 16, test_live_inspection)."""
+    history: deque[tuple[float, np.ndarray]] = deque(maxlen=REPORTED_HISTORY)
+
+    def carried(st: VehicleState, time: float) -> np.ndarray:
+        dt = st.time - time
+        T = st.T_w_b
+        T[:3, 3] = st.position - st.velocity * dt
+        if st.angular_velocity is not None and st.has_attitude:
+            # body rates in B: R_w_b(now - dt) = R_w_b(now) exp(-[w] dt)
+            T[:3, :3] = T[:3, :3] @ Rotation.from_rotvec(-np.asarray(st.angular_velocity, dtype=np.float64) * dt).as_matrix()
+        return T
+
     def pose(time: float) -> np.ndarray:
         st = vehicle.state()
-        T = st.T_w_b
-        T[:3, 3] = st.position - st.velocity * (st.time - time)
+        if not history or st.time > history[-1][0]:
+            history.append((st.time, st.T_w_b))
+        if len(history) < 2 or not history[0][0] <= time <= history[-1][0]:
+            return carried(st, time)
+        times = [t for t, _ in history]
+        i = max(1, bisect.bisect_left(times, time))
+        (t0, T0), (t1, T1) = history[i - 1], history[i]
+        f = 0.0 if t1 <= t0 else (time - t0) / (t1 - t0)
+        T = np.eye(4)
+        T[:3, :3] = T0[:3, :3] @ Rotation.from_rotvec(Rotation.from_matrix(T0[:3, :3].T @ T1[:3, :3]).as_rotvec() * f).as_matrix()
+        T[:3, 3] = T0[:3, 3] + f * (T1[:3, 3] - T0[:3, 3])
         return T
     return pose
 
