@@ -119,6 +119,9 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
     stalls = s["companion_stalls"]
     assert stalls["threshold_s"] == 0.5 and len(stalls["longest"]) == min(stalls["count"], 5)
     assert Path(stalls["stacks"]) == out / "companion_stalls.txt" and Path(stalls["stacks"]).is_file()
+    # the collector's pauses were timed (flight/gc_pauses.py): the full collection before the
+    # startup heap was frozen among them, and the flight's summary written with it frozen
+    assert stalls["gc"]["generations"]["2"]["count"] >= 1 and stalls["gc"]["frozen_objects"] > 10_000, stalls["gc"]
 
 
 @pytest.mark.slow

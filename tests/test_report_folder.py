@@ -288,3 +288,16 @@ def _check_deliverables(out: Path, s: dict) -> None:
     kinds = [f["properties"]["kind"] for f in doc["features"]]
     assert kinds.count("photo") == len(s["photos"]) and kinds.count("insulator") == len(s["insulators"])
     assert kinds.count("flight_path") == 1
+
+
+def test_the_flown_distance_is_summed_as_poses_come(tmp_path):
+    # Reference: numpy's sum of the step lengths of the whole trajectory, the summary's former
+    # computation (it copied the trajectory every 5 s; now the writer sums as poses come).
+    rng = np.random.default_rng(3)
+    path = np.cumsum(rng.normal(0.0, 0.4, (500, 3)), axis=0)
+    w = ReportWriter(tmp_path / "out", origin=ORIGIN)
+    assert w.distance_m == 0.0
+    for k, p in enumerate(path):
+        w.log_pose(0.02 * k, p, 0.0, "explore")
+    w.close()
+    assert w.distance_m == pytest.approx(float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))), rel=1e-12)

@@ -39,6 +39,7 @@ from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
 from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.flight.gc_pauses import startup_heap_frozen
 from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
@@ -357,23 +358,26 @@ def run(args: argparse.Namespace) -> int:
         if mavlink:  # an outside autopilot fails safe when our setpoint thread stalls: watch for it
             stall_watch = loop.stall_watch = StallWatch(dump=Path(args.out) / STALL_STACKS).start()
         code = 0
-        try:
-            loop.fly()
-        except KeyboardInterrupt:
-            loop.status = "interrupted"
-            code = 130
-        except Exception:
-            loop.status = "failed"
-            loop.finish_report()
-            raise
-        # the flight is over (landed, aborted or interrupted): now ground truth may be read
-        if live:  # the sensors saw the world, not the scene: nothing to score against
-            score = None
-            summary = loop.finish_report()
-        else:
-            score = score_flight(loop.summary().as_dict(), tower)
-            summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
-            write_score(args.out, score)
+        # everything set up so far stays out of the collector's walks while the loop flies: a
+        # full collection of it held the GIL past half a second on a loaded box (gc_pauses.py)
+        with startup_heap_frozen():
+            try:
+                loop.fly()
+            except KeyboardInterrupt:
+                loop.status = "interrupted"
+                code = 130
+            except Exception:
+                loop.status = "failed"
+                loop.finish_report()
+                raise
+            # the flight is over (landed, aborted or interrupted): now ground truth may be read
+            if live:  # the sensors saw the world, not the scene: nothing to score against
+                score = None
+                summary = loop.finish_report()
+            else:
+                score = score_flight(loop.summary().as_dict(), tower)
+                summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
+                write_score(args.out, score)
     finally:
         if stall_watch is not None:
             stall_watch.stop()

@@ -1028,7 +1028,6 @@ class FlightLoop:
         photos: dict[int, list[str]] = {}
         for p in self.photos.records:
             photos.setdefault(p["insulator_id"], []).append(p["file"])
-        traj = np.array([p[1:] for p in self.report.trajectory]) if self.report.trajectory else np.zeros((0, 3))
         s = self.settings
         details = FlightDetails(
             mission=str(self.mission.source), rig=str(self.rig.source), policy=s.policy.value,
@@ -1036,7 +1035,7 @@ class FlightLoop:
             sensors=type(self.sensors).__name__,
             failsafe=None if self.failsafe is None else {"reason": self.failsafe.reason,
                                                          "action": self.failsafe.action},
-            distance_m=float(np.sum(np.linalg.norm(np.diff(traj, axis=0), axis=1))) if len(traj) > 1 else 0.0,
+            distance_m=self.report.distance_m,
             detections_dropped_by_sanitiser=detections_dropped(self.detector),
             abort=self._abort_record(),
             inspections_skipped=[{"insulator_id": it.waypoint.insulator_id if it.waypoint is not None else None,

@@ -13,7 +13,9 @@ than ``threshold_s`` is a stall of the interpreter (that thread needs only the G
 Each is counted with its length and time. With a ``dump`` file the watch also arms
 ``faulthandler.dump_traceback_later`` (a C thread that needs no GIL) and re-arms it on every tick:
 when the interpreter stalls past the threshold, every thread's Python stack is written to that
-file *during* the stall, naming the call that held it.
+file *during* the stall, naming the call that held it. The garbage collector's pauses are timed
+beside it (:class:`~insulator_rs.flight.gc_pauses.GcPauseLog`), and each stall says how much of it
+was a collection.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
+
+from insulator_rs.flight.gc_pauses import GcPauseLog
 
 #: s between the watch's wake-ups.
 TICK_S = 0.05
@@ -47,6 +51,7 @@ class StallWatch:
     _thread: threading.Thread | None = None
     _file: IO[str] | None = None
     _t0: float = 0.0
+    gc_log: GcPauseLog | None = None
 
     def __post_init__(self) -> None:
         if not self.threshold_s > TICK_S:
@@ -56,6 +61,7 @@ class StallWatch:
         if self.dump is not None:
             self._file = open(self.dump, "w", encoding="utf-8")  # noqa: SIM115 (held until stop)
         self._t0 = self.clock()
+        self.gc_log = GcPauseLog(clock=self.clock).start()
         self._arm()
         self._thread = threading.Thread(target=self._run, name="stall-watch", daemon=True)
         self._thread.start()
@@ -65,21 +71,32 @@ class StallWatch:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=1.0)
+        if self.gc_log is not None:
+            self.gc_log.stop()
         if self._file is not None:
             faulthandler.cancel_dump_traceback_later()
             self._file.close()
             self._file = None
 
     def record(self) -> dict[str, Any]:
-        """summary.json's ``companion_stalls``: threshold, count, longest and total, and the
-        longest few with their times (s since the watch started)."""
+        """summary.json's ``companion_stalls``: threshold, count, longest and total, the longest
+        few with their times (s since the watch started) and the collector's share of each
+        (``gc_ms``), and the collector's pauses (``gc``)."""
         lengths = [s for _, s in self.stalls]
         worst = sorted(self.stalls, key=lambda s: -s[1])[:5]
         return {"threshold_s": self.threshold_s, "count": len(lengths),
                 "max_s": round(max(lengths), 3) if lengths else 0.0,
                 "total_s": round(sum(lengths), 3),
-                "longest": [{"time_s": round(t, 2), "length_s": round(s, 3)} for t, s in worst],
-                "stacks": None if self.dump is None else str(self.dump)}
+                "longest": [{"time_s": round(t, 2), "length_s": round(s, 3),
+                             "gc_ms": round(self._collecting(t, t + TICK_S + s) * 1e3, 1)} for t, s in worst],
+                "stacks": None if self.dump is None else str(self.dump),
+                "gc": None if self.gc_log is None else self.gc_log.record()}
+
+    def _collecting(self, t1: float, t2: float) -> float:
+        """s of collector pauses within [t1, t2] (s since start)."""
+        if self.gc_log is None:
+            return 0.0
+        return sum(max(0.0, min(t2, t + length) - max(t1, t)) for t, _, length, _ in self.gc_log.pauses)
 
     def _arm(self) -> None:
         if self._file is not None:

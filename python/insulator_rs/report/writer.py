@@ -75,6 +75,9 @@ class ReportWriter:
         path = self.layout.path
         self.images = path / "images"
         self.trajectory: list[tuple[float, float, float, float]] = []
+        # the flown distance, summed as poses come: the periodic summary read it from a copy of
+        # the whole trajectory, the flight loop's largest allocation (gc_pauses.py)
+        self.distance_m = 0.0
         self._path_kept: list[tuple[float, float, float]] = []  # the flown path thinned to PATH_SPACING
         # The map layers are rewritten at photos, status changes and close, not on every periodic
         # summary: the KML of a 10-minute path costs ~0.1 s the control loop should not wait.
@@ -92,6 +95,8 @@ class ReportWriter:
         self._traj_writer.writerow([f"{time:.3f}", f"{position[0]:.3f}", f"{position[1]:.3f}",
                                     f"{position[2]:.3f}", f"{yaw:.4f}", state])
         p = (float(position[0]), float(position[1]), float(position[2]))
+        if self.trajectory:
+            self.distance_m += math.dist(self.trajectory[-1][1:], p)
         self.trajectory.append((time, *p))
         if all(map(math.isfinite, p)) and (not self._path_kept or math.dist(p, self._path_kept[-1]) >= PATH_SPACING):
             self._path_kept.append(p)

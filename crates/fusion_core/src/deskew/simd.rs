@@ -580,6 +580,29 @@ mod tests {
         Ok(())
     }
 
+    /// The dispatch takes a SIMD level wherever the CPU has one, so the parity tests of this
+    /// module compare that path (AVX-512 or AVX2 on x86-64, NEON on aarch64, where it is
+    /// architectural), not the scalar fallback, with the reference. Under qemu-aarch64
+    /// (`scripts/test-aarch64.sh`) this is the NEON kernel's proof of being tested.
+    #[test]
+    fn dispatch_takes_the_cpus_simd_level() {
+        struct Level;
+        impl WithSimd for Level {
+            type Output = (bool, usize);
+            fn with_simd<S: Simd>(self, _simd: S) -> (bool, usize) {
+                (S::IS_SCALAR, lanes::<S>())
+            }
+        }
+        let (scalar, lanes) = Arch::new().dispatch(Level);
+        eprintln!("{}: {} f64 lanes (scalar: {scalar})", std::env::consts::ARCH, lanes);
+        #[cfg(target_arch = "aarch64")]
+        assert!(!scalar && lanes == 2, "aarch64 must take NEON's 2 f64 lanes, got scalar {scalar}, {lanes} lanes");
+        #[cfg(target_arch = "x86_64")]
+        if pulp::x86::V3::try_new().is_some() {
+            assert!(!scalar && lanes >= 4, "an AVX2 CPU must take 4 or 8 f64 lanes, got scalar {scalar}, {lanes} lanes");
+        }
+    }
+
     #[test]
     fn non_finite_points_stay_nan_and_out_of_every_box() {
         let s = PoseStream::new(vec![0.0, 0.1], vec![pose([0.0; 3], [0.0; 3]), pose([0.3, 0.0, 0.0], [0.0, 0.0, 0.05])]).unwrap();
