@@ -8,8 +8,8 @@
 #     an old glibc, so the wheel is manylinux2014; gcc's route gives manylinux_2_34).
 #  2. The wheel: dist/insulator_rs-<v>-cp310-abi3-manylinux2014_aarch64.manylinux_2_17_aarch64.whl
 #     (abi3, any CPython >= 3.10; the Jetson's JetPack 6 has 3.10, glibc 2.35).
-#     Then fusion_core's deskew tests, built for aarch64 (Debian's cross gcc links them) and run
-#     under qemu-aarch64: the NEON kernel against the scalar path.
+#     Then the Rust crates' tests, built for aarch64 (Debian's cross gcc links them) and run
+#     under qemu-aarch64 once the arm64 root below exists: the NEON kernel against the scalar path.
 #  3. An arm64 Debian 12 root (debootstrap, minbase), kept in .aarch64/root between
 #     runs (ignored by git; delete it to start over). Its Python is 3.11: Debian 12 has
 #     no 3.10 for arm64, so the abi3 wheel's 3.10 floor is tested on x86-64 only (.ci/run).
@@ -70,23 +70,6 @@ PATH="$CACHE/bin:$CACHE/tools/bin:$PATH" PYO3_CROSS_PYTHON_VERSION=3.10 CARGO_TA
 wheel=$(ls dist/insulator_rs-*-cp310-abi3-manylinux2014_aarch64.manylinux_2_17_aarch64.whl)
 step "built $wheel"
 
-# ---- 2b. the SIMD kernels on aarch64 --------------------------------------------------
-# fusion_core's own tests of the fused deskew + project + cull (deskew::) built for aarch64 and
-# run under qemu-aarch64: pulp dispatches NEON there (dispatch_takes_the_cpus_simd_level
-# asserts it), and the parity proptests hold it to the scalar path. Linked by Debian's cross
-# gcc (a test binary, not shipped: its glibc floor does not matter), run against Debian's
-# arm64 libc (libc6-arm64-cross).
-step "fusion_core deskew tests (NEON against the scalar path) under qemu-aarch64"
-if ! PATH="$CACHE/bin:$PATH" CARGO_TARGET_DIR="$REPO/target/aarch64-cross" \
-  CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
-  CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64-static -cpu ${AARCH64_QEMU_CPU:-neoverse-n1} -L /usr/aarch64-linux-gnu" \
-  cargo test --release --target "$TARGET" -p fusion_core --lib deskew -- --show-output 2>&1 \
-  | tee "$CACHE/rust-neon.log" | grep -E "^test result|FAILED|panicked|f64 lanes"; then
-  tail -30 "$CACHE/rust-neon.log" >&2
-  echo "test-aarch64: fusion_core's deskew tests failed under qemu-aarch64" >&2
-  exit 1
-fi
-
 # ---- 3. the arm64 root ----------------------------------------------------------------
 if [ ! -e /proc/sys/fs/binfmt_misc/register ]; then
   mount -t binfmt_misc binfmt_misc /proc/sys/fs/binfmt_misc
@@ -107,6 +90,28 @@ if [ ! -e "$ROOTFS/.complete" ]; then
   mv "$ROOTFS.tmp" "$ROOTFS"
 else
   step "arm64 root cached in $ROOTFS"
+fi
+
+# ---- 3b. the Rust crates' own tests on aarch64 ----------------------------------------
+# fusion_core, scene_raycast and livox_mid360 built for aarch64 (Debian's cross gcc links the
+# test binaries; they are not shipped, so their glibc floor does not matter) and run under
+# qemu-aarch64 against the arm64 root's libc (-L: the cross toolchain's own
+# /usr/aarch64-linux-gnu hung qemu 7.2 at the first thread). pulp dispatches NEON there
+# (deskew::simd's dispatch_takes_the_cpus_simd_level asserts it) and the parity proptests hold
+# the NEON kernel to the scalar path.
+step "the Rust crates' tests (fusion_core with NEON, scene_raycast, livox_mid360) under qemu-aarch64"
+if ! PATH="$CACHE/bin:$PATH" CARGO_TARGET_DIR="$REPO/target/aarch64-cross" \
+  CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
+  CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64-static -cpu ${AARCH64_QEMU_CPU:-neoverse-n1} -L $ROOTFS" \
+  cargo test --release --target "$TARGET" -p fusion_core -p scene_raycast -p livox_mid360 -- --show-output 2>&1 \
+  | tee "$CACHE/rust-tests.log" | grep -E "^test result|FAILED|panicked|f64 lanes"; then
+  tail -30 "$CACHE/rust-tests.log" >&2
+  echo "test-aarch64: the Rust crates' tests failed under qemu-aarch64" >&2
+  exit 1
+fi
+if grep -qE "^test result: FAILED" "$CACHE/rust-tests.log"; then
+  echo "test-aarch64: the Rust crates' tests failed under qemu-aarch64" >&2
+  exit 1
 fi
 
 # Bind the repository (and ../shared, where the field photos live) into the root.
