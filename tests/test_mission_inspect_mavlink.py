@@ -122,6 +122,9 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
     # the collector's pauses were timed (flight/gc_pauses.py): the full collection before the
     # startup heap was frozen among them, and the flight's summary written with it frozen
     assert stalls["gc"]["generations"]["2"]["count"] >= 1 and stalls["gc"]["frozen_objects"] > 10_000, stalls["gc"]
+    # the setpoint stream's own gaps (mavlink/setpoint_gaps.py): PX4's brief failsafes, if any
+    stream = s["setpoint_stream"]
+    assert stream["sent"] > 100 and stream["past_offboard_loss"] <= stream["gaps"], stream
 
 
 @pytest.mark.slow

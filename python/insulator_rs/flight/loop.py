@@ -51,7 +51,7 @@ from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photos import InspectionPhotos
 from insulator_rs.flight.preflight import PreflightResult, preflight_checks
 from insulator_rs.flight.record import (camera_record, candidate_records, insulator_records, perception_record,
-                                        timesync_record)
+                                        setpoint_stream_record, timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
 from insulator_rs.flight.stall_watch import StallWatch
 from insulator_rs.flight.second_look import SecondLook, look_events, look_target, look_viewpoints
@@ -1053,7 +1053,8 @@ class FlightLoop:
             second_looks=[look.as_record() for look in self.second_looks],
             preflight=None if self.preflight_result is None else self.preflight_result.as_record(),
             px4_parameters=None if self.autopilot_setup is None else self.autopilot_setup.record(),
-            companion_stalls=None if self.stall_watch is None else self.stall_watch.record())
+            companion_stalls=None if self.stall_watch is None else self.stall_watch.record(),
+            setpoint_stream=setpoint_stream_record(self.vehicle))
         refused = self.preflight_result is not None and not self.preflight_result.passed
         return RunSummary(run="flight", status=self.status, detector=detector_name(self.detector),
                           method=s.method, flight_time_s=0.0 if refused else st.time - self.t_start,

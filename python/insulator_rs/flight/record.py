@@ -47,6 +47,13 @@ def candidate_records(registry: InsulatorRegistry) -> list[dict[str, Any]]:
             for ins in sorted(registry.candidates, key=lambda ins: -ins.observations)]
 
 
+def setpoint_stream_record(vehicle: Any) -> dict[str, Any] | None:
+    """The MAVLink client's setpoint-stream gaps (``summary.json`` ``setpoint_stream``); None for
+    a vehicle without a setpoint stream (the in-process simulator)."""
+    gaps = getattr(vehicle, "setpoint_gaps", None)
+    return None if gaps is None else gaps.record()
+
+
 def timesync_record(vehicle: Any, sensors: Any) -> TimesyncRecord:
     """How the companion knew vehicle time: the clock live sensors were stamped with (TIMESYNC
     or its telemetry fallback), else the MAVLink client's TIMESYNC map, else source ``none``

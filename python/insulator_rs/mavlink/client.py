@@ -53,6 +53,7 @@ from insulator_rs.exceptions import CommandRejected, VehicleError, VehicleFailsa
 from insulator_rs.mavlink import px4_modes
 from insulator_rs.mavlink.commands import CommandProtocol
 from insulator_rs.mavlink.failsafes import FailsafeMonitor, FailsafeSettings
+from insulator_rs.mavlink.setpoint_gaps import SetpointGaps
 from insulator_rs.mavlink.frames import enu_to_ned, local_origin_in_w, yaw_enu_to_ned
 from insulator_rs.mavlink.link import AutopilotLink, LinkStats, open_connection
 from insulator_rs.mavlink.parameters import ParameterProtocol
@@ -115,6 +116,8 @@ class MavlinkVehicle:
         if self.setpoint_rate_hz < 20.0:
             raise ValueError(f"setpoint_rate_hz must be >= 20 (PX4 offboard), got {setpoint_rate_hz!r}")
         self.time_scale = require_positive(time_scale, "time_scale")
+        # our stream's own gaps: PX4's brief offboard-loss failsafes, which the 1 Hz heartbeat misses
+        self.setpoint_gaps = SetpointGaps(time_scale=self.time_scale)
         self.failsafes = failsafes or FailsafeSettings()
         self.local_origin_w = as_vector3(local_origin_w, "local_origin_w")
         self.connection = connection
@@ -257,6 +260,7 @@ class MavlinkVehicle:
             first = self._setpoint is None
             self._setpoint = sp
         if first:
+            self.setpoint_gaps.paused()  # a new run of the stream, not a gap in it
             self._send_setpoint(sp)
 
     def advance(self, dt: float) -> VehicleState:
@@ -366,6 +370,7 @@ class MavlinkVehicle:
             self._monitor.offboard_engaged = False
 
     def _send_setpoint(self, sp: Setpoint) -> None:
+        self.setpoint_gaps.sent_at(time.monotonic())
         position, velocity, yaw = sp
         mask = TYPE_MASK_POS_VEL_YAW
         if velocity is None:
@@ -401,7 +406,9 @@ class MavlinkVehicle:
                 self._link.send("timesync", *request)
             with self._lock:
                 sp = self._setpoint if self._monitor.commanding_stopped is None else None
-            if sp is not None and now >= next_setpoint:
+            if sp is None:
+                self.setpoint_gaps.paused()
+            elif now >= next_setpoint:
                 self._send_setpoint(sp)
                 next_setpoint = max(next_setpoint + period, now)
             self._stop.wait(min(period, 0.05) / 2)

@@ -91,6 +91,11 @@ class FlightDetails:
     # threshold, count, longest, total, the longest few with their times, and the file of the
     # stacks written during them; None in process (nothing to fail safe) and before this field
     companion_stalls: dict[str, Any] | None = None
+    # our offboard setpoint stream's gaps as PX4 counts them (mavlink/setpoint_gaps.py): setpoints
+    # sent, the longest gap, the gaps of 0.5 s or more, and how many reached COM_OF_LOSS_T (each
+    # a failsafe PX4 flew, if only for a moment: v1.16 clears it when setpoints resume, often
+    # between two of its 1 Hz heartbeats); None without MAVLink and before this field
+    setpoint_stream: dict[str, Any] | None = None
     # every photo checked on itself (perception/photo_check.py; flight/photos.py check_summary):
     # photos, fit, retakes, the detector's cost per check, and the insulators found without a fit
     # photo with why (their checks' reasons counted, the detector's errors); None before this field
