@@ -207,6 +207,32 @@ def test_offboard_loss_falls_back_to_position_mode_after_com_of_loss_t() -> None
     np.testing.assert_allclose(vehicle.advance(2.0).position, where, atol=0.05)
 
 
+def test_offboard_loss_clears_when_setpoints_come_again_as_px4_v116_does() -> None:
+    """Reference: PX4 v1.16.0 SITL, session 17's tower B flight (its ULog, read with pyulog): a
+    1.19 s stall of the companion's setpoints put PX4 in RTL (COM_OBL_RC_ACT 3) at 32.000 s and
+    back in OFFBOARD, failsafe flag cleared, at 32.060 s, with no command from the companion."""
+    vehicle = KinematicVehicle(params=AutopilotParameters(offboard_loss_mode="RTL"))
+    start_flying(vehicle)
+    with pytest.raises(VehicleFailsafe):
+        vehicle.advance(1.1)
+    assert vehicle.state().mode == "RTL" and not vehicle.state().healthy
+    vehicle.advance(0.2)  # still no setpoint: the fallback holds
+    assert vehicle.state().mode == "RTL"
+    vehicle.send_setpoint(vehicle.state().position)
+    state = vehicle.advance(DT)
+    assert state.mode == "OFFBOARD" and state.fault is None and state.healthy
+
+
+def test_a_mode_chosen_during_the_offboard_fallback_ends_it() -> None:
+    vehicle = KinematicVehicle(params=AutopilotParameters(offboard_loss_mode="RTL"))
+    start_flying(vehicle)
+    with pytest.raises(VehicleFailsafe):
+        vehicle.advance(1.1)
+    vehicle.hold()  # the pilot (or the companion) chose a mode: OFFBOARD is no longer intended
+    vehicle.send_setpoint(vehicle.state().position)
+    assert vehicle.advance(0.5).mode == "HOLD"
+
+
 def test_disarm_in_the_air_is_refused_and_preflight_auto_disarm() -> None:
     vehicle = KinematicVehicle()
     start_flying(vehicle)

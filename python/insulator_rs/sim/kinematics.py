@@ -381,8 +381,9 @@ class KinematicVehicle:
     climbs during ``advance`` calls and switches to HOLD on arrival), keep
     streaming setpoints every tick while calling ``advance(dt)``, then ``land``.
     If setpoints stop for ``params.offboard_loss_timeout`` of simulated time in
-    OFFBOARD, the vehicle falls back to HOLD and ``state().fault`` says why (PX4
-    v1.14+: COM_OBL_RC_ACT's default "position mode" becomes Hold without RC).
+    OFFBOARD, the vehicle falls back to ``offboard_loss_mode`` (COM_OBL_RC_ACT) and
+    ``state().fault`` says why; as PX4 v1.16 does, the fallback clears when setpoints come
+    again before any other mode is chosen: OFFBOARD resumes and the fault clears.
     As in PX4 v1.14+, offboard may be engaged on the ground, before arming, as
     long as the setpoint stream is running.
     """
@@ -432,6 +433,8 @@ class KinematicVehicle:
         self._has_taken_off = False
         self._closed = False
         self._pending_failsafe: VehicleFailsafe | None = None
+        # the offboard-loss fallback is active and may clear (PX4 v1.16: when setpoints come again)
+        self._offboard_fallback = False
         # (time, true T_w_b) after each integration step, for the simulated sensors
         self.true_track: deque[tuple[float, np.ndarray]] = deque(maxlen=TRUE_TRACK_SAMPLES)
         self.true_track.append((self.clock.now, self.true_T_w_b()))
@@ -515,6 +518,7 @@ class KinematicVehicle:
         if target == FlightMode.TAKEOFF:
             self.request_takeoff(self.params.takeoff_altitude)
             return
+        self._offboard_fallback = False  # a mode chosen: PX4's intended mode is no longer OFFBOARD
         self._switch(target)
 
     def start_offboard(self) -> None:
@@ -604,6 +608,7 @@ class KinematicVehicle:
     def land(self) -> None:
         """Switch to AUTO_LAND at the current position (always accepted, as in PX4)."""
         self._check_open()
+        self._offboard_fallback = False
         self._switch(FlightMode.LAND)
 
     def hold(self) -> None:
@@ -663,17 +668,20 @@ class KinematicVehicle:
         self._hold_yaw = self.model.yaw
 
     def _begin_takeoff(self, altitude: float) -> None:
+        self._offboard_fallback = False
         self._takeoff_target = np.array([self.model.position[0], self.model.position[1],
                                          self.home[2] + altitude])
         self.mode = FlightMode.TAKEOFF
 
     def _disarm(self) -> None:
+        self._offboard_fallback = False
         self.armed = False
         self._takeoff_target = None
         self.mode = FlightMode.HOLD
         self._enter_hold_here()
 
     def _failsafe(self, mode: FlightMode, reason: str) -> None:
+        self._offboard_fallback = False  # another failsafe ends the offboard fallback's claim
         self.fault = reason
         self._switch(mode)
         self._pending_failsafe = VehicleFailsafe(reason, mode.value.lower())
@@ -724,6 +732,15 @@ class KinematicVehicle:
             if self.mode == FlightMode.OFFBOARD and not self._setpoints_fresh():
                 self._failsafe(FlightMode(p.offboard_loss_mode),
                                f"offboard setpoints lost for more than {p.offboard_loss_timeout:g} s")
+                self._offboard_fallback = True
+            elif self._offboard_fallback and self._setpoints_fresh():
+                # PX4 v1.16's offboard loss is a mode fallback that clears with its condition:
+                # setpoints again, and nobody chose another mode since, so the intended OFFBOARD
+                # resumes and the failsafe flag clears (SITL, session 17: RTL at 32.000 s,
+                # OFFBOARD again at 32.060 s after a 1.19 s stall of the companion)
+                self._offboard_fallback = False
+                self.fault = None
+                self._switch(FlightMode.OFFBOARD)
         self.model.step(h, self._active_setpoint() if self.armed else None)
         if self.armed and self.mode == FlightMode.TAKEOFF and self._takeoff_target is not None \
                 and np.linalg.norm(self._takeoff_target - self.model.position) < TAKEOFF_REACHED_M:
