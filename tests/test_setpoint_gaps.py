@@ -8,15 +8,13 @@ in session 17's SITL flight)."""
 
 from __future__ import annotations
 
-import sys
-import time
-
 import pytest
 
 from insulator_rs.exceptions import VehicleFailsafe
 from insulator_rs.mavlink.setpoint_gaps import LISTED_GAP_S, OFFBOARD_LOSS_TIMEOUT_S, SetpointGaps
 from insulator_rs.planning.px4_failsafes import OFFBOARD_LOSS_TIMEOUT
 from test_mavlink_flight import TIME_SCALE, _connect, take_off_into_offboard
+from test_stall_watch import _hold_the_interpreter  # a whole-process stall, as a long GIL hold makes
 
 
 def test_the_loss_timeout_is_the_one_the_mission_sets_on_px4():
@@ -48,17 +46,6 @@ def test_gaps_are_in_vehicle_seconds():
     gaps.sent_at(0.0)
     gaps.sent_at(0.3)
     assert gaps.record()["max_gap_s"] == pytest.approx(1.2) and gaps.record()["past_offboard_loss"] == 1
-
-
-def _hold_the_interpreter(seconds: float) -> None:
-    old = sys.getswitchinterval()
-    sys.setswitchinterval(10.0)  # no other thread of this process runs: a whole-process stall
-    try:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < seconds:
-            pass
-    finally:
-        sys.setswitchinterval(old)
 
 
 def test_a_stalled_stream_against_the_simulated_px4_is_counted_past_the_loss_timeout():
