@@ -2,13 +2,14 @@
 
 CPython's cyclic collector runs inside whichever thread allocates past its threshold and holds
 the GIL for the whole collection: a full (generation 2) collection walks every tracked object
-of the process. The companion's heap at take-off is a few hundred thousand such objects
-(numpy, onnxruntime, OpenCV, pymavlink's message classes, the mission), so a full collection
-is tens of milliseconds on a quiet core and several times that when the process shares
-its CPUs (a Jetson running TensorRT beside it): long enough to stop the offboard setpoints PX4
-fails safe on (``COM_OF_LOSS_T``). The stall watch (``flight/stall_watch.py``) caught such stalls
-in the flight loop's one allocation-heavy statement (the summary's trajectory copy) in 2 of 10
-live flights (session 17).
+of the process. The companion's heap at take-off is about 139,000 such objects (numpy,
+onnxruntime, OpenCV, pymavlink's message classes, the mission): a full collection took 74 ms on a
+quiet box and 181 ms on a loaded one (session 17), and longer still when the process shares its
+CPUs with PX4 and the sensors (a Jetson running TensorRT beside it): long enough to stop the
+offboard setpoints PX4 fails safe on (``COM_OF_LOSS_T``). The stall watch
+(``flight/stall_watch.py``) caught three stalls of 0.6-1.2 s in live SITL flights (session 17),
+each at an allocation-heavy statement where the collector runs (the summary's trajectory copy,
+twice; the planner's refinement loop).
 
 * :class:`GcPauseLog` times every collection through ``gc.callbacks`` (per generation: count,
   longest, total; the longest few with their times) for ``summary.json``.
