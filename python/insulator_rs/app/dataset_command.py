@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 from insulator_rs.report.folder import parse_out_folder
 
@@ -42,6 +41,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--min-visible-pixels", type=_positive_int, default=30,
                         help="leave out insulators with fewer visible pixels (default 30)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steel-views", action="store_true",
+                        help="render hard negatives instead: views aimed at the tower's steel (peak, arms, legs) "
+                             "from where the inspection path flies, at the flight's 320x240 detection size unless "
+                             "--width/--height say otherwise, with every visible insulator in truth.json "
+                             "(see sim/steel_views.py; `detect eval --steel-views` counts a model's false boxes)")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     parser.set_defaults(func=run)
 
@@ -52,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.width is not None and args.height is None or args.height is not None and args.width is None:
         raise ValueError("--width/--height: give both or neither")
+    if args.steel_views:
+        return _run_steel_views(args)
     summary = write_dataset(
         scenes=args.scenes, out=args.out, n_images=args.images, split=tuple(args.split),
         image_size=(args.width, args.height) if args.width is not None else None,
@@ -59,4 +65,24 @@ def run(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{k} {v}" for k, v in summary.images.items())
     print(f"wrote {sum(summary.images.values())} images ({counts}), {summary.boxes} boxes, "
           f"{summary.empty_images} without insulators; {summary.data_yaml}")
+    return 0
+
+
+def _run_steel_views(args: argparse.Namespace) -> int:
+    """Render the steel views (hard negatives) and print where they went."""
+    import sys
+
+    from insulator_rs.sim.steel_views import FLIGHT_DETECTION_SIZE, write_steel_views
+
+    def progress(done: int, total: int) -> None:
+        if not args.quiet and (done % max(1, total // 20) == 0 or done == total):
+            print(f"  {done}/{total} steel views", file=sys.stderr, flush=True)
+
+    summary = write_steel_views(
+        scenes=args.scenes, out=args.out, n_images=args.images, split=tuple(args.split),
+        image_size=(args.width, args.height) if args.width is not None else FLIGHT_DETECTION_SIZE,
+        seed=args.seed, progress=progress)
+    counts = ", ".join(f"{k} {v}" for k, v in summary.images.items())
+    print(f"wrote {sum(summary.images.values())} steel views ({counts}), {summary.labelled_boxes} insulator boxes "
+          f"labelled, {summary.views_without_insulator} with no insulator in view; {summary.data_yaml}")
     return 0

@@ -110,6 +110,34 @@ def _report_metrics(args: argparse.Namespace, detector: Detector, metrics: CocoM
     return 0
 
 
+def count_steel_false_boxes(args: argparse.Namespace) -> int:
+    """``detect false-boxes``: a model's false boxes per steel view, and the views that have one."""
+    from insulator_rs.sim.steel_views import count_false_boxes, write_image_list
+
+    detector = open_detector(args.model, conf=args.conf, iou=args.iou, threads=args.threads)
+
+    def detect(image: cv2.typing.MatLike) -> tuple[object, object]:
+        det = detector(image)
+        return det.boxes, det.scores
+
+    try:
+        count = count_false_boxes(detect, args.folder, thresholds=sorted({args.conf, 0.5}))  # type: ignore[arg-type]
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for t in count.thresholds:
+        print(f"{args.folder}: {count.views} steel views, score >= {t:g}: {count.false_boxes[t]} false boxes "
+              f"({count.false_boxes[t] / max(count.views, 1):.3f} a view), {count.views_with_false_box[t]} views "
+              f"with one ({100.0 * count.views_with_false_box[t] / max(count.views, 1):.1f} %)")
+    if args.list is not None:
+        n = write_image_list(args.folder, count, args.list, min_score=args.conf)
+        print(f"{n} views with a false box listed in {args.list} (an Ultralytics image list)")
+    if args.json is not None:
+        args.json.write_text(json.dumps({"model": args.model, "folder": str(args.folder), "conf": args.conf,
+                                         **count.to_dict()}, indent=1) + "\n")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``detect run`` and ``detect eval`` to the ``insulator-rs`` parser."""
     parser = subparsers.add_parser("detect", help="run or evaluate the insulator detector")
@@ -138,3 +166,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                     help="field-photo set for --split field-test (default %(default)s)")
     ev.add_argument("--imgsz", type=int, default=None, help="network input size (default: the model's own)")
     ev.set_defaults(func=evaluate_split)
+
+    fb = sub.add_parser("false-boxes", help="false boxes per view on rendered steel views (`dataset --steel-views`)")
+    common(fb, 0.25)
+    fb.add_argument("folder", type=Path, help="a folder written by `insulator-rs dataset --steel-views`")
+    fb.add_argument("--list", type=Path, default=None,
+                    help="write the views with a false box here (an image list a training data.yaml can name)")
+    fb.set_defaults(func=count_steel_false_boxes)

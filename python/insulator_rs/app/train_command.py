@@ -17,6 +17,7 @@ import hashlib
 import platform
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -182,6 +183,9 @@ def run_train(args: argparse.Namespace) -> int:
         split = "by source photo (Roboflow copies of one photo share a split)"
         test_split = out / "data" / "images" / "test"
         print(f"  images per split {summary.images}, source photos {summary.source_photos}", flush=True)
+    steel_before: dict[str, Any] | None = None
+    if args.hard_negatives is not None:
+        data_yaml, dataset, steel_before = _add_hard_negatives(args, data_yaml, dataset, out)
     cfg = TrainConfig(data_yaml=data_yaml, out_dir=out, name="run", model_cfg=args.model_cfg, epochs=args.epochs,
                       hours=args.hours, imgsz=args.imgsz, batch=args.batch, workers=args.workers,
                       threads=args.threads, seed=args.seed, patience=args.patience,
@@ -218,12 +222,67 @@ def run_train(args: argparse.Namespace) -> int:
     if args.field_photos is not None:
         card["field_geometry_metrics"] = field_comparison(onnx_path, args.field_photos, args.start_weights,
                                                           threads=args.threads)
+    if args.steel_eval is not None:
+        card["steel_view_false_boxes"] = _steel_false_boxes(args, onnx_path, steel_before)
     card = package_model(onnx_path=onnx_path, test_split=test_split, card=card, threads=args.threads)
     tm = card.get("test_metrics")
     if tm:
         print(f"test split: mAP50-95 {tm['map50_95']:.4f}, mAP50 {tm['map50']:.4f} on {tm['images']} images")
     print(f"model: {onnx_path}\ncard: {onnx_path.with_suffix('.json')}")
     return 0
+
+
+def _steel_detect(model: str, threads: int | None) -> Callable[[Any], tuple[Any, Any]]:
+    from insulator_rs.detection.detector import open_detector
+    from insulator_rs.ports.detector import DETECT_CONF
+
+    detector = open_detector(model, conf=DETECT_CONF, threads=threads)
+
+    def detect(image: Any) -> tuple[Any, Any]:
+        det = detector(image)
+        return det.boxes, det.scores
+
+    return detect
+
+
+def _add_hard_negatives(args: argparse.Namespace, data_yaml: Path, dataset: dict[str, object],
+                        out: Path) -> tuple[Path, dict[str, object], dict[str, Any] | None]:
+    """The training set with the steel views of ``--hard-negatives`` added, and those where the start
+    model draws a false box (mined at the flight's DETECT_CONF) repeated; the start model's
+    false-box rate on ``--steel-eval`` (the card's "before")."""
+    from insulator_rs.sim.steel_views import count_false_boxes, data_yaml_with_steel, write_image_list
+
+    start = _resolve_start(args.start_weights)
+    mined_txt: Path | None = None
+    before: dict[str, Any] | None = None
+    if start is not None and start.suffix == ".onnx":
+        detect = _steel_detect(str(start), args.threads)
+        mined = count_false_boxes(detect, args.hard_negatives, splits=("train",))
+        mined_txt = out / "hard_negatives_mined.txt"
+        n = write_image_list(args.hard_negatives, mined, mined_txt, min_score=min(mined.thresholds))
+        print(f"hard negatives: {n} of {mined.views} steel views with a false box of the start model", flush=True)
+        if args.steel_eval is not None:
+            before = {"model": str(args.start_weights),
+                      **count_false_boxes(detect, args.steel_eval).to_dict()}
+    combined = data_yaml_with_steel(data_yaml, args.hard_negatives, mined_txt, out / "data_with_steel_views.yaml",
+                                    mined_repeats=args.mined_repeats)
+    dataset = {**dataset, "steel_views": describe_yolo_dataset(args.hard_negatives / "data.yaml"),
+               "steel_views_mined": None if mined_txt is None else {
+                   "list": str(mined_txt), "views": sum(1 for _ in mined_txt.open()),
+                   "repeats": args.mined_repeats, "start_model": str(args.start_weights)},
+               "combined_yaml": str(combined)}
+    return combined, dataset, before
+
+
+def _steel_false_boxes(args: argparse.Namespace, onnx_path: Path, before: dict[str, Any] | None) -> dict[str, Any]:
+    """The new model's false boxes per view on the held-out steel views, beside the start model's."""
+    from insulator_rs.sim.steel_views import count_false_boxes
+
+    after = count_false_boxes(_steel_detect(str(onnx_path), args.threads), args.steel_eval).to_dict()
+    print(f"steel views: false boxes per view {after}", flush=True)
+    return {"folder": str(args.steel_eval), "counted_by": "sim/steel_views.py count_false_boxes, boxes at "
+            "score >= DETECT_CONF matching no visible insulator (IoU < 0.1, under half inside one)",
+            "after": after, "before": before}
 
 
 def _resolve_start(value: str | None) -> Path | None:
@@ -271,5 +330,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="learning-rate warm-up (Ultralytics default 3; short fine-tunes want less)")
     p.add_argument("--uav-augment", action="store_true", help="add blur, haze and sun flare augmentation")
     p.add_argument("--resume", type=Path, default=None, help="continue an interrupted run from its last.pt")
+    p.add_argument("--hard-negatives", type=Path, default=None,
+                   help="a folder of steel views (`dataset --steel-views`): added to the training set, and those "
+                        "where the start model draws a false box repeated (--mined-repeats)")
+    p.add_argument("--mined-repeats", type=int, default=2, help="extra copies of each mined steel view (default 2)")
+    p.add_argument("--steel-eval", type=Path, default=None,
+                   help="held-out steel views: the card reports false boxes per view before and after")
     p.add_argument("--limit-per-split", type=int, default=None, help="keep only N images per split (smoke runs)")
     p.set_defaults(func=run_train)
