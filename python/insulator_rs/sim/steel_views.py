@@ -8,7 +8,8 @@ flight renders its detection frames at 320 x 240 directly, where thin members al
 into broken, string-like streaks. So this module renders the flight's kind of frame:
 
 * :func:`write_steel_views` renders views aimed at the tower's non-insulator steel (the
-  peak and its apex, the top of the body, the cross-arms' tips and roots, the legs)
+  peak and its apex, the top of the body, the cross-arms' tips and roots, the legs, the
+  body faces' horizontal struts)
   from where the inspection path flies (5-16 m from the aimed steel, level with it to
   6 m below), at the flight's detection size, and writes them in the YOLO layout with
   every insulator that shows labelled (so a view is a negative for the steel and a
@@ -83,6 +84,13 @@ def steel_aim_points(tower: Tower) -> np.ndarray:
     for z in np.linspace(0.35, 0.95, 4) * body.height:
         half = 0.5 * (body.base_width + (body.top_width - body.base_width) * z / body.height)
         points.extend(np.array([sx * half, sy * half, z]) for sx, sy in ((1, 1), (-1, -1)))
+    # The middle of each face's horizontal strut in the upper half of the body: the member a
+    # model fine-tuned without them confirmed as a string on tower A (x = 1.65 m, 20.2 m up,
+    # along the line; session 18), parallel to the strain strings and as long.
+    levels = np.linspace(0.0, body.height, body.panels + 1)
+    for z in levels[levels >= 0.5 * body.height]:
+        half = 0.5 * (body.base_width + (body.top_width - body.base_width) * z / body.height)
+        points.extend(np.array(p) for p in ((half, 0.0, z), (-half, 0.0, z), (0.0, half, z), (0.0, -half, z)))
     return np.array(points)
 
 
