@@ -83,6 +83,6 @@ def _run_steel_views(args: argparse.Namespace) -> int:
         image_size=(args.width, args.height) if args.width is not None else FLIGHT_DETECTION_SIZE,
         seed=args.seed, progress=progress)
     counts = ", ".join(f"{k} {v}" for k, v in summary.images.items())
-    print(f"wrote {sum(summary.images.values())} steel views ({counts}), {summary.labelled_boxes} insulator boxes "
-          f"labelled, {summary.views_without_insulator} with no insulator in view; {summary.data_yaml}")
+    print(f"wrote {sum(summary.images.values())} steel views ({counts}), {summary.boxes} insulator boxes "
+          f"labelled, {summary.empty_images} with none labelled; {summary.data_yaml}")
     return 0

@@ -19,7 +19,7 @@ seeded generator.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -30,6 +30,8 @@ from insulator_rs.sim.camera_render import Lighting
 
 if TYPE_CHECKING:
     from insulator_rs._core import CameraModel
+    from insulator_rs.sim.camera_render import Camera, CameraFrame
+    from insulator_rs.sim.mesh import Mesh
     from insulator_rs.sim.towers import Tower
 
 SPLITS: tuple[str, ...] = ("train", "val", "test")
@@ -89,13 +91,17 @@ def sample_view(rng: np.random.Generator, aim_points: np.ndarray, sampling: View
     azimuth = rng.uniform(0.0, 2.0 * math.pi)
     dist = rng.uniform(*sampling.distance)
     eye = np.array([dist * math.cos(azimuth), dist * math.sin(azimuth), rng.uniform(*sampling.height)])
-    T = look_at(eye, target)
-    # Jitter the viewing direction: small rotations about the camera's x and y axes.
-    ax, ay = np.radians(rng.uniform(-sampling.aim_jitter_deg, sampling.aim_jitter_deg, 2))
+    return jitter_view(look_at(eye, target), rng, sampling.aim_jitter_deg)
+
+
+def jitter_view(T_w_c: np.ndarray, rng: np.random.Generator, jitter_deg: float) -> np.ndarray:
+    """``T_w_c`` with its viewing direction jittered: rotations of up to ``jitter_deg`` about the
+    camera's x and y axes (drawn in that order), in place; returns it."""
+    ax, ay = np.radians(rng.uniform(-jitter_deg, jitter_deg, 2))
     rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
     ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
-    T[:3, :3] = T[:3, :3] @ rx @ ry
-    return T
+    T_w_c[:3, :3] = T_w_c[:3, :3] @ rx @ ry
+    return T_w_c
 
 
 def yolo_lines(boxes: np.ndarray, width: int, height: int, class_id: int = 0) -> list[str]:
@@ -181,6 +187,22 @@ def _aim_points(tower: Tower) -> np.ndarray:
     return np.vstack([np.array([i.center for i in tower.insulators]), axis_points])
 
 
+def render_outside_geometry(camera: Camera, mesh: Mesh, draw_view: Callable[[], np.ndarray],
+                            rng: np.random.Generator, *, seed: int, min_box_pixels: int,
+                            attempts: int = 20) -> CameraFrame:
+    """Render the first view ``draw_view`` gives (a T_w_c) whose camera is not inside geometry,
+    under a lighting drawn from ``rng`` after each view; RuntimeError after ``attempts`` draws."""
+    for _attempt in range(attempts):
+        T_w_c = draw_view()
+        try:
+            return camera.render(mesh, T_w_c @ np.linalg.inv(camera.T_b_c), lighting=sample_lighting(rng),
+                                 seed=seed, min_box_pixels=min_box_pixels)
+        except ValueError as exc:  # camera inside geometry: draw another view
+            if "inside geometry" not in str(exc):
+                raise
+    raise RuntimeError(f"image {seed}: no view outside the geometry in {attempts} draws")
+
+
 def write_dataset(*, scenes: Sequence[str | Path], out: Path, n_images: int,
                   split: Sequence[float] = (0.8, 0.1, 0.1),
                   image_size: tuple[int, int] | None = None, min_visible_pixels: int = 30,
@@ -230,18 +252,8 @@ def write_dataset(*, scenes: Sequence[str | Path], out: Path, n_images: int,
         for i, sp in enumerate(labels_split):
             tower = towers[i % len(towers)]
             aim = _aim_points(tower)
-            for _attempt in range(20):
-                T_w_c = sample_view(rng, aim, sampling)
-                T_w_b = T_w_c @ np.linalg.inv(camera.T_b_c)
-                try:
-                    frame = camera.render(tower.mesh, T_w_b, lighting=sample_lighting(rng), seed=i,
-                                          min_box_pixels=min_visible_pixels)
-                    break
-                except ValueError as exc:  # camera inside geometry: draw another view
-                    if "inside geometry" not in str(exc):
-                        raise
-            else:
-                raise RuntimeError(f"image {i}: no view outside the geometry in 20 draws")
+            frame = render_outside_geometry(camera, tower.mesh, lambda: sample_view(rng, aim, sampling), rng,
+                                            seed=i, min_box_pixels=min_visible_pixels)
             name = f"{i:06d}"
             cv2.imwrite(str(out / "images" / sp / f"{name}.png"), frame.rgb[:, :, ::-1])
             boxes = np.array([frame.boxes[k] for k in sorted(frame.boxes)]).reshape(-1, 4)

@@ -32,8 +32,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from insulator_rs.sim.dataset import SPLITS, look_at, sample_lighting, scaled_camera_model, split_indices, \
-    write_data_yaml, yolo_lines
+from insulator_rs.sim.dataset import (
+    SPLITS,
+    DatasetSummary,
+    jitter_view,
+    look_at,
+    render_outside_geometry,
+    scaled_camera_model,
+    split_indices,
+    write_data_yaml,
+    yolo_lines,
+)
 
 if TYPE_CHECKING:
     from insulator_rs.sim.towers import Tower
@@ -69,6 +78,10 @@ def steel_aim_points(tower: Tower) -> np.ndarray:
     down its members), the body's top corners, each cross-arm's tips and roots, the legs at
     a few heights."""
     body = tower.spec.body
+
+    def half_width(z: float) -> float:  # the body's half-width at height z (it tapers linearly)
+        return 0.5 * (body.base_width + (body.top_width - body.base_width) * z / body.height)
+
     points: list[np.ndarray] = []
     top_half = 0.5 * body.top_width
     corners_top = [np.array([sx * top_half, sy * top_half, body.height]) for sx in (1, -1) for sy in (1, -1)]
@@ -82,14 +95,14 @@ def steel_aim_points(tower: Tower) -> np.ndarray:
             points.append(np.array([sx * arm.reach, 0.0, arm.height]))
             points.append(np.array([sx * 0.5 * (arm.reach + top_half), 0.0, arm.height + 0.5 * arm.depth]))
     for z in np.linspace(0.35, 0.95, 4) * body.height:
-        half = 0.5 * (body.base_width + (body.top_width - body.base_width) * z / body.height)
+        half = half_width(z)
         points.extend(np.array([sx * half, sy * half, z]) for sx, sy in ((1, 1), (-1, -1)))
     # The middle of each face's horizontal strut in the upper half of the body: the member a
     # model fine-tuned without them confirmed as a string on tower A (x = 1.65 m, 20.2 m up,
     # along the line; session 18), parallel to the strain strings and as long.
     levels = np.linspace(0.0, body.height, body.panels + 1)
     for z in levels[levels >= 0.5 * body.height]:
-        half = 0.5 * (body.base_width + (body.top_width - body.base_width) * z / body.height)
+        half = half_width(z)
         points.extend(np.array(p) for p in ((half, 0.0, z), (-half, 0.0, z), (0.0, half, z), (0.0, -half, z)))
     return np.array(points)
 
@@ -101,29 +114,14 @@ def sample_steel_view(rng: np.random.Generator, aim_points: np.ndarray, sampling
     dist = rng.uniform(*sampling.distance)
     height = max(sampling.min_height, float(target[2] - rng.uniform(*sampling.below)))
     eye = np.array([target[0] + dist * math.cos(azimuth), target[1] + dist * math.sin(azimuth), height])
-    T = look_at(eye, target)
-    ax, ay = np.radians(rng.uniform(-sampling.aim_jitter_deg, sampling.aim_jitter_deg, 2))
-    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
-    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
-    T[:3, :3] = T[:3, :3] @ rx @ ry
-    return T
-
-
-@dataclass(frozen=True)
-class SteelViewsSummary:
-    """What :func:`write_steel_views` wrote."""
-
-    images: dict[str, int]
-    labelled_boxes: int
-    views_without_insulator: int
-    data_yaml: Path
+    return jitter_view(look_at(eye, target), rng, sampling.aim_jitter_deg)
 
 
 def write_steel_views(*, scenes: Sequence[str | Path], out: Path, n_images: int,
                       split: Sequence[float] = (1.0, 0.0, 0.0),
                       image_size: tuple[int, int] = FLIGHT_DETECTION_SIZE,
                       sampling: SteelViewSampling = SteelViewSampling(), seed: int = 0,
-                      progress: Callable[[int, int], None] | None = None) -> SteelViewsSummary:
+                      progress: Callable[[int, int], None] | None = None) -> DatasetSummary:
     """Render ``n_images`` steel views (scenes in turn) into ``out`` in the YOLO layout, with
     ``truth.json`` (per image: every visible insulator's box and pixel count) and ``views.csv``.
 
@@ -160,17 +158,8 @@ def write_steel_views(*, scenes: Sequence[str | Path], out: Path, n_images: int,
         for i, sp in enumerate(splits):
             tower = towers[i % len(towers)]
             aim = steel_aim_points(tower)
-            for _attempt in range(20):
-                T_w_c = sample_steel_view(rng, aim, sampling)
-                try:
-                    frame = camera.render(tower.mesh, T_w_c @ np.linalg.inv(camera.T_b_c),
-                                          lighting=sample_lighting(rng), seed=i, min_box_pixels=1)
-                    break
-                except ValueError as exc:  # camera inside geometry: draw another view
-                    if "inside geometry" not in str(exc):
-                        raise
-            else:
-                raise RuntimeError(f"image {i}: no view outside the geometry in 20 draws")
+            frame = render_outside_geometry(camera, tower.mesh, lambda: sample_steel_view(rng, aim, sampling), rng,
+                                            seed=i, min_box_pixels=1)  # every visible insulator, for matching
             name = f"{i:06d}"
             rel = f"images/{sp}/{name}.png"
             cv2.imwrite(str(out / rel), frame.rgb[:, :, ::-1])
@@ -183,12 +172,11 @@ def write_steel_views(*, scenes: Sequence[str | Path], out: Path, n_images: int,
             views.writerow([name, sp, tower.spec.name, len(lines)] + frame.T_w_c.reshape(-1).tolist())
             counts[sp] += 1
             n_boxes += len(lines)
-            n_empty += int(len(keys) == 0)
+            n_empty += int(len(lines) == 0)
             if progress is not None:
                 progress(i + 1, n_images)
     (out / "truth.json").write_text(json.dumps(truth))
-    return SteelViewsSummary(images=counts, labelled_boxes=n_boxes, views_without_insulator=n_empty,
-                             data_yaml=write_data_yaml(out))
+    return DatasetSummary(images=counts, boxes=n_boxes, empty_images=n_empty, data_yaml=write_data_yaml(out))
 
 
 def is_false_box(box: np.ndarray, truth_boxes: np.ndarray) -> bool:
