@@ -5,6 +5,7 @@ instance image) and Ultralytics' own dataset loader."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,9 +110,9 @@ def test_false_boxes_are_counted_against_the_truth(steel, tmp_path):
     """A detector that returns the truth boxes has no false box; one that adds a box in a corner
     no insulator covers has exactly one per view, at its score; the mined list names those views."""
     truth = json.loads((steel / "truth.json").read_text())
-    by_shape: dict[bytes, str] = {}
     import cv2
 
+    by_shape: dict[bytes, str] = {}
     for rel in truth:
         by_shape[cv2.imread(str(steel / rel)).tobytes()] = rel
 
@@ -133,7 +134,7 @@ def test_false_boxes_are_counted_against_the_truth(steel, tmp_path):
     assert dirty.false_boxes[0.5] == 0 and 1 <= dirty.false_boxes[0.25] == dirty.views_with_false_box[0.25] <= 8
     listed = tmp_path / "mined.txt"
     assert write_image_list(steel, dirty, listed, min_score=0.25) == dirty.views_with_false_box[0.25]
-    assert all(line.endswith(".png") and (steel / "images") in __import__("pathlib").Path(line).parents
+    assert all(line.endswith(".png") and (steel / "images") in Path(line).parents
                for line in listed.read_text().splitlines())
     assert write_image_list(steel, dirty, listed, min_score=0.5) == 0
     with pytest.raises(ValueError, match="truth.json"):
