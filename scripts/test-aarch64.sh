@@ -188,7 +188,7 @@ for f in tests/test_detection_*.py; do
 done
 step "pytest under qemu-aarch64: ${#tests[@]} files"
 set +e
-in_root sh -c "cd /src/repo && /opt/venv/bin/python -m pytest -q -p no:cacheprovider -o addopts='-ra --benchmark-disable' \
+in_root sh -c "cd /src/repo && /opt/venv/bin/python -m pytest -q -p no:cacheprovider -o addopts='-ra --benchmark-disable' --durations=25 \
   ${tests[*]}" 2>&1 | tee "$CACHE/pytest.log" | tail -40
 rc=${PIPESTATUS[0]}
 set -e

@@ -37,9 +37,10 @@ LIVE_TIMEOUT = 900.0  # s of wall time for the whole flight
 DISARM_WAIT = 20.0  # s of wall time to wait for PX4's own disarm after the landing (COM_DISARM_LAND 2 s)
 
 
-def live_rig(folder: Path) -> Path:
-    """A rig file: the simulator rig's extrinsics, its camera scaled to ``LIVE_SCALE``, and the
-    sensor head camera's fixed latency as its calibration states it (``latency_s``)."""
+def live_rig(folder: Path, lidar_latency_s: float = 0.0) -> Path:
+    """A rig file: the simulator rig's extrinsics, its camera scaled to ``LIVE_SCALE``, the
+    sensor head camera's fixed latency as its calibration states it (``latency_s``), and the
+    head's LiDAR latency (``--lidar-latency``) where it holds its packets to one."""
     from insulator_rs.rig import scaled_camera, simulator_rig
     from insulator_rs.sim.sensor_head import CAMERA_LATENCY_S
 
@@ -54,7 +55,8 @@ def live_rig(folder: Path) -> Path:
     matrix = lambda T: "[" + ", ".join(str([float(v) for v in row]) for row in T) + "]"  # noqa: E731
     path = folder / "live_rig.toml"
     path.write_text(f'[camera]\ncalibration = "live_camera.yaml"\nT_b_c = {matrix(rig.T_b_c)}\n'
-                    f"latency_s = {CAMERA_LATENCY_S}\n\n[lidar]\nT_b_l = {matrix(rig.T_b_l)}\n")
+                    f"latency_s = {CAMERA_LATENCY_S}\n\n[lidar]\nT_b_l = {matrix(rig.T_b_l)}\n"
+                    + (f"latency_s = {lidar_latency_s}\n" if lidar_latency_s else ""))
     return path
 
 
@@ -136,16 +138,18 @@ def _stalls(summary: dict[str, Any]) -> str:
 
 def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: list[str] = (),
              head_args: list[str] = (), confirmations: int | None = None,
-             inspection_extra: str = "") -> LiveFlight:
+             inspection_extra: str = "", lidar_latency_s: float = 0.0) -> LiveFlight:
     """Fly ``mission`` over ``scene`` against ``px4`` with the live drivers (module docstring);
     ``confirmations`` replaces the mission's (None: its own, the default 4); ``inspection_extra``:
-    TOML lines appended to the mission's ``[inspection]`` (its last table), for an experiment."""
+    TOML lines appended to the mission's ``[inspection]`` (its last table), for an experiment;
+    ``lidar_latency_s``: the head holds each LiDAR packet to this delay after its samples
+    (``--lidar-latency``) and the rig states it (0: sent as soon as rendered)."""
     import insulator_rs
     from insulator_rs.evaluation.scoring import MATCH_DISTANCE
     from insulator_rs.sim.towers import load_tower
 
     folder.mkdir(parents=True, exist_ok=True)
-    live_rig(folder)
+    live_rig(folder, lidar_latency_s)
     text = mission.read_text()
     assert 'rig = "simulator"' in text, mission
     live_mission = folder / "live_mission.toml"
@@ -158,7 +162,7 @@ def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: l
     port = free_udp_port()
     head = subprocess.Popen([*HARDWARE_PRIORITY, sys.executable, "-m", "insulator_rs.sim.sensor_head", "--scene", str(scene),
                              "--mission", str(live_mission), "--px4", f"udpout:127.0.0.1:{18570 + px4.instance}",
-                             "--lidar-to", f"127.0.0.1:{port}", *head_args],
+                             "--lidar-to", f"127.0.0.1:{port}", "--lidar-latency", str(lidar_latency_s), *head_args],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     out = folder / "report"
     stdout = stderr = ""
@@ -205,6 +209,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tower-b", type=int, default=3, help="tower B flights")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--head", default="", help="sensor head arguments, one string (e.g. '--log head.jsonl')")
+    p.add_argument("--head-log", action="store_true",
+                   help="the sensor head's timing log (head.jsonl: each LiDAR send, camera image, clock sample) in each flight's folder")
+    p.add_argument("--lidar-latency", type=float, default=0.0,
+                   help="s: the head sends each LiDAR packet this long after its samples, the rig says so (0: as rendered)")
     p.add_argument("--record", action="store_true",
                    help="record each flight (flight.mcap in its folder: a miss can then be replayed)")
     p.add_argument("--inspection", default="",
@@ -227,8 +235,9 @@ def main(argv: list[str] | None = None) -> int:
             mission = REPO / "python" / "insulator_rs" / "missions" / "tower_b.toml"
         with Px4Sitl(folder, workdir=work / "px4") as px4:
             extra = [*args.extra, *(["--record", str(work / "flight.mcap")] if args.record else [])]
-            result = fly_live(px4, work, Path(scene), mission, extra=extra, head_args=shlex.split(args.head),
-                              inspection_extra=args.inspection)
+            head_args = [*shlex.split(args.head), *(["--log", str(work / "head.jsonl")] if args.head_log else [])]
+            result = fly_live(px4, work, Path(scene), mission, extra=extra, head_args=head_args,
+                              inspection_extra=args.inspection, lidar_latency_s=args.lidar_latency)
         ok = (result.returncode == 0 and result.status == "finished" and max(result.errors) < 0.30
               and result.false_finds == 0 and not result.failsafe)
         print(f"{kind} {i}: {'PASS' if ok else 'FAIL'} {result.line()}", flush=True)

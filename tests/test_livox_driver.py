@@ -193,6 +193,47 @@ def test_clock_is_estimated_from_arrivals_when_no_map_is_given() -> None:
     assert abs(driver.health()["clock_drift_ppm"] + 30.0) < 50.0
 
 
+@pytest.mark.parametrize("stated", [True, False])
+def test_a_stated_latency_is_taken_off_the_arrival_map(stated: bool) -> None:
+    """Packets that arrive 60 ms after their last sample, every one (a sensor holding them to a
+    fixed delay: the SITL sensor head's ``--lidar-latency``). The clock fit maps stamps onto
+    the earliest arrivals, so the points come out 60 ms late unless the rig states the delay
+    (``[lidar] latency_s``); stated, they are within 2 ms of the truth again. The drift is the
+    clock's either way (the delay is constant)."""
+    latency = 0.060
+    sim = frames(3)
+    emitter = LivoxEmitter(clock=CLOCK)
+    emitter.start_at(sim[0].t_start)
+    first_shot = emitter._next_packet * DOTS_PER_PACKET / 200_000.0
+    driver = LivoxMid360(now=lambda: 0.0, T_b_l=np.eye(4), host_ip="127.0.0.1", point_port=0, imu_port=None,
+                         keep_scans=100, latency_s=latency if stated else 0.0)
+    try:
+        for f in sim:
+            for d in emitter.add_frame(f):
+                ts, = struct.unpack_from("<Q", d, 28)
+                driver._on_datagram(d, float(CLOCK.to_vehicle(ts * 1e-9 + DOTS_PER_PACKET / 200_000.0)) + latency)
+        driver.flush()
+        scans = list(driver._scans)
+    finally:
+        driver.close()
+    times = np.concatenate([s.times for s in scans])
+    truth = np.concatenate([f.timestamps for f in sim])
+    truth = truth[truth >= first_shot - 1e-9][: len(times)]
+    error = np.abs(times - truth)
+    if stated:
+        assert np.max(error) < 2e-3
+    else:
+        assert np.min(error) > latency - 2e-3
+    assert abs(driver.health()["clock_drift_ppm"] + 30.0) < 50.0
+
+
+@pytest.mark.parametrize("bad", [-0.001, float("nan"), float("inf")])
+def test_a_bad_latency_is_refused_by_name(bad: float) -> None:
+    with pytest.raises(ValueError, match="latency_s"):
+        LivoxMid360(now=lambda: 0.0, T_b_l=np.eye(4), host_ip="127.0.0.1", point_port=0, imu_port=None,
+                    latency_s=bad)
+
+
 def test_imu_packets_reach_the_reader_in_vehicle_time() -> None:
     rig = Rig(time_map=CLOCK.to_vehicle)
     try:

@@ -127,6 +127,22 @@ def test_the_camera_latency_is_read_and_bounded(tmp_path):
                 load_rig(tmp_path / "rig.toml")
 
 
+def test_the_lidar_latency_is_read_and_bounded(tmp_path):
+    """``[lidar] latency_s``: 0 when left out (a Mid-360 on Ethernet), a delay in [0, 0.5] s,
+    else refused by name."""
+    write_opencv_calibration(tmp_path / "cam.yaml")
+    assert load_rig(write_rig(tmp_path)).lidar_latency_s == 0.0
+    assert simulator_rig().lidar_latency_s == 0.0
+    text = (tmp_path / "rig.toml").read_text()
+    for value, ok in (("0.06", 0.06), ("0", 0.0), ("-0.01", None), ("0.6", None), ("true", None), ('"60 ms"', None)):
+        (tmp_path / "rig.toml").write_text(text.replace("[lidar]\n", f"[lidar]\nlatency_s = {value}\n"))
+        if ok is not None:
+            assert load_rig(tmp_path / "rig.toml").lidar_latency_s == ok
+        else:
+            with pytest.raises(ConfigError, match=r"rig.toml: lidar.latency_s: expected a number in \[0, 0.5\] s"):
+                load_rig(tmp_path / "rig.toml")
+
+
 def test_a_missing_rig_file_and_a_bad_value_are_named(tmp_path):
     text = (MISSIONS / "tower_a.toml").read_text()
     (tmp_path / "m1.toml").write_text(text.replace('rig = "simulator"', 'rig = "nowhere.toml"'))

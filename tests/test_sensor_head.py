@@ -14,7 +14,7 @@ import pytest
 
 from insulator_rs.exceptions import InsulatorError
 from insulator_rs.mavlink.frames import attitude_ned_frd_to_enu_flu
-from insulator_rs.sim.sensor_head import Px4PoseFeed, _body_rotation
+from insulator_rs.sim.sensor_head import LatencyQueue, Px4PoseFeed, _body_rotation
 
 
 def feed(samples: int = 100) -> Px4PoseFeed:
@@ -48,3 +48,22 @@ def test_full_attitude_is_the_mavlink_boundary_conversion(roll: float, pitch: fl
     assert np.allclose(R, attitude_ned_frd_to_enu_flu(roll, pitch, math.pi / 2 - yaw_enu), atol=1e-12)
     if roll == pitch == 0.0:  # level: the heading alone
         assert math.isclose(math.atan2(R[1, 0], R[0, 0]), yaw_enu, abs_tol=1e-12) and math.isclose(R[2, 2], 1.0)
+
+
+def test_the_latency_queue_releases_each_chunk_at_its_arrival_plus_the_latency() -> None:
+    """Reference: arrival + latency, by hand. Chunks rendered together leave one by one at their
+    own times; none early, the oldest first."""
+    q = LatencyQueue(0.05)
+    q.add([(1.000, [b"a"]), (1.008, [b"b"]), (1.016, [b"c"])])
+    assert q.due(1.049) == [] and math.isclose(q.next_due() or 0.0, 1.05)
+    assert [c for _, c in q.due(1.050)] == [[b"a"]]
+    assert [c for _, c in q.due(1.070)] == [[b"b"], [b"c"]] and q.next_due() is None and len(q) == 0
+    zero = LatencyQueue(0.0)  # the default: as soon as rendered
+    zero.add([(2.0, [b"d"])])
+    assert [c for _, c in zero.due(2.0)] == [[b"d"]]
+
+
+@pytest.mark.parametrize("bad", [-0.01, 0.6, float("nan")])
+def test_a_bad_latency_is_refused(bad: float) -> None:
+    with pytest.raises(ValueError, match="latency_s"):
+        LatencyQueue(bad)

@@ -30,6 +30,11 @@ shipped rig such as ``"simulator"``). The form (see ``rigs/simulator.toml``)::
     T_b_l = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_l @ p_l
     fov_deg = [-7.0, 52.0]        # optional: the LiDAR's vertical field of view in its own frame
                                   # (degrees, down, up); the Livox Mid-360's when left out
+    latency_s = 0.0               # optional: how long after its last sample a packet reaches us at
+                                  # the least (s, in [0, 0.5]); the driver's clock fit maps stamps
+                                  # to the earliest arrivals, so this is subtracted. A Mid-360 on
+                                  # Ethernet: 0 (under a millisecond); a sensor that sends late at
+                                  # a fixed delay (a gateway, our SITL sensor head) states it
 
 The simulator's own defaults (its camera lens, where its camera and Mid-360 sit) come
 from the shipped ``simulator`` rig, so the simulated sensors and the perception that reads
@@ -71,6 +76,8 @@ ZOOM_CALIBRATION_TOLERANCE = 0.05
 FORWARD_T_B_C = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 #: The camera latency a rig may state (s, either sign): beyond half a second a stamp is not late, it is wrong.
 MAX_CAMERA_LATENCY_S = 0.5
+#: The LiDAR latency a rig may state (s, packet arrival minus its last sample; not negative).
+MAX_LIDAR_LATENCY_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -96,7 +103,10 @@ class SensorRig:
     float64 rigid transforms), ``source`` (the file it came from), ``lens`` (make, model, pixel
     pitch of the camera, where the rig gives them), ``camera_latency_s`` (``[camera] latency_s``:
     the frame stamp minus its exposure time, s; 0 where the rig does not say), which the live
-    camera subtracts from the arrival of a frame whose exposure time it does not know."""
+    camera subtracts from the arrival of a frame whose exposure time it does not know;
+    ``lidar_latency_s`` (``[lidar] latency_s``: the least delay from a LiDAR packet's last sample
+    to its arrival, s; 0 where the rig does not say), which the live LiDAR driver subtracts from
+    its map of the sensor's clock onto the host's."""
 
     source: str
     camera: CameraModel
@@ -106,6 +116,7 @@ class SensorRig:
     camera_latency_s: float = 0.0
     lidar_fov_deg: tuple[float, float] = MID360_VERTICAL_FOV_DEG
     inspection: InspectionCamera | None = None
+    lidar_latency_s: float = 0.0
 
     def inspection_camera(self) -> InspectionCamera:
         """The camera that takes the inspection photos: the rig's ``[inspection_camera]``, or,
@@ -200,7 +211,7 @@ def load_rig(path: str | Path) -> SensorRig:
     if extra:
         raise ConfigError(f"{source}: {extra[0]}: unknown field (allowed: camera, inspection_camera, lidar)")
     cam_t = _table(source, data, "camera", {"calibration", "T_b_c", "make", "model", "pixel_pitch_um", "latency_s"})
-    lidar_t = _table(source, data, "lidar", {"T_b_l", "fov_deg"})
+    lidar_t = _table(source, data, "lidar", {"T_b_l", "fov_deg", "latency_s"})
     cal = _calibration(source, p, cam_t, "camera")
     T_b_l = _matrix(source, lidar_t, "lidar", "T_b_l")
     if "T_b_c" in cam_t or cal.T_c_l is None:
@@ -211,7 +222,7 @@ def load_rig(path: str | Path) -> SensorRig:
     if "inspection_camera" in data:
         inspection = _inspection_camera(source, p, _table(source, data, "inspection_camera", INSPECTION_FIELDS))
     return SensorRig(source, cal.camera, T_b_c, T_b_l, _lens(source, cam_t), _latency(source, cam_t),
-                     _lidar_fov(source, lidar_t), inspection)
+                     _lidar_fov(source, lidar_t), inspection, _lidar_latency(source, lidar_t))
 
 
 def _calibration(source: str, p: Path, table: dict[str, Any], prefix: str) -> Any:
@@ -306,6 +317,15 @@ def _latency(source: str, cam_t: dict[str, Any]) -> float:
     return float(value)
 
 
+def _lidar_latency(source: str, lidar_t: dict[str, Any]) -> float:
+    """``[lidar] latency_s``: a number in [0, MAX_LIDAR_LATENCY_S] s, 0 when left out."""
+    value = lidar_t.get("latency_s", 0.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= float(value) <= MAX_LIDAR_LATENCY_S:
+        raise ConfigError(f"{source}: lidar.latency_s: expected a number in [0, {MAX_LIDAR_LATENCY_S:g}] s "
+                          f"(a packet's arrival minus its last sample, at the least), got {value!r}")
+    return float(value)
+
+
 def _lens(source: str, cam_t: dict[str, Any], prefix: str = "camera") -> CameraLens:
     """``[camera] make``, ``model`` (printable ASCII, 1-32 characters: EXIF and MAVLink's
     CAMERA_INFORMATION hold 32 bytes) and ``pixel_pitch_um`` (0.5-50 um: phone to machine-vision
@@ -334,7 +354,7 @@ def simulator_rig() -> SensorRig:
     rig = _simulator_rig()
     inspection = None if rig.inspection is None else replace(rig.inspection, T_b_c=rig.inspection.T_b_c.copy())
     return SensorRig(rig.source, rig.camera, rig.T_b_c.copy(), rig.T_b_l.copy(), rig.lens, rig.camera_latency_s,
-                     rig.lidar_fov_deg, inspection)
+                     rig.lidar_fov_deg, inspection, rig.lidar_latency_s)
 
 
 def scaled_camera(model: CameraModel, scale: float) -> CameraModel:

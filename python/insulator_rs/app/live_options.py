@@ -86,13 +86,14 @@ class _ClockedSensors(LiveSensors):
 def open_from_arguments(args: argparse.Namespace, vehicle: Any, rig: Any) -> LiveSensors:
     """Starts the vehicle clock (the vehicle's TIMESYNC map, ``vehicle.state().time`` stamps as
     the fallback), the Mid-360 and the camera of ``args`` with the extrinsics, calibration and
-    camera latency of ``rig``; SensorError names what failed."""
+    camera and LiDAR latencies of ``rig``; SensorError names what failed."""
     clock = VehicleClock(getattr(vehicle, "timesync", None), TelemetryClock(lambda: vehicle.state().time)).start()
     try:
         # the LiDAR on the host's clock (a crystal, as its own), mapped to the vehicle's after
         sensors = open_live_sensors(args.lidar, args.camera, now=clock.now, T_b_l=rig.T_b_l, T_b_c=rig.T_b_c,
                                     camera_model=rig.camera, camera_latency_s=rig.camera_latency_s,
-                                    host_clock=clock.host_now, host_to_vehicle=clock.to_vehicle)
+                                    lidar_latency_s=rig.lidar_latency_s, host_clock=clock.host_now,
+                                    host_to_vehicle=clock.to_vehicle)
     except BaseException:
         clock.close()
         raise

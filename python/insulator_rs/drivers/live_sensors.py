@@ -125,7 +125,7 @@ def local_address_towards(host: str, port: int = 56100) -> str:
 def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[], float],
                       T_b_l: np.ndarray, T_b_c: np.ndarray, camera_model: CameraModel | None,
                       time_map: TimeMap | None = None, camera_latency_s: float = 0.0,
-                      host_clock: Callable[[], float] | None = None,
+                      lidar_latency_s: float = 0.0, host_clock: Callable[[], float] | None = None,
                       host_to_vehicle: TimeMap | None = None) -> LiveSensors:
     """Opens and starts the live drivers named on the command line.
 
@@ -134,7 +134,8 @@ def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[]
     ``camera``: a V4L2 index, a GStreamer pipeline (``gst:PIPELINE``, or any string with ``!``),
     a URL or a video file (see :mod:`insulator_rs.drivers.camera_select`); needs
     ``camera_model``. ``now``: the vehicle clock. ``camera_latency_s``: the rig's measured
-    camera latency, subtracted where a frame's exposure time is not known. ``host_clock``
+    camera latency, subtracted where a frame's exposure time is not known. ``lidar_latency_s``:
+    the rig's ``[lidar] latency_s`` (a packet's least delay after its last sample). ``host_clock``
     with ``host_to_vehicle``: the LiDAR's arrivals are stamped on the host's clock (a clock at
     real time, ``time.monotonic``'s or offset from it) as they arrive, and mapped to the vehicle
     clock afterwards (see :mod:`insulator_rs.drivers.livox`).
@@ -155,7 +156,7 @@ def open_live_sensors(lidar: str | None, camera: str | None, *, now: Callable[[]
                 announce_ip=None if listen_only else local_address_towards(host),
                 time_map=time_map, keep_scans=LIDAR_KEEP_SCANS,
                 # the host's clock runs at real time: each datagram keeps its arrival instant
-                arrival_stamps=host_clock is not None,
+                arrival_stamps=host_clock is not None, latency_s=lidar_latency_s,
             ).start()
         if camera is not None:
             if camera_model is None:

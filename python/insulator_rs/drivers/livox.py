@@ -47,6 +47,7 @@ waits for both acks; :meth:`close` sends "work mode = idle".
 
 from __future__ import annotations
 
+import math
 import select
 import socket
 import threading
@@ -155,7 +156,9 @@ class LivoxMid360:
     control commands (None: only listen). ``time_map``: sensor s -> vehicle s, replacing
     the arrival-based estimate. ``arrival_stamps``: stamp datagrams when they arrive (the
     reader threads' stamps; ``now`` must run at real time, as the host clock does) rather
-    than when they are processed (module docstring).
+    than when they are processed (module docstring). ``latency_s``: the least delay from a
+    packet's last sample to its arrival (the rig's ``[lidar] latency_s``): the clock fit maps a
+    stamp to the earliest arrivals, so this much is taken off (0: a Mid-360 on Ethernet).
     """
 
     def __init__(self, *, now: Callable[[], float], T_b_l: np.ndarray, host_ip: str = "0.0.0.0",
@@ -164,12 +167,15 @@ class LivoxMid360:
                  announce_ip: str | None = None,
                  time_map: TimeMap | None = None, to_vehicle: TimeMap | None = None, keep_scans: int = 4, frame_period_s: float = 0.1,
                  reorder_grace_s: float = 0.005, resync_gap_s: float = 1.0, command_timeout: float = 1.0,
-                 arrival_stamps: bool = False) -> None:
+                 arrival_stamps: bool = False, latency_s: float = 0.0) -> None:
         T = np.asarray(T_b_l, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"T_b_l: expected a finite 4x4 matrix, got shape {T.shape}")
         if keep_scans < 1:
             raise ValueError(f"keep_scans: must be >= 1, got {keep_scans}")
+        if not (math.isfinite(latency_s) and latency_s >= 0.0):
+            raise ValueError(f"latency_s: must be a finite number >= 0, got {latency_s}")
+        self.latency_s = float(latency_s)
         self.T_b_l = T
         self._now = now
         self.arrival_stamps = bool(arrival_stamps)
@@ -368,7 +374,7 @@ class LivoxMid360:
             return np.asarray(self._time_map(sensor_s), np.float64)
         if not self.clock.ready():
             return None
-        arrival = self.clock.to_target(sensor_s)
+        arrival = self.clock.to_target(sensor_s) - self.latency_s
         if self._to_vehicle is None:
             return arrival
         try:

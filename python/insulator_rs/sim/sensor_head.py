@@ -69,6 +69,9 @@ HISTORY = 500
 LIDAR_CATCH_UP_S = 8.0
 #: LiDAR shots are rendered in slices of 1/this s, each once it is over.
 LIDAR_SLICE_RATE = 50.0
+#: s: with ``--lidar-latency``, a latency this long at the most (the rig's ``[lidar] latency_s``
+#: allows half a second).
+MAX_LIDAR_LATENCY_S = 0.5
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_LOCAL_POSITION_NED, MSG_ATTITUDE, MSG_HOME_POSITION = 32, 30, 242
@@ -316,12 +319,50 @@ class MjpegServer:
         self.httpd.server_close()
 
 
+class LatencyQueue:
+    """Chunks of datagrams held until ``latency_s`` past their arrival time (vehicle clock, the
+    chunk's last sample + the stream's own latency), as a sensor whose packets leave at a fixed
+    delay after their samples sends them.
+
+    Why: the head can render a slice of shots only once PX4 has reported the poses of its
+    instants, so its packets cannot leave as a real Mid-360's do, within a millisecond of the
+    samples. Sent as soon as rendered, they left a render time late, and that time follows the
+    load (the LiDAR driver's clock fit reads the least delay of each quarter second as its floor,
+    so a floor that moves by 20 ms in a 150 s flight reads as 130 ppm of drift). Held to a fixed
+    delay longer than a render, they leave on time whatever the render took, and the rig states
+    the delay (``[lidar] latency_s``) for the driver to take off."""
+
+    def __init__(self, latency_s: float) -> None:
+        if not (math.isfinite(latency_s) and 0.0 <= latency_s <= MAX_LIDAR_LATENCY_S):
+            raise ValueError(f"latency_s: must be in [0, {MAX_LIDAR_LATENCY_S:g}] s, got {latency_s}")
+        self.latency_s = float(latency_s)
+        self._chunks: deque[tuple[float, list[bytes]]] = deque()
+
+    def add(self, chunks: list[tuple[float, list[bytes]]]) -> None:
+        """Queues ``(arrival, datagrams)`` chunks, in arrival order (as the stream hands them)."""
+        self._chunks.extend(chunks)
+
+    def due(self, now: float) -> list[tuple[float, list[bytes]]]:
+        """The chunks whose time to leave (arrival + latency) has come by ``now``, oldest first."""
+        out = []
+        while self._chunks and self._chunks[0][0] + self.latency_s <= now:
+            out.append(self._chunks.popleft())
+        return out
+
+    def next_due(self) -> float | None:
+        """When the oldest queued chunk is to leave (vehicle clock); None when none waits."""
+        return self._chunks[0][0] + self.latency_s if self._chunks else None
+
+    def __len__(self) -> int:
+        return len(self._chunks)
+
+
 class SensorHead:
     """The LiDAR and camera threads over one pose feed and clock (see the module docstring)."""
 
     def __init__(self, mesh: Any, rig: Any, feed: Px4PoseFeed, *, lidar_to: tuple[str, int],
                  camera_port: int = 0, fps: float = 3.0, sensor_clock: SensorClock | None = None,
-                 seed: int = 0, log: Any = None) -> None:
+                 seed: int = 0, log: Any = None, lidar_latency_s: float = 0.0) -> None:
         from insulator_rs.sim.camera_render import Camera
 
         self.feed = feed
@@ -339,6 +380,8 @@ class SensorHead:
         # cannot keep up falls behind by a bounded span, not for ever)
         self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
                                   slice_rate=LIDAR_SLICE_RATE, ahead=False, silence_s=LIDAR_CATCH_UP_S)
+        # each chunk leaves lidar_latency_s after its arrival time (0: as soon as rendered)
+        self.lidar_queue = LatencyQueue(lidar_latency_s)
         self.camera = Camera(rig.camera, rig.T_b_c)
         self.mesh = mesh
         self.lidar_to = lidar_to
@@ -388,13 +431,19 @@ class SensorHead:
                 next_clock_log = time.monotonic() + 0.2
                 self._log(kind="clock", host=time.monotonic(), px4=self.feed.newest_time(), estimate=now)
             try:
-                for arrival, chunk in self.stream.due(now):
+                self.lidar_queue.add(self.stream.due(now))  # renders the slices that have ended
+                sent = self._now()  # after the render: what leaves now leaves this late
+                for arrival, chunk in self.lidar_queue.due(sent if sent is not None else now):
                     self.datagrams += send(chunk, self._sock, self.lidar_to)
-                    self.lidar_late_s.append(now - arrival)
-                    self._log(kind="lidar", arrival=arrival, sent=now)
+                    late = (sent if sent is not None else now) - arrival - self.lidar_queue.latency_s
+                    self.lidar_late_s.append(late)
+                    self._log(kind="lidar", arrival=arrival, sent=sent, host=time.monotonic())
             except (OSError, ValueError, InsulatorError) as exc:
                 self._error(f"lidar: {exc}")
-            time.sleep(0.002)
+            wait = 0.002
+            if (next_due := self.lidar_queue.next_due()) is not None and (now := self._now()) is not None:
+                wait = min(wait, max(0.0, next_due - now))
+            time.sleep(wait)
 
     def _camera(self) -> None:
         # An image is exposed at PX4's newest pose and published CAMERA_LATENCY_S later, as a real
@@ -473,6 +522,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=3.0, help="camera frames per second")
     parser.add_argument("--clock-offset", type=float, default=1234.5, help="LiDAR clock offset (s)")
     parser.add_argument("--clock-drift-ppm", type=float, default=25.0, help="LiDAR clock drift (ppm)")
+    parser.add_argument("--lidar-latency", type=float, default=0.0,
+                        help="s: each LiDAR packet leaves this long after its last sample (0: as soon as "
+                             "rendered, a render time late); the client's rig states it as [lidar] latency_s")
     parser.add_argument("--log", type=Path, default=None, help="timing log (JSON lines) of every image and send")
     parser.add_argument("--ready-timeout", type=float, default=60.0, help="s to wait for PX4's pose")
     args = parser.parse_args(argv)
@@ -481,6 +533,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--lidar-to: expected HOST:PORT, got {args.lidar_to!r}")
     if not (math.isfinite(args.fps) and 0 < args.fps <= 30):
         parser.error(f"--fps: must be in (0, 30], got {args.fps}")
+    if not (math.isfinite(args.lidar_latency) and 0.0 <= args.lidar_latency <= MAX_LIDAR_LATENCY_S):
+        parser.error(f"--lidar-latency: must be in [0, {MAX_LIDAR_LATENCY_S:g}] s, got {args.lidar_latency}")
     tower = load_tower(args.scene)
     mission = load_mission(args.mission)
     rig = mission.rig if mission.rig is not None else simulator_rig()
@@ -498,7 +552,8 @@ def main(argv: list[str] | None = None) -> int:
     log = args.log.open("w") if args.log is not None else None
     head = SensorHead(tower.mesh, rig, feed, lidar_to=(host, int(port)), camera_port=args.camera_port,
                       fps=args.fps, sensor_clock=SensorClock(offset_s=args.clock_offset,
-                                                             drift=args.clock_drift_ppm * 1e-6), log=log).start()
+                                                             drift=args.clock_drift_ppm * 1e-6), log=log,
+                      lidar_latency_s=args.lidar_latency).start()
     print(f"sensor head ready: lidar -> {host}:{port}, camera {head.server.url}", flush=True)
     try:
         while not stop.wait(0.5):
