@@ -56,6 +56,8 @@ fi
 mkdir -p "$CACHE/bin"
 ln -sf /usr/bin/cargo "$CACHE/bin/cargo"
 ln -sf /usr/bin/rustc "$CACHE/bin/rustc"
+# and its rustdoc: the doctests are built for aarch64 too (rustup's rustdoc has no aarch64 std)
+ln -sf /usr/bin/rustdoc "$CACHE/bin/rustdoc"
 if [ ! -x "$CACHE/tools/bin/maturin" ]; then
   python3 -m venv "$CACHE/tools"
   "$CACHE/tools/bin/python" -m pip install -q --upgrade pip
