@@ -110,36 +110,31 @@ def test_bad_rig_files_are_refused_naming_the_field(tmp_path, mutate, field):
         load_mission(tmp_path / "mission.toml")
 
 
-def test_the_camera_latency_is_read_and_bounded(tmp_path):
-    """``[camera] latency_s``: 0 when left out, a measured figure in [-0.5, 0.5] s (either sign: it is
-    measured against the LiDAR's clock), else refused by name."""
-    write_opencv_calibration(tmp_path / "cam.yaml")
-    assert load_rig(write_rig(tmp_path)).camera_latency_s == 0.0
-    assert simulator_rig().camera_latency_s == 0.0
-    text = (tmp_path / "rig.toml").read_text()
-    for value, ok in (("0.045", 0.045), ("0", 0.0), ("-0.01", -0.01), ("0.6", None), ("-0.6", None), ("true", None),
-                      ('"45 ms"', None)):
-        (tmp_path / "rig.toml").write_text(text.replace("[camera]\n", f"[camera]\nlatency_s = {value}\n"))
-        if ok is not None:
-            assert load_rig(tmp_path / "rig.toml").camera_latency_s == ok
-        else:
-            with pytest.raises(ConfigError, match=r"rig.toml: camera.latency_s: expected a number in \[-0.5, 0.5\] s"):
-                load_rig(tmp_path / "rig.toml")
+# (table, attribute, values and what they read as (None: refused), the refusal's stated range)
+LATENCIES = [
+    # a measured figure, either sign: it is measured against the LiDAR's clock
+    ("camera", "camera_latency_s", (("0.045", 0.045), ("0", 0.0), ("-0.01", -0.01), ("0.6", None), ("-0.6", None),
+                                    ("true", None), ('"45 ms"', None)), r"\[-0.5, 0.5\]"),
+    # a delay: 0 for a Mid-360 on Ethernet
+    ("lidar", "lidar_latency_s", (("0.06", 0.06), ("0", 0.0), ("-0.01", None), ("0.6", None), ("true", None),
+                                  ('"60 ms"', None)), r"\[0, 0.5\]"),
+]
 
 
-def test_the_lidar_latency_is_read_and_bounded(tmp_path):
-    """``[lidar] latency_s``: 0 when left out (a Mid-360 on Ethernet), a delay in [0, 0.5] s,
-    else refused by name."""
+@pytest.mark.parametrize("table,attribute,values,bounds", LATENCIES)
+def test_the_latencies_are_read_and_bounded(tmp_path, table, attribute, values, bounds):
+    """``[camera] latency_s`` and ``[lidar] latency_s``: 0 when left out, a figure within the
+    table's bounds, else refused by name."""
     write_opencv_calibration(tmp_path / "cam.yaml")
-    assert load_rig(write_rig(tmp_path)).lidar_latency_s == 0.0
-    assert simulator_rig().lidar_latency_s == 0.0
+    assert getattr(load_rig(write_rig(tmp_path)), attribute) == 0.0
+    assert getattr(simulator_rig(), attribute) == 0.0
     text = (tmp_path / "rig.toml").read_text()
-    for value, ok in (("0.06", 0.06), ("0", 0.0), ("-0.01", None), ("0.6", None), ("true", None), ('"60 ms"', None)):
-        (tmp_path / "rig.toml").write_text(text.replace("[lidar]\n", f"[lidar]\nlatency_s = {value}\n"))
+    for value, ok in values:
+        (tmp_path / "rig.toml").write_text(text.replace(f"[{table}]\n", f"[{table}]\nlatency_s = {value}\n"))
         if ok is not None:
-            assert load_rig(tmp_path / "rig.toml").lidar_latency_s == ok
+            assert getattr(load_rig(tmp_path / "rig.toml"), attribute) == ok
         else:
-            with pytest.raises(ConfigError, match=r"rig.toml: lidar.latency_s: expected a number in \[0, 0.5\] s"):
+            with pytest.raises(ConfigError, match=rf"rig.toml: {table}.latency_s: expected a number in {bounds} s"):
                 load_rig(tmp_path / "rig.toml")
 
 
