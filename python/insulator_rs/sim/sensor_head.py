@@ -49,6 +49,7 @@ import numpy as np
 from insulator_rs.exceptions import InsulatorError
 from insulator_rs.mavlink.frames import attitude_ned_frd_to_enu_flu, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from insulator_rs.poses import interpolate_poses
+from insulator_rs.rig import MAX_LIDAR_LATENCY_S  # what the rig's [lidar] latency_s may state
 from insulator_rs.sim.livox_emitter import SensorClock, send
 from insulator_rs.sim.livox_wire import LidarStream
 from insulator_rs.timesync import TelemetryClock
@@ -69,9 +70,6 @@ HISTORY = 500
 LIDAR_CATCH_UP_S = 8.0
 #: LiDAR shots are rendered in slices of 1/this s, each once it is over.
 LIDAR_SLICE_RATE = 50.0
-#: s: with ``--lidar-latency``, a latency this long at the most (the rig's ``[lidar] latency_s``
-#: allows half a second).
-MAX_LIDAR_LATENCY_S = 0.5
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_LOCAL_POSITION_NED, MSG_ATTITUDE, MSG_HOME_POSITION = 32, 30, 242
