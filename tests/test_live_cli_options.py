@@ -58,7 +58,7 @@ def test_open_from_arguments_starts_clock_lidar_and_camera(tmp_path: Path) -> No
     t0 = time.monotonic()
     vehicle = SimpleNamespace(state=lambda: SimpleNamespace(time=round(time.monotonic() - t0 + 100.0, 2)))
     rig = SimpleNamespace(T_b_l=np.eye(4), T_b_c=np.eye(4), camera=CameraModel(50, 50, 32, 24, 64, 48),
-                          camera_latency_s=0.0)
+                          camera_latency_s=0.0, lidar_latency_s=0.0)
     sensors = cli_options.open_from_arguments(args, vehicle, rig)
     try:
         assert isinstance(sensors, Sensors)
