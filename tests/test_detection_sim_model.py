@@ -1,15 +1,14 @@
 """The shipped simulation model (``insulator-sim``): its card, and what it finds in
-freshly rendered views it was never trained on, alone and flying the whole mission."""
+freshly rendered views it was never trained on (the whole mission with it in the loop:
+test_mission_sim_network.py)."""
 
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 
 import pytest
 
-from insulator_rs.app.cli import main
 from insulator_rs.detection.detector import Detector
 from insulator_rs.detection.evaluate import EVAL_CONF, coco_evaluate, load_split
 from insulator_rs.models import available_models, model_card, model_path
@@ -57,25 +56,3 @@ def test_sim_model_finds_insulators_in_fresh_renders(detector: Detector, tmp_pat
     assert metrics.map50 >= 0.45, metrics
     real = coco_evaluate(samples, scorer(Detector.from_name("insulator-real", conf=EVAL_CONF, threads=2)))
     assert real.map50 < 0.1, real
-
-
-@pytest.mark.slow
-def test_inspection_with_the_sim_network_in_the_loop(tmp_path: Path) -> None:
-    """The whole mission with the shipped network on the rendered detection images, which is
-    inspect's default in the simulator (no --detector): both insulators of the small scene
-    found and inspected; the sanitiser refused nothing the real network returned."""
-    from test_mission_inspect import ARGS, small_scene
-
-    scene, mission = small_scene(tmp_path)
-    out = tmp_path / "report"
-    default_args = [a for a in ARGS if a not in ("--detector", "standin")]  # the inspect tests pin the stand-in
-    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out),
-               *default_args, "--detect-scale", "0.25"])
-    assert rc == 0
-    s = json.loads((out / "summary.json").read_text())
-    g = json.loads((out / "score.json").read_text())  # the post-flight scorer's
-    assert s["status"] == "finished" and s["detector"] == NAME
-    assert s["detections_dropped_by_sanitiser"]["total"] == 0
-    assert g["insulators_in_scene"] == 2 and g["insulators_matched"] == 2
-    assert s["insulators_inspected"] >= 2
-    assert all(r["error_m"] < 0.6 for r in g["insulators"] if r["error_m"] < 1.5)
