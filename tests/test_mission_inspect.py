@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from insulator_rs.app.cli import main
-from insulator_rs.evaluation import fault_matrix
+from insulator_rs.evaluation import fault_matrix, track_evidence
 from insulator_rs.flight.loop import FlightLoop
 
 REPO = Path(__file__).resolve().parents[1]
@@ -52,6 +52,12 @@ def test_inspect_end_to_end_on_a_small_scene(tmp_path, capsys):
     states = [t["to"] for t in s["transitions"]]
     for st in ("explore", "inspect", "return", "cross", "finish"):
         assert st in states
+    # per-track evidence: every localization handed on belongs to a listed track; the scorer puts
+    # each string's track on its string, and what the thresholds judge passes both strings
+    assert sum(t["localizations"] for t in s["tracks"]) == s["perception"]["localizations"]
+    on_strings = {t["gt_instance_id"] for t in g["tracks"] if t["true_insulator"] and t["localizations"] >= 4}
+    assert len(on_strings) == 2
+    assert track_evidence.judge([track_evidence.read_run(out)])["verdict"]["every_tracked_string_passes"]
     assert s["flight_time_s"] > 30 and (out / "trajectory.png").stat().st_size > 10_000
     rows = (out / "trajectory.csv").read_text().splitlines()
     assert len(rows) > s["flight_time_s"] / 0.05 * 0.9

@@ -59,6 +59,22 @@ def _photo_visibility(tower: Tower, camera: CameraModel, photo: dict[str, Any], 
     return True, bool(whole)
 
 
+def score_tracks(tracks: list[dict[str, Any]], truth: list[InsulatorTruth]) -> list[dict[str, Any]]:
+    """Each perception track of a summary (``tracks``) with its nearest true insulator: on one
+    (``true_insulator``) when within MATCH_DISTANCE, else a track on something else (steel,
+    a conductor): the per-track evidence the birth rule and the confirmations are judged on."""
+    rows = []
+    for t in tracks:
+        row = dict(t)
+        if truth:
+            gt, d = _nearest(truth, np.asarray(t["center"], dtype=np.float64))
+            row.update(gt_instance_id=gt.instance_id, distance_m=d, true_insulator=d < MATCH_DISTANCE)
+        else:
+            row.update(gt_instance_id=None, distance_m=None, true_insulator=False)
+        rows.append(row)
+    return rows
+
+
 def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: bool = True) -> dict[str, Any]:
     """Score a flight summary (as written to ``summary.json``) against ``tower``'s truth.
     ``photos``: also re-render each photo for its visibility (costs a render per photo)."""
@@ -108,6 +124,7 @@ def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: 
         "mean_error_m": float(np.mean(errors)) if errors else None,
         "insulators": rows,
         "photos": photo_rows,
+        "tracks": score_tracks(summary.get("tracks", []), truth),
         # every string covered by photos at >= 60 % of the long side and <= 2 mm/px? (from the truth)
         "photo_coverage": photo_coverage(summary, truth),
         "ground_truth": [{"instance_id": t.instance_id, "center": t.center.tolist(), "axis": t.axis.tolist(),

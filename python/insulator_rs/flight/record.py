@@ -31,7 +31,8 @@ def perception_record(runner: PerceptionRunner, sensor_errors: int | None = None
                             pairing_timing={**runner.pairing.timing(), "lidar_clock_steps_back": runner.intake.steps_back},
                             sensor_errors=c.sensor_errors if sensor_errors is None else sensor_errors,
                             counters=asdict(runner.pipeline.counters),
-                            refused_not_insulator=dict(runner.pipeline.not_insulator))
+                            refused_not_insulator=dict(runner.pipeline.not_insulator),
+                            tracks=runner.pipeline.track_records())
 
 
 def insulator_records(registry: InsulatorRegistry, photos: dict[int, list[str]]) -> list[InsulatorRecord]:

@@ -84,6 +84,10 @@ class VehicleLimits:
         return np.array([self.a_max_horizontal, self.a_max_horizontal, self.a_max_vertical])
 
 
+# the registry's default confirmations (InspectionParams.confirmations; see the note there)
+CONFIRMATIONS = 4
+
+
 @dataclass(frozen=True)
 class InspectionParams:
     """Inspection parameters, metres unless stated."""
@@ -100,7 +104,7 @@ class InspectionParams:
     # localizations per flight on towers A and B. The lattice members that pass every shape check
     # and have a confident box gather 3 each, in a few frames of one pass: with 3 confirmations one
     # was registered now and then. The small scene's short flight still confirms both strings at 4.
-    confirmations: int = 4
+    confirmations: int = CONFIRMATIONS
     # The fraction of the pack left at landing (flight/reserve.py returns in time to keep it).
     # 25 %: the share a LiPo keeps above its knee under load, and above the MAVLink client's own
     # low-battery failsafe (20 %, mavlink/failsafes.py) and PX4's BAT_CRIT_THR (7 %), so the

@@ -99,6 +99,30 @@ SCAN_KEEP_S = 3.0
 
 
 @dataclass
+class TrackEvidence:
+    """What one track gathered over the run, for the per-track figures a crew or a model card
+    reads (``summary.json`` ``tracks``): the evidence BIRTH_SCORE and the registry's
+    confirmations judge. Counts of box events, of those scoring at least BIRTH_SCORE, of
+    localizations handed on, of those held back until a confident box (birth rule), and of
+    attempts refused (failed, implausible for the box, not an insulator's shape, ambiguous)."""
+
+    boxes: int = 0
+    confident_boxes: int = 0
+    localizations: int = 0
+    held_before_birth: int = 0
+    refused: int = 0
+    first_time: float = float("nan")
+    last_time: float = float("nan")
+
+    def add_box(self, score: float, time: float) -> None:
+        self.boxes += 1
+        self.confident_boxes += int(score >= BIRTH_SCORE)
+        if self.boxes == 1:
+            self.first_time = time
+        self.last_time = time
+
+
+@dataclass
 class Track:
     """The recent detection events of one (putative) insulator: culled points in W."""
 
@@ -111,6 +135,7 @@ class Track:
     reliefs: list[float] = field(default_factory=list)
     # The best detection score among this track's boxes (birth rule, BIRTH_SCORE).
     best_score: float = 0.0
+    evidence: TrackEvidence = field(default_factory=TrackEvidence)
 
 
 @dataclass(frozen=True)
@@ -191,6 +216,22 @@ class PerceptionPipeline:
     @property
     def implausible(self) -> int:
         return self.counters.implausible
+
+    def track_records(self) -> list[dict[str, Any]]:
+        """Each track that gathered enough box events for a localization attempt
+        (EVENTS_PER_LOCALIZATION): where it is (its anchor in W, the last localization once it
+        has one) and its evidence, most localizations first. Tracks of fewer boxes never reached
+        the registry and are only counted (``perception.tracks``)."""
+        rows = []
+        for t in self.tracks:
+            e = t.evidence
+            if e.boxes < EVENTS_PER_LOCALIZATION:
+                continue
+            rows.append({"center": [float(v) for v in t.anchor], "boxes": e.boxes, "best_score": t.best_score,
+                         "confident_boxes": e.confident_boxes, "localizations": e.localizations,
+                         "held_before_birth": e.held_before_birth, "refused": e.refused,
+                         "first_time": e.first_time, "last_time": e.last_time})
+        return sorted(rows, key=lambda r: (-r["localizations"], -r["boxes"]))
 
     # -- live / replay ----------------------------------------------------------------------
     def add_pose(self, pose: PoseStamped) -> None:
@@ -296,7 +337,9 @@ class PerceptionPipeline:
             near = rng <= np.quantile(rng, ANCHOR_NEAR_FRACTION)
             anchor = np.median(pts_w[near], axis=0)
             track = self._associate(anchor)
-            track.best_score = max(track.best_score, float(box[4]) if len(box) > 4 else 1.0)
+            score = float(box[4]) if len(box) > 4 else 1.0
+            track.best_score = max(track.best_score, score)
+            track.evidence.add_box(score, time)
             track.events.append(pts_w)
             track.views.append((np.asarray(box[:4], dtype=np.float64), T_w_c, camera))
             if len(track.events) < EVENTS_PER_LOCALIZATION:
@@ -308,27 +351,34 @@ class PerceptionPipeline:
                 est = self._localize(acc_b, track, T_b_w)
             except ir.LocalizationError:
                 self.counters.failures += 1
+                track.evidence.refused += 1
                 continue
             if est.n_points < MIN_LOCALIZATION_POINTS:
                 self.counters.failures += 1
+                track.evidence.refused += 1
                 continue
             center = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
             axis = T_w_b[:3, :3] @ np.asarray(est.direction)
             if not self._scale_plausible(center, axis, box, T_c_w, camera):
                 self.counters.implausible += 1
+                track.evidence.refused += 1
                 continue
             if not self._looks_like_insulator(acc_b, est, center, axis, box, T_c_w, camera, track):
                 self.counters.not_insulator += 1
+                track.evidence.refused += 1
                 continue
             if self._ambiguous(acc_b, est, track, T_b_w, T_w_b, box, T_c_w, camera):
                 self.counters.not_insulator += 1
                 self.not_insulator[AMBIGUOUS] = self.not_insulator.get(AMBIGUOUS, 0) + 1
+                track.evidence.refused += 1
                 continue
             track.anchor = center
             if track.best_score < BIRTH_SCORE:
                 self.counters.unconfirmed += 1
+                track.evidence.held_before_birth += 1
                 continue
             self.counters.localizations += 1
+            track.evidence.localizations += 1
             # the fitted line lies on the surface the LiDAR saw: report the string's axis behind it
             offset_b = surface_to_axis(acc_b, np.asarray(est.center), np.asarray(est.direction), self.T_b_l[:3, 3])
             center = center + T_w_b[:3, :3] @ offset_b

@@ -48,6 +48,8 @@ class PerceptionRecord:
     sensor_errors: int = 0
     counters: dict[str, int] = field(default_factory=dict)  # PerceptionCounters
     refused_not_insulator: dict[str, int] = field(default_factory=dict)
+    # each track that reached a localization attempt and its evidence (PerceptionPipeline.track_records)
+    tracks: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -168,6 +170,7 @@ class RunSummary:
             "localizations": p.localizations, "pairing_short": p.pairing_short,
             "pairing_timing": dict(p.pairing_timing), "sensor_errors": p.sensor_errors,
             "perception": dict(p.counters), "refused_not_insulator": dict(p.refused_not_insulator),
+            "tracks": list(p.tracks),
             "sensors_health": self.sensors_health,
         }
         for details in (self.flight, self.replay):

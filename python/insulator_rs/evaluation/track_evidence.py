@@ -1,0 +1,157 @@
+"""Per-track evidence (issue 22 item 4): are the birth rule's BIRTH_SCORE and the registry's
+confirmations still right for the shipped network?
+
+Every run's ``summary.json`` lists its perception tracks (``tracks``: each track that gathered
+enough boxes for a localization attempt, with its box count, best score, confident boxes,
+localizations handed on, held back by the birth rule, refused), and the post-flight scorer's
+``score.json`` labels each with its nearest true insulator (``true_insulator``: within the
+scorer's match distance). This reads one or more scored report folders and tells, per run and
+over all of them:
+
+* **true insulators**: per string (its tracks together, as the registry fuses them) the
+  localizations handed on and the best box; the weakest string bounds how high the thresholds
+  may go;
+* **tracks on something else** (steel, conductors): those whose localizations passed the shape
+  and scale gates and so reached the birth rule, their best box and the localizations they
+  handed on; the strongest bounds how low the thresholds may go.
+
+The verdict (:func:`judge`) says, for BIRTH_SCORE and for the confirmations, whether every false
+track is stopped and every string passes, with the margins on both sides. Change a threshold
+only on that evidence (issue 22: "change them only on that evidence").
+
+``python -m insulator_rs.evaluation.track_evidence REPORT_DIR [REPORT_DIR ...] [--json OUT]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from insulator_rs.mission.config import CONFIRMATIONS
+from insulator_rs.perception.pipeline import BIRTH_SCORE
+
+
+@dataclass
+class RunEvidence:
+    """One scored run: per true insulator (instance id) its localizations and best box; per
+    track on something else its localizations, best box and distance from the nearest string."""
+
+    run: str
+    strings: dict[int, dict[str, float]] = field(default_factory=dict)
+    false_tracks: list[dict[str, float]] = field(default_factory=list)
+    strings_in_scene: int = 0
+
+
+def read_run(folder: Path) -> RunEvidence:
+    """The evidence of one scored report folder (``score.json`` with ``tracks``)."""
+    path = Path(folder) / "score.json"
+    try:
+        score = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    if not isinstance(score, dict) or not isinstance(score.get("tracks"), list):
+        raise ValueError(f"{path}: no per-track list (tracks): a report from before tracks were recorded, "
+                         f"or not a score.json")
+    ev = RunEvidence(run=str(folder), strings_in_scene=int(score.get("insulators_in_scene", 0)))
+    for t in score["tracks"]:
+        if t.get("true_insulator"):
+            s = ev.strings.setdefault(int(t["gt_instance_id"]), {"localizations": 0, "best_score": 0.0, "tracks": 0})
+            s["localizations"] += int(t["localizations"])
+            s["best_score"] = max(s["best_score"], float(t["best_score"]))
+            s["tracks"] += 1
+        else:
+            ev.false_tracks.append({"localizations": int(t["localizations"]), "best_score": float(t["best_score"]),
+                                    "boxes": int(t["boxes"]), "held_before_birth": int(t["held_before_birth"]),
+                                    "distance_m": t.get("distance_m")})
+    return ev
+
+
+def judge(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE,
+          confirmations: int = CONFIRMATIONS) -> dict[str, Any]:
+    """Whether the thresholds stop every false track and pass every string, with the margins."""
+    strings = [s for r in runs for s in r.strings.values()]
+    false = [t for r in runs for t in r.false_tracks]
+    # a false track's localization reaches the birth rule only past the shape and scale gates;
+    # it reaches the registry only with a confident box, and is confirmed only with
+    # `confirmations` localizations handed on
+    at_birth = [t for t in false if t["localizations"] + t["held_before_birth"] > 0]
+    born = [t for t in at_birth if t["best_score"] >= birth_score]
+    confirmed = [t for t in born if t["localizations"] >= confirmations]
+    weakest = min(strings, key=lambda s: (s["localizations"], s["best_score"])) if strings else None
+    out: dict[str, Any] = {
+        "birth_score": birth_score, "confirmations": confirmations,
+        "runs": len(runs), "strings_in_scenes": sum(r.strings_in_scene for r in runs),
+        "strings_tracked": len(strings), "false_tracks": len(false),
+        "false_tracks_born": len(born), "false_tracks_confirmed": len(confirmed),
+        "strings_best_score_min": min((s["best_score"] for s in strings), default=None),
+        "strings_localizations_min": min((s["localizations"] for s in strings), default=None),
+        "weakest_string": weakest,
+        "false_tracks_past_the_gates": len(at_birth),
+        "false_past_the_gates_best_score_max": max((t["best_score"] for t in at_birth), default=None),
+        "false_born_localizations_max": max((t["localizations"] for t in born), default=None),
+    }
+    strings_pass = bool(strings) and all(s["best_score"] >= birth_score and s["localizations"] >= confirmations
+                                         for s in strings)
+    out["verdict"] = {
+        "every_false_track_stopped": not confirmed,
+        "every_tracked_string_passes": strings_pass,
+        "birth_score_room": _room(out["false_past_the_gates_best_score_max"], out["strings_best_score_min"]),
+        "confirmations_room": _room(out["false_born_localizations_max"], out["strings_localizations_min"]),
+    }
+    return out
+
+
+def _room(false_max: float | None, true_min: float | None) -> str:
+    """The open interval a threshold may sit in: above every false track, at or below every string."""
+    lo = "-" if false_max is None else f"{false_max:g}"
+    hi = "-" if true_min is None else f"{true_min:g}"
+    return f"above {lo}, up to {hi}"
+
+
+def table(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE) -> str:
+    """A markdown table, one row per run (false tracks "born": with a box of at least ``birth_score``)."""
+    lines = ["| run | strings tracked / in scene | string localizations min / median | string best box min "
+             "| false tracks / past the gates / born | false past the gates: best box max | false born: localizations max |",
+             "|---|---|---|---|---|---|---|"]
+    for r in runs:
+        locs = sorted(s["localizations"] for s in r.strings.values())
+        best = min((s["best_score"] for s in r.strings.values()), default=float("nan"))
+        gated = [t for t in r.false_tracks if t["localizations"] + t["held_before_birth"] > 0]
+        born = [t for t in gated if t["best_score"] >= birth_score]
+        fbest = max((t["best_score"] for t in gated), default=float("nan"))
+        floc = max((t["localizations"] for t in born), default=0)
+        med = locs[len(locs) // 2] if locs else 0
+        lines.append(f"| {Path(r.run).name} | {len(r.strings)} / {r.strings_in_scene} | "
+                     f"{locs[0] if locs else 0} / {med} | {best:.2f} | {len(r.false_tracks)} / {len(gated)} / {len(born)} | "
+                     f"{fbest:.2f} | {floc} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="per-track evidence of scored runs: BIRTH_SCORE and the "
+                                                 "confirmations against what strings and false tracks gathered")
+    parser.add_argument("reports", nargs="+", type=Path, help="report folders, each with a score.json")
+    parser.add_argument("--json", type=Path, help="write the runs and the verdict here")
+    parser.add_argument("--birth-score", type=float, default=BIRTH_SCORE, help="the birth rule's threshold to judge")
+    parser.add_argument("--confirmations", type=int, default=CONFIRMATIONS, help="the confirmations to judge")
+    args = parser.parse_args(argv)
+    try:
+        runs = [read_run(f) for f in args.reports]
+    except ValueError as exc:
+        print(f"track_evidence: {exc}", file=sys.stderr)
+        return 2
+    verdict = judge(runs, args.birth_score, args.confirmations)
+    print(table(runs, args.birth_score))
+    print(json.dumps(verdict, indent=1))
+    if args.json is not None:
+        from insulator_rs.report.jsonfile import write_json
+        write_json(args.json, {"runs": [asdict(r) for r in runs], "judgement": verdict})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
