@@ -298,3 +298,14 @@ def test_parser_accepts_or_rejects_cleanly(field, value):
         assert str(exc).startswith("prop.toml: field '")
         return
     assert math.isfinite(getattr(getattr(spec, table), key))
+
+
+def test_a_built_in_name_is_not_hidden_by_a_folder_of_that_name(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A crew's report folder named after the tower (``--out tower_b``) beside the recording it
+    replays: the recording names scene "tower_b", the folder must not stand in for it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tower_b").mkdir()
+    assert load_scene("tower_b").name == "tower_b"
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(SceneError, match="mine"):
+        load_scene("mine")  # not a built-in: the folder is still refused by name

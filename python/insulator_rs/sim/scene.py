@@ -418,7 +418,9 @@ def load_scene(path: str | Path) -> SceneSpec:
     """Load a scene TOML file. ``path`` may also be a bare scene name in the package's
     ``scenes/`` folder (``"tower_a"``). Raises :class:`SceneError` naming the file and field."""
     p = Path(path)
-    if not p.exists() and not p.suffix and (SCENES_DIR / f"{p.name}.toml").exists():
+    # a bare name is a built-in scene unless a file of that name is here: a folder named like it
+    # (a report folder "tower_b" beside the recording being replayed) does not hide it
+    if not p.is_file() and not p.suffix and (SCENES_DIR / f"{p.name}.toml").exists():
         p = SCENES_DIR / f"{p.name}.toml"
     if not p.exists():
         raise SceneError(f"{p}: scene file not found (built-in scenes: "
