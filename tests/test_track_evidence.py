@@ -43,6 +43,7 @@ def test_strings_fuse_their_tracks_and_false_tracks_are_judged_past_the_gates(tm
     assert j["false_tracks_confirmed"] == 0 and j["false_past_the_gates_best_score_max"] == 0.55
     assert j["strings_best_score_min"] == 0.7 and j["strings_localizations_min"] == 12
     assert j["verdict"] == {"every_false_track_stopped": True, "every_tracked_string_passes": True,
+                            "birth_score_separates": True, "confirmations_separate": True,
                             "birth_score_room": "above 0.55, up to 0.7", "confirmations_room": "above 3, up to 12"}
     # at 3 confirmations the steel track would have been registered
     assert not track_evidence.judge([run], birth_score=0.5, confirmations=3)["verdict"]["every_false_track_stopped"]
@@ -52,7 +53,8 @@ def test_strings_fuse_their_tracks_and_false_tracks_are_judged_past_the_gates(tm
 
 def test_the_command_prints_the_table_and_refuses_a_report_without_tracks(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     good = _run(tmp_path / "good", [_track(1, 30, 0.9), _track(2, 20, 0.8)])
-    assert track_evidence.main([str(good), "--json", str(tmp_path / "out.json")]) == 0
+    assert track_evidence.main([str(good), "--json", str(tmp_path / "out.json"), "--plot", str(tmp_path / "p.png")]) == 0
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| good | 2 / 2 | 20 / 30 | 0.80 | 0 / 0 / 0 |" in capsys.readouterr().out
     assert json.loads((tmp_path / "out.json").read_text())["judgement"]["verdict"]["every_tracked_string_passes"]
     old = tmp_path / "old"

@@ -19,7 +19,7 @@ The verdict (:func:`judge`) says, for BIRTH_SCORE and for the confirmations, whe
 track is stopped and every string passes, with the margins on both sides. Change a threshold
 only on that evidence (issue 22: "change them only on that evidence").
 
-``python -m insulator_rs.evaluation.track_evidence REPORT_DIR [REPORT_DIR ...] [--json OUT]``
+``python -m insulator_rs.evaluation.track_evidence REPORT_DIR [REPORT_DIR ...] [--json OUT] [--plot PNG]``
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from insulator_rs.mission.config import CONFIRMATIONS
 from insulator_rs.perception.pipeline import BIRTH_SCORE
@@ -99,10 +101,17 @@ def judge(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE,
     out["verdict"] = {
         "every_false_track_stopped": not confirmed,
         "every_tracked_string_passes": strings_pass,
+        # can the threshold alone tell them apart (every false track below every string)?
+        "birth_score_separates": _separates(out["false_past_the_gates_best_score_max"], out["strings_best_score_min"]),
+        "confirmations_separate": _separates(out["false_born_localizations_max"], out["strings_localizations_min"]),
         "birth_score_room": _room(out["false_past_the_gates_best_score_max"], out["strings_best_score_min"]),
         "confirmations_room": _room(out["false_born_localizations_max"], out["strings_localizations_min"]),
     }
     return out
+
+
+def _separates(false_max: float | None, true_min: float | None) -> bool:
+    return true_min is not None and (false_max is None or false_max < true_min)
 
 
 def _room(false_max: float | None, true_min: float | None) -> str:
@@ -131,11 +140,52 @@ def table(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE) -> str:
     return "\n".join(lines)
 
 
+def plot(runs: list[RunEvidence], path: Path, birth_score: float = BIRTH_SCORE,
+         confirmations: int = CONFIRMATIONS) -> Path:
+    """Each string (its tracks together) and each false track: best box against localizations
+    handed on, with the two thresholds; false tracks the shape and scale gates stopped apart."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    strings = [s for r in runs for s in r.strings.values()]
+    false = [t for r in runs for t in r.false_tracks]
+    gated = [t for t in false if t["localizations"] + t["held_before_birth"] > 0]
+    stopped = [t for t in false if t["localizations"] + t["held_before_birth"] == 0]
+    jitter = np.random.default_rng(0)  # spread the many false tracks at 0 localizations
+    ax.scatter([t["best_score"] for t in stopped], 0.5 + 0.2 * jitter.random(len(stopped)), s=14, c="0.6",
+               label=f"false track, stopped by the shape/scale gates ({len(stopped)})")
+    ax.scatter([t["best_score"] for t in gated], [t["localizations"] + 0.8 for t in gated], s=24, c="tab:red",
+               marker="x", label=f"false track past the gates ({len(gated)})")
+    ax.scatter([s["best_score"] for s in strings], [s["localizations"] for s in strings], s=24, c="tab:blue",
+               label=f"true string, its tracks together ({len(strings)})")
+    ax.axvline(birth_score, color="k", ls="--", lw=1)
+    ax.axhline(confirmations, color="k", ls=":", lw=1)
+    ax.text(birth_score, 300, f" BIRTH_SCORE {birth_score:g}", fontsize=8, va="top")
+    ax.text(0.02, confirmations * 1.08, f"{confirmations} confirmations", fontsize=8, transform=ax.get_yaxis_transform())
+    ax.set_yscale("log")
+    ax.set_ylim(0.4, 400)
+    ax.set_xlim(0.0, 1.0)
+    ax.set_xlabel("best detection score of the track's boxes")
+    ax.set_ylabel("localizations handed on (false: +0.8; stopped: ~0.5)")
+    ax.set_title(f"per-track evidence, {len(runs)} runs: " + ", ".join(Path(r.run).name for r in runs), fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="per-track evidence of scored runs: BIRTH_SCORE and the "
                                                  "confirmations against what strings and false tracks gathered")
     parser.add_argument("reports", nargs="+", type=Path, help="report folders, each with a score.json")
     parser.add_argument("--json", type=Path, help="write the runs and the verdict here")
+    parser.add_argument("--plot", type=Path, help="write the per-track scatter (PNG) here")
     parser.add_argument("--birth-score", type=float, default=BIRTH_SCORE, help="the birth rule's threshold to judge")
     parser.add_argument("--confirmations", type=int, default=CONFIRMATIONS, help="the confirmations to judge")
     args = parser.parse_args(argv)
@@ -147,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     verdict = judge(runs, args.birth_score, args.confirmations)
     print(table(runs, args.birth_score))
     print(json.dumps(verdict, indent=1))
+    if args.plot is not None:
+        plot(runs, args.plot, args.birth_score, args.confirmations)
     if args.json is not None:
         from insulator_rs.report.jsonfile import write_json
         write_json(args.json, {"runs": [asdict(r) for r in runs], "judgement": verdict})
