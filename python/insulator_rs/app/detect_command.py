@@ -19,7 +19,7 @@ import cv2
 from insulator_rs.detection.detector import Detections, Detector
 from insulator_rs.detection.detector import open_detector
 from insulator_rs.models import REAL_CROP_MODEL
-from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_split
+from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluate, evaluate_field_test, load_images, load_split
 from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
@@ -138,6 +138,52 @@ def count_steel_false_boxes(args: argparse.Namespace) -> int:
     return 0
 
 
+def count_photo_negatives(args: argparse.Namespace) -> int:
+    """``detect negatives``: a model's false boxes on the tiles of labelled photos that hold no insulator."""
+    from insulator_rs.detection.field_dataset import field_test_images
+    from insulator_rs.detection.negatives import count_negative_false_boxes, negative_tiles
+
+    if (args.split is None) == (args.named_split is None):
+        print("error: give either a labelled folder or --split field-test", file=sys.stderr)
+        return 2
+    detector = open_detector(args.model, conf=args.conf, iou=args.iou, threads=args.threads)
+    try:
+        if args.named_split is not None:
+            samples = load_images(field_test_images(args.field_photos), voc_dir=Path(args.field_photos) / "labels")
+            where = f"{args.named_split} ({args.field_photos})"
+        else:
+            samples = load_split(args.split, detector.names)
+            where = str(args.split)
+        tiles = negative_tiles(samples)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    def detect(image: cv2.typing.MatLike) -> tuple[object, object]:
+        det = detector(image)
+        return det.boxes, det.scores
+
+    def progress(i: int, n: int) -> None:
+        if i % 50 == 0 or i == n:
+            print(f"  {i}/{n} tiles", file=sys.stderr, flush=True)
+
+    try:
+        count = count_negative_false_boxes(detect, tiles, thresholds=sorted({args.conf, 0.5}),  # type: ignore[arg-type]
+                                           progress=progress)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for t in count.thresholds:
+        print(f"{where}: {count.tiles} tiles without an insulator from {count.photos} photos, score >= {t:g}: "
+              f"{count.false_boxes[t]} false boxes ({count.false_boxes[t] / max(count.tiles, 1):.3f} a tile), "
+              f"{count.tiles_with_false_box[t]} tiles with one "
+              f"({100.0 * count.tiles_with_false_box[t] / max(count.tiles, 1):.1f} %)")
+    if args.json is not None:
+        args.json.write_text(json.dumps({"model": args.model, "photos": where, "conf": args.conf,
+                                         **count.to_dict()}, indent=1) + "\n")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``detect run`` and ``detect eval`` to the ``insulator-rs`` parser."""
     parser = subparsers.add_parser("detect", help="run or evaluate the insulator detector")
@@ -173,3 +219,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     fb.add_argument("--list", type=Path, default=None,
                     help="write the views with a false box here (an image list a training data.yaml can name)")
     fb.set_defaults(func=count_steel_false_boxes)
+
+    ng = sub.add_parser("negatives", help="false boxes per tile on the parts of labelled photos without an "
+                                          "insulator (detection/negatives.py)")
+    common(ng, 0.25)
+    ng.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
+    ng.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
+                    help="a named split: field-test = the field photos held back from training (by photo)")
+    ng.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
+                    help="field-photo set for --split field-test (default %(default)s)")
+    ng.set_defaults(func=count_photo_negatives)
