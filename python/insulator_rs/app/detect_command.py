@@ -110,6 +110,14 @@ def _report_metrics(args: argparse.Namespace, detector: Detector, metrics: CocoM
     return 0
 
 
+def _print_false_box_rates(what: str, unit: str, n: int, thresholds: tuple[float, ...],
+                           false_boxes: dict[float, int], with_one: dict[float, int]) -> None:
+    """One line per score threshold: false boxes per ``unit`` (a view, a tile) and the share with one."""
+    for t in thresholds:
+        print(f"{what}, score >= {t:g}: {false_boxes[t]} false boxes ({false_boxes[t] / max(n, 1):.3f} a {unit}), "
+              f"{with_one[t]} {unit}s with one ({100.0 * with_one[t] / max(n, 1):.1f} %)")
+
+
 def count_steel_false_boxes(args: argparse.Namespace) -> int:
     """``detect false-boxes``: a model's false boxes per steel view, and the views that have one."""
     from insulator_rs.sim.steel_views import count_false_boxes, write_image_list
@@ -125,10 +133,8 @@ def count_steel_false_boxes(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    for t in count.thresholds:
-        print(f"{args.folder}: {count.views} steel views, score >= {t:g}: {count.false_boxes[t]} false boxes "
-              f"({count.false_boxes[t] / max(count.views, 1):.3f} a view), {count.views_with_false_box[t]} views "
-              f"with one ({100.0 * count.views_with_false_box[t] / max(count.views, 1):.1f} %)")
+    _print_false_box_rates(f"{args.folder}: {count.views} steel views", "view", count.views, count.thresholds,
+                           count.false_boxes, count.views_with_false_box)
     if args.list is not None:
         n = write_image_list(args.folder, count, args.list, min_score=args.conf)
         print(f"{n} views with a false box listed in {args.list} (an Ultralytics image list)")
@@ -173,11 +179,8 @@ def count_photo_negatives(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    for t in count.thresholds:
-        print(f"{where}: {count.tiles} tiles without an insulator from {count.photos} photos, score >= {t:g}: "
-              f"{count.false_boxes[t]} false boxes ({count.false_boxes[t] / max(count.tiles, 1):.3f} a tile), "
-              f"{count.tiles_with_false_box[t]} tiles with one "
-              f"({100.0 * count.tiles_with_false_box[t] / max(count.tiles, 1):.1f} %)")
+    _print_false_box_rates(f"{where}: {count.tiles} tiles without an insulator from {count.photos} photos", "tile",
+                           count.tiles, count.thresholds, count.false_boxes, count.tiles_with_false_box)
     if args.json is not None:
         args.json.write_text(json.dumps({"model": args.model, "photos": where, "conf": args.conf,
                                          **count.to_dict()}, indent=1) + "\n")
