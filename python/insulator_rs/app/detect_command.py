@@ -23,7 +23,7 @@ from insulator_rs.detection.evaluate import EVAL_CONF, CocoMetrics, coco_evaluat
 from insulator_rs.detection.field_dataset import DEFAULT_FIELD_PHOTOS, FIELD_TEST
 from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
-from insulator_rs.exceptions import ImageError
+from insulator_rs.exceptions import ImageError, ModelError
 from insulator_rs import bounds
 
 
@@ -187,6 +187,23 @@ def count_photo_negatives(args: argparse.Namespace) -> int:
     return 0
 
 
+def export_fp16_model(args: argparse.Namespace) -> int:
+    """``detect export-fp16``: a model's FP16 ONNX for the Jetson's GPU, checked by loading it."""
+    from insulator_rs.detection.jetson_export import export_fp16
+    from insulator_rs.models import model_path
+
+    try:
+        src = Path(args.model) if args.model.endswith(".onnx") or Path(args.model).exists() else model_path(args.model)
+        out = export_fp16(src, args.out)
+        half = Detector(out, threads=args.threads)  # the detector reads it (names, input size) or says why not
+    except (ModelError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{out}: FP16 of {src} ({out.stat().st_size / 1e6:.1f} MB, was {src.stat().st_size / 1e6:.1f} MB), "
+          f"input {half.imgsz}, classes {half.names}")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``detect run`` and ``detect eval`` to the ``insulator-rs`` parser."""
     parser = subparsers.add_parser("detect", help="run or evaluate the insulator detector")
@@ -232,3 +249,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ng.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
                     help="field-photo set for --split field-test (default %(default)s)")
     ng.set_defaults(func=count_photo_negatives)
+
+    ex = sub.add_parser("export-fp16", help="write a model's FP16 ONNX for the Jetson's GPU (needs the onnx package)")
+    ex.add_argument("model", help="shipped model name or ONNX path")
+    ex.add_argument("out", type=Path, help="the FP16 ONNX file to write")
+    ex.add_argument("--threads", type=bounds.option("--threads"), default=None,
+                    help="onnxruntime CPU threads for the check that loads it")
+    ex.set_defaults(func=export_fp16_model)

@@ -59,6 +59,14 @@ def select_providers(available: Sequence[str] | None = None) -> list[str]:
     return chosen
 
 
+def _with_options(providers: Sequence[str], model: Path) -> list[str | tuple[str, dict[str, str]]]:
+    """The providers as onnxruntime takes them: TensorRT with its engine cache and FP16
+    (jetson_export.tensorrt_provider_options), the others as named."""
+    from insulator_rs.detection.jetson_export import tensorrt_provider_options
+
+    return [(p, tensorrt_provider_options(model)) if p == "TensorrtExecutionProvider" else p for p in providers]
+
+
 def _parse_meta(value: str, key: str, path: Path) -> object:
     try:
         return ast.literal_eval(value)
@@ -185,9 +193,9 @@ class Detector:
             opts.intra_op_num_threads = threads
             opts.inter_op_num_threads = 1
         opts.log_severity_level = 3  # TensorRT/CUDA fall-back chatter is not an error
+        chosen = list(providers) if providers else select_providers()
         try:
-            return ort.InferenceSession(str(path), sess_options=opts,
-                                        providers=list(providers) if providers else select_providers())
+            return ort.InferenceSession(str(path), sess_options=opts, providers=_with_options(chosen, path))
         except Exception as exc:  # onnxruntime raises its own untyped errors for bad protobufs
             raise ModelError(f"model {path}: truncated or not ONNX ({type(exc).__name__}: {exc})") from exc
 
