@@ -182,7 +182,7 @@ def count_photo_negatives(args: argparse.Namespace) -> int:
     _print_false_box_rates(f"{where}: {count.tiles} tiles without an insulator from {count.photos} photos", "tile",
                            count.tiles, count.thresholds, count.false_boxes, count.tiles_with_false_box)
     if args.json is not None:
-        args.json.write_text(json.dumps({"model": args.model, "photos": where, "conf": args.conf,
+        args.json.write_text(json.dumps({"model": args.model, "source": where, "conf": args.conf,
                                          **count.to_dict()}, indent=1) + "\n")
     return 0
 
