@@ -54,6 +54,9 @@ OPTIONAL = {
     "app/train_command.py": "train",
     "detection/warm_start.py": "train",
     "detection/uav_augment.py": "train",
+    # the FP16 export reads and writes ONNX graphs (onnx) on a workstation or the Jetson, not in
+    # flight; the detector's TensorRT cache options in the same module need nothing beyond the runtime
+    "detection/jetson_export.py": "train",
     # `insulator-rs detect eval`: COCO scores on a labelled split, a workstation tool;
     # pycocotools is declared by the test extra only.
     "detection/evaluate.py": "test",
