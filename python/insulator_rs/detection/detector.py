@@ -29,6 +29,7 @@ from insulator_rs.exceptions import ModelError
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider")
 DEFAULT_IMGSZ = 640  # Ultralytics' default when a dynamic model carries no imgsz
 ONNX_MAGIC_MIN_BYTES = 64  # smaller files cannot hold a graph
+MAX_BATCH = 16  # images a dynamic-batch network takes in one run (memory stays ~ 16 frames' input)
 
 
 @dataclass(frozen=True)
@@ -166,6 +167,8 @@ class Detector:
             raise ModelError(f"model {self.path}: end-to-end (NMS-free) head not supported; export with end2end=False")
         self.names = self._read_names(meta, outs[0].shape)
         self.dynamic = not all(isinstance(d, int) for d in inp[0].shape[2:])
+        # most images one network run takes (an export with a fixed batch of 1: one at a time)
+        self.max_batch = int(inp[0].shape[0]) if isinstance(inp[0].shape[0], int) else MAX_BATCH
         self.imgsz = self._input_size(imgsz, meta, inp[0].shape)
         if rect and not self.dynamic:
             raise ValueError(f"rect=True needs a model with a dynamic input; {self.path} is fixed at {self.imgsz}")
@@ -249,6 +252,30 @@ class Detector:
     def detect(self, image: np.ndarray) -> Detections:
         """Detect objects in one BGR uint8 image (gray and BGRA are converted)."""
         out, geo = self.raw(image)
+        return self._detections(out, geo)
+
+    def detect_batch(self, images: Sequence[np.ndarray]) -> list[Detections]:
+        """:meth:`detect` of each image, the network run once for each run of consecutive images
+        whose letterboxed inputs share a shape (a stream's frames: one run), at most
+        :attr:`max_batch` at a time. Each image's
+        detections are :meth:`detect`'s up to the float rounding of a batched convolution."""
+        prepared = [letterbox(as_bgr_uint8(image, name=f"images[{i}]"), self.imgsz, auto=self.rect,
+                              stride=self.stride) for i, image in enumerate(images)]
+        results: list[Detections] = []
+        start = 0
+        while start < len(prepared):
+            shape = prepared[start][0].shape
+            end = start + 1
+            while end < len(prepared) and end - start < self.max_batch and prepared[end][0].shape == shape:
+                end += 1
+            batch = np.concatenate([to_network_input(padded) for padded, _ in prepared[start:end]])
+            out = self.session.run(None, {self.input_name: batch})[0]
+            results.extend(self._detections(out[k - start:k - start + 1], prepared[k][1]) for k in range(start, end))
+            start = end
+        return results
+
+    def _detections(self, out: np.ndarray, geo: LetterboxGeometry) -> Detections:
+        """One image's network output ``[1, 4 + nc, N]`` -> its detections in its own pixels."""
         cands = yolo_candidates(out, conf=self.conf)
         # The detector's edge (sanitize.py): NaN/Inf/inverted boxes and bad scores go before NMS,
         # where they could survive or suppress a valid box; then NMS as Ultralytics does it.

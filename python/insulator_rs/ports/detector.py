@@ -9,10 +9,12 @@ network on onnxruntime) here, and the simulator's ground-truth stand-in
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 
+from insulator_rs.detection.detector import Detections as Detections  # the port hands these on (replay read-ahead)
 from insulator_rs.detection.detector import Detector, open_detector
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.models import REAL_PHOTO_MODEL, SIMULATOR_MODEL
@@ -39,7 +41,16 @@ class NetworkDetector:
         self.dropped = DroppedDetections()  # summed over the flight: what the sanitiser refused
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
-        det = self.network(image)
+        return self.boxes(self.network(image))
+
+    def detect_batch(self, images: Sequence[np.ndarray]) -> list[Detections]:
+        """The network on several frames in one run (a replay reading ahead); each result becomes
+        the port's boxes through :meth:`boxes` when its frame is asked for."""
+        return self.network.detect_batch(images)
+
+    def boxes(self, det: Detections) -> np.ndarray:
+        """The network's detections of one frame as the port's boxes (what the sanitiser dropped
+        is summed): for detections run ahead of the loop (a replay's batches) as for a call."""
         self.dropped = self.dropped + det.dropped
         return np.column_stack([det.boxes, det.scores]) if len(det) else np.zeros((0, 5))
 

@@ -39,6 +39,7 @@ class ReplayOptions:
     rerun: bool = False
     progress: bool = False
     overwrite: bool = False
+    read_ahead: bool = True  # decode and detect in a thread ahead of the loop (replay/lookahead.py)
 
 
 def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dict[str, Any]:
@@ -68,7 +69,8 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
         detector = open_detector_by_name(options.detector)
         latency = camera_latency(meta, mission)
         settings = ReplaySettings(method=options.method, deskew=options.deskew, detect_period=options.detect_period,
-                                  progress=options.progress, camera_shift_s=latency["shift_s"])
+                                  progress=options.progress, camera_shift_s=latency["shift_s"],
+                                  read_ahead=options.read_ahead)
         # a recording of ours logs each scan at its window's end (McapRecorder.scan)
         with FlightBag(path, options.topics, max_gap=options.max_gap, scan_windows=bool(meta.mission_text)) as bag:
             summary = ReplayRun(bag, out, mission=mission, detector=detector, settings=settings,

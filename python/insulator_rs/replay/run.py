@@ -35,8 +35,9 @@ from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.poses import tilt_of
-from insulator_rs.ports.detector import BoxDetector, detector_name
+from insulator_rs.ports.detector import BoxDetector, NetworkDetector, detector_name
 from insulator_rs.recording.reader import FlightBag
+from insulator_rs.replay.lookahead import Lookahead
 from insulator_rs.replay.player import RecordingPlayer
 from insulator_rs.replay.sensors import ReplaySensors
 from insulator_rs.replay.vehicle import ReplayVehicle
@@ -54,7 +55,9 @@ LEVEL_TILT_RAD = 1e-6
 @dataclass(frozen=True)
 class ReplaySettings:
     """``method``: localization method; ``deskew``: motion-compensate scans (default on);
-    ``detect_period``: s between detection events (0: every recorded frame); ``pairing_window`` s."""
+    ``detect_period``: s between detection events (0: every recorded frame); ``pairing_window`` s;
+    ``read_ahead``: decode (and, detecting every frame, run the network in batches) in a thread
+    ahead of the loop (lookahead.py; off: all in the loop, frame by frame, as before)."""
 
     method: str = BOUNDED  # the flight's default
     deskew: bool = True
@@ -63,6 +66,7 @@ class ReplaySettings:
     progress: bool = False
     # s: frames exposed this much before their recorded stamps (a calibration made after the flight)
     camera_shift_s: float = 0.0
+    read_ahead: bool = True
 
 
 class ReplayRun:
@@ -85,7 +89,13 @@ class ReplayRun:
             from insulator_rs.replay.rerun_log import RerunLog
 
             self.rerun = RerunLog(self.report.layout.path / RERUN_FILE, name=bag.path.name)
-        self.player = RecordingPlayer(bag.items())
+        # read and detected ahead in a thread (lookahead.py): every frame a replay detecting each
+        # one will ask for; a replay that detects every detect_period s only decodes ahead
+        network = detector if isinstance(detector, NetworkDetector) and settings.detect_period == 0 else None
+        self.lookahead = Lookahead(bag.items(), network) if settings.read_ahead else None
+        if self.lookahead is not None:
+            detector = self.lookahead.detector() or detector
+        self.player = RecordingPlayer(bag.items() if self.lookahead is None else self.lookahead.items())
         self.vehicle = ReplayVehicle(self.player)
         self.sensors = ReplaySensors(self.player, settings.camera_shift_s)
         # The rig's camera and T_b_c serve only the pipeline's known-pose form; frames carry their
@@ -174,6 +184,8 @@ class ReplayRun:
                           sensors_health=self.sensors.health(), replay=details)
 
     def finish(self) -> RunSummary:
+        if self.lookahead is not None:
+            self.lookahead.close()
         if self.rerun is not None:
             self.rerun.close()
         self.report.flush()
