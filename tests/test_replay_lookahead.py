@@ -1,4 +1,4 @@
-"""The replay's read-ahead thread (``replay/lookahead.py``) and the network's batches.
+"""The replay's read-ahead threads (``replay/lookahead.py``) and the network's batches.
 
 References: the network run on one image at a time (``Detector.detect``, itself held to
 Ultralytics' predict in test_detection_parity.py) for the batches; the recording's own item
@@ -61,14 +61,17 @@ def test_a_bad_image_in_a_batch_is_named(network):
         network.network.detect_batch([_photos()[0], np.zeros((4, 4, 3), np.float32)])
 
 
-def test_items_come_in_order_with_each_frames_boxes_computed_ahead(network):
+@pytest.mark.parametrize("workers", [1, 3])
+def test_items_come_in_order_with_each_frames_boxes_computed_ahead(network, workers):
+    """Network threads finish their chunks out of order; the loop still gets the items in the
+    recording's order and each frame its own boxes."""
     images = _photos()
     items = []
     for k in range(3):
         for j, image in enumerate(images):
             t = k * 10 + j
             items += [_pose(t), _frame(t + 0.5, image)]
-    ahead = Lookahead(iter(items), network, batch=4)
+    ahead = Lookahead(iter(items), network, batch=4, workers=workers)
     detector = ahead.detector()
     assert isinstance(detector, LookaheadDetector) and detector.name == "insulator-sim"
     got = []
@@ -149,12 +152,12 @@ def test_a_replay_that_stops_early_stops_the_reader(network):
     next(stream)
     stream.close()  # the generator's exit closes the look-ahead
     deadline = time.monotonic() + 10
-    while any(t.name == "replay-lookahead" and t.is_alive() for t in threading.enumerate()):
+    while any(t.name.startswith("replay-lookahead") and t.is_alive() for t in threading.enumerate()):
         assert time.monotonic() < deadline, "the reader thread did not stop"
         time.sleep(0.05)
 
 
-@pytest.mark.parametrize("arg", ["batch", "depth"])
+@pytest.mark.parametrize("arg", ["batch", "depth", "workers"])
 def test_bad_sizes_are_refused_by_name(arg):
     with pytest.raises(ValueError, match=arg):
         Lookahead(iter([]), None, **{arg: 0})

@@ -370,7 +370,11 @@ def run(args: argparse.Namespace) -> int:
                 loop.status = "failed"
                 loop.finish_report()
                 raise
-            # the flight is over (landed, aborted or interrupted): now ground truth may be read
+            # the flight is over (landed, aborted or interrupted): the recording is whole now, not
+            # after the scoring below (it renders every photo: minutes on tower A, on a busy box)
+            if recorder is not None:
+                recorder.close()
+            # now ground truth may be read
             if live:  # the sensors saw the world, not the scene: nothing to score against
                 score = None
                 summary = loop.finish_report()

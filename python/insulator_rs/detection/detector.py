@@ -117,6 +117,10 @@ class Detector:
         agnostic: class-agnostic NMS.
         rect: pad only to the next multiple of the stride (needs a dynamic input);
             default: on for dynamic models, as Ultralytics' predict does.
+        spinning: the CPU provider's threads spin-wait for work between runs (onnxruntime's
+            default: the lowest latency on an otherwise idle CPU). Off where other threads need
+            the cores: spinning threads took the core a replay's loop ran on beside its
+            read-ahead, and the two ran no faster together than one after the other.
 
     Raises:
         ModelError: the file is missing, truncated/not ONNX, or not a YOLO detection export.
@@ -135,6 +139,7 @@ class Detector:
         warmup: bool = True,
         agnostic: bool = False,
         rect: bool | None = None,
+        spinning: bool = True,
     ) -> None:
         if not 0.0 <= conf <= 1.0:
             raise ValueError(f"conf must be in [0, 1], got {conf}")
@@ -146,7 +151,7 @@ class Detector:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.path = Path(model)
         self.conf, self.iou, self.max_det, self.agnostic = conf, iou, max_det, agnostic
-        self.session = self._open_session(self.path, providers, threads)
+        self.session = self._open_session(self.path, providers, threads, spinning)
         self.providers = self.session.get_providers()
         inp = self.session.get_inputs()
         outs = self.session.get_outputs()
@@ -186,7 +191,8 @@ class Detector:
         return cls(model_path(name), **kwargs)  # type: ignore[arg-type]
 
     @staticmethod
-    def _open_session(path: Path, providers: Sequence[str] | None, threads: int | None) -> ort.InferenceSession:
+    def _open_session(path: Path, providers: Sequence[str] | None, threads: int | None,
+                      spinning: bool = True) -> ort.InferenceSession:
         if not path.is_file():
             raise ModelError(f"model {path}: file not found")
         if path.stat().st_size < ONNX_MAGIC_MIN_BYTES:
@@ -195,6 +201,8 @@ class Detector:
         if threads is not None:
             opts.intra_op_num_threads = threads
             opts.inter_op_num_threads = 1
+        if not spinning:
+            opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         opts.log_severity_level = 3  # TensorRT/CUDA fall-back chatter is not an error
         chosen = list(providers) if providers else select_providers()
         try:
@@ -313,8 +321,9 @@ def _as_hw(imgsz: int | Sequence[int]) -> tuple[int, int]:
 
 
 def open_detector(model: str, *, conf: float, iou: float = 0.7, threads: int | None = None,
-                  imgsz: int | None = None) -> Detector:
-    """A detector from a shipped model name or an ONNX path (``imgsz``: input size, default the model's)."""
+                  imgsz: int | None = None, spinning: bool = True) -> Detector:
+    """A detector from a shipped model name or an ONNX path (``imgsz``: input size, default the
+    model's; ``spinning``: see :class:`Detector`)."""
     if model.endswith(".onnx") or Path(model).exists():
-        return Detector(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
-    return Detector.from_name(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz)
+        return Detector(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz, spinning=spinning)
+    return Detector.from_name(model, conf=conf, iou=iou, threads=threads, imgsz=imgsz, spinning=spinning)

@@ -490,7 +490,8 @@ class PerceptionPipeline:
 
     def _associate(self, anchor: np.ndarray) -> Track:
         if self.tracks:
-            d = [float(np.linalg.norm(t.anchor - anchor)) for t in self.tracks]
+            # one array operation over the tracks (a tower holds ~130; a norm each was 5 % of a replay)
+            d = np.linalg.norm(np.array([t.anchor for t in self.tracks]) - anchor, axis=1)
             i = int(np.argmin(d))
             if d[i] <= ASSOCIATION_GATE:
                 return self.tracks[i]

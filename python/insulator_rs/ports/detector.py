@@ -66,7 +66,9 @@ def detections_dropped(detector: object) -> dict[str, int] | None:
     return dropped.to_dict() if isinstance(dropped, DroppedDetections) else None
 
 
-def open_network_detector(model: str, *, conf: float = DETECT_CONF) -> NetworkDetector:
-    """A shipped network (by name) or an ONNX file as the flight's box detector. ModelError
-    (a ValueError) for a missing, truncated or foreign model."""
-    return NetworkDetector(open_detector(model, conf=conf))
+def open_network_detector(model: str, *, conf: float = DETECT_CONF, threads: int | None = None,
+                          spinning: bool = True) -> NetworkDetector:
+    """A shipped network (by name) or an ONNX file as the flight's box detector (``threads``
+    and ``spinning``: see :class:`~insulator_rs.detection.detector.Detector`). ModelError (a
+    ValueError) for a missing, truncated or foreign model."""
+    return NetworkDetector(open_detector(model, conf=conf, threads=threads, spinning=spinning))

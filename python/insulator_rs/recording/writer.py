@@ -222,6 +222,8 @@ class RecordingVehicle(VehicleDecorator):
 
     def _record(self, st: VehicleState) -> VehicleState:
         T_w_b = st.T_w_b
+        if self.recorder.closed:  # the flight is over and its recording closed (inspect's report after it)
+            return st
         if math.isfinite(st.time) and st.time >= 0 and np.all(np.isfinite(T_w_b)):
             self.recorder.pose(PoseStamped(float(st.time), T_w_b), st.velocity)
         return st

@@ -66,7 +66,9 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
             mission = recorded
         if options.rig is not None:
             mission = replace(mission, rig=load_rig(options.rig))
-        detector = open_detector_by_name(options.detector)
+        # read ahead, the network runs on one thread a run, one run a core (replay/lookahead.py)
+        ahead = options.read_ahead and options.detect_period == 0
+        detector = open_detector_by_name(options.detector, threads=1 if ahead else None)
         latency = camera_latency(meta, mission)
         settings = ReplaySettings(method=options.method, deskew=options.deskew, detect_period=options.detect_period,
                                   progress=options.progress, camera_shift_s=latency["shift_s"],
@@ -108,10 +110,12 @@ def failed(path: Path, out: Path, error: str) -> dict[str, Any]:
     return summary
 
 
-def open_detector_by_name(name: str) -> BoxDetector:
-    """The shipped network ``name`` or an ONNX file, at the flight's confidence threshold."""
+def open_detector_by_name(name: str, *, threads: int | None = None) -> BoxDetector:
+    """The shipped network ``name`` or an ONNX file, at the flight's confidence threshold;
+    ``threads`` a run (None: onnxruntime's default); its threads do not spin between runs (the
+    replay's loop needs the core: replay/lookahead.py)."""
     try:
-        return open_network_detector(name, conf=DETECT_CONF)
+        return open_network_detector(name, conf=DETECT_CONF, threads=threads, spinning=False)
     except ValueError as exc:
         raise ModelError(f"--detector: {exc}") from exc
 

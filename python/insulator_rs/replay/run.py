@@ -34,7 +34,7 @@ from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
-from insulator_rs.poses import tilt_of
+from insulator_rs.poses import tilt_of, yaw_of
 from insulator_rs.ports.detector import BoxDetector, NetworkDetector, detector_name
 from insulator_rs.recording.reader import FlightBag
 from insulator_rs.replay.lookahead import Lookahead
@@ -144,7 +144,7 @@ class ReplayRun:
 
     def _tick(self) -> None:
         before = self.vehicle.pose()
-        st = self.vehicle.advance(0.0)
+        self.vehicle.step()
         if self.player.time is None:
             return
         if self.t0 is None:
@@ -154,7 +154,7 @@ class ReplayRun:
         if pose is not None and pose is not before:  # a new recorded pose: the history, the path
             self.poses_level += bool(tilt_of(pose.T_w_b) < LEVEL_TILT_RAD)
             self.runner.add_pose(pose)
-            self.report.log_pose(pose.time - self.t0, st.position, st.yaw, "replay")
+            self.report.log_pose(pose.time - self.t0, pose.T_w_b[:3, 3], yaw_of(pose.T_w_b), "replay")
             if self.rerun is not None:
                 self.rerun.pose(pose)
         self._observe(self.runner.step(self.player.time))

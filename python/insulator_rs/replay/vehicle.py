@@ -49,10 +49,15 @@ class ReplayVehicle:
 
     def advance(self, dt: float) -> VehicleState:
         """To the recording's next datum (``dt`` is not used: the recording sets the pace)."""
+        self.step()
+        return self.state()
+
+    def step(self) -> None:
+        """:meth:`advance` without building the state: the replay's own loop reads the recorded
+        pose itself, at every datum (a state a datum was a tenth of a tower A replay's loop)."""
         before = self.player.pose
         if self.player.next() is not None and self.player.pose is not before:
             self._previous = before
-        return self.state()
 
     def _refuse(self, command: str) -> None:
         raise CommandRejected(command, "a replay plays a recorded flight and flies nothing", temporary=False)
