@@ -10,6 +10,7 @@ reported as a mismatch. The shared 480-photo set is too large for a unit test.
 from __future__ import annotations
 
 import json
+import platform
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,9 @@ import numpy as np
 import pytest
 
 from insulator_rs.detection.field_dataset import build_field_dataset, split_photos, verify_export_matches
+
+CARD_TOL_X86 = 1e-9  # the card's mAP, reproduced where it was measured (x86-64)
+CARD_TOL_OTHER_CPU = 1e-6  # elsewhere: another CPU's float rounding (see the card test)
 
 VOC = """<annotation><size><width>{w}</width><height>{h}</height><depth>3</depth></size>
 <object><name>insulator</name><bndbox><xmin>{x1}</xmin><ymin>{y1}</ymin><xmax>{x2}</xmax><ymax>{y2}</ymax></bndbox></object>
@@ -123,8 +127,14 @@ def _field_photos() -> Path | None:
 @pytest.mark.slow
 def test_shipped_field_model_reproduces_its_card(tmp_path: Path) -> None:
     """`detect eval --split field-test --model insulator-field` gives the card's figures (pycocotools, exact
-    to 1e-9: same photos, same model, deterministic onnxruntime CPU), and they meet issue 22's goal
-    (mAP50-95 >= 0.45; issue 12's was 0.35 / 0.75)."""
+    to 1e-9 on x86-64, where the card was measured: same photos, same model, deterministic onnxruntime
+    CPU), and they meet issue 22's goal (mAP50-95 >= 0.45; issue 12's was 0.35 / 0.75).
+
+    On another CPU (the Jetson's aarch64, under qemu in CI) onnxruntime's kernels round differently
+    (NEON against AVX2 FMA): scores move in the 7th digit (the cross-arch test holds the boxes to
+    x86-64's) and pycocotools' interpolated precision with them; with the session-21 weights the
+    aarch64 mAP50-95 was 0.5671826722 against 0.5671826771 (4.9e-9). There the card is reproduced
+    to 1e-6, three orders of magnitude above that and far below any difference between models."""
     from insulator_rs.app.cli import main
     from insulator_rs.models import model_card
 
@@ -138,6 +148,7 @@ def test_shipped_field_model_reproduces_its_card(tmp_path: Path) -> None:
     m = json.loads(out.read_text())
     after = card["after_insulator_field_640"]
     assert m["images"] == after["images"] == 72 and m["instances"] == after["instances"]
-    assert m["map50_95"] == pytest.approx(after["map50_95"], abs=1e-9)
-    assert m["map50"] == pytest.approx(after["map50"], abs=1e-9)
+    tol = CARD_TOL_X86 if platform.machine() in ("x86_64", "AMD64") else CARD_TOL_OTHER_CPU
+    assert m["map50_95"] == pytest.approx(after["map50_95"], abs=tol)
+    assert m["map50"] == pytest.approx(after["map50"], abs=tol)
     assert m["map50_95"] >= 0.45 and m["map50"] >= 0.75 > card["before_insulator_real_320"]["map50"]
