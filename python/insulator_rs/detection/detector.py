@@ -265,8 +265,8 @@ class Detector:
     def detect_batch(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """:meth:`detect` of each image, the network run once for each run of consecutive images
         whose letterboxed inputs share a shape (a stream's frames: one run), at most
-        :attr:`max_batch` at a time. Each image's
-        detections are :meth:`detect`'s up to the float rounding of a batched convolution."""
+        :attr:`max_batch` at a time. Each image's detections are :meth:`detect`'s up to the
+        float rounding of a batched convolution."""
         prepared = [letterbox(as_bgr_uint8(image, name=f"images[{i}]"), self.imgsz, auto=self.rect,
                               stride=self.stride) for i, image in enumerate(images)]
         results: list[Detections] = []

@@ -89,7 +89,7 @@ class ReplayRun:
             from insulator_rs.replay.rerun_log import RerunLog
 
             self.rerun = RerunLog(self.report.layout.path / RERUN_FILE, name=bag.path.name)
-        # read and detected ahead in a thread (lookahead.py): every frame a replay detecting each
+        # read and detected ahead in threads (lookahead.py): every frame a replay detecting each
         # one will ask for; a replay that detects every detect_period s only decodes ahead
         network = detector if isinstance(detector, NetworkDetector) and settings.detect_period == 0 else None
         self.lookahead = Lookahead(bag.items(), network) if settings.read_ahead else None
