@@ -95,6 +95,7 @@ class TrainConfig:
     start_weights: Path | None = None  # a .pt checkpoint or a shipped .onnx (warm start); None: from scratch
     uav_augment: bool = False  # blur, haze, sun flare on top of Ultralytics' own (uav_augment.py)
     resume: Path | None = None  # an Ultralytics last.pt of an interrupted run: continue it
+    device: str = "cpu"  # Ultralytics' device argument: "cpu", or a CUDA index ("0") on the GPU machine
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -135,8 +136,8 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
         imgsz=cfg.imgsz,
         batch=cfg.batch,
         workers=cfg.workers,
-        device="cpu",
-        amp=False,
+        device=cfg.device,
+        amp=False,  # AMP's self-check downloads yolo26n.pt (offline here); fp32 is fast enough for YOLO11n
         pretrained=pretrained,
         seed=cfg.seed,
         deterministic=True,
@@ -151,10 +152,7 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
     if cfg.hours is not None:
         args["time"] = cfg.hours
     args.update(cfg.extra)
-    if cfg.uav_augment:
-        from insulator_rs.detection.uav_augment import uav_trainer_class
-
-        args["trainer"] = uav_trainer_class()
+    args["trainer"] = trainer_class(uav_augment=cfg.uav_augment)
     if cfg.resume is not None:
         # Ultralytics restores every argument from the checkpoint; only these may change on resume
         # (data: the dataset may have been rebuilt at another path).
@@ -170,6 +168,57 @@ def train_yolo(cfg: TrainConfig, *, on_epoch: Callable[[int, int], None] | None 
     metrics = {k: float(v) for k, v in (trainer.metrics or {}).items() if isinstance(v, (int, float))}
     return TrainResult(weights=weights, run_dir=Path(trainer.save_dir), epochs_run=int(trainer.epoch) + 1,
                        seconds=seconds, val_metrics=metrics)
+
+
+def read_results_csv(path: Path) -> dict[str, list[int] | list[float]]:
+    """Ultralytics' ``results.csv`` as {column: values by epoch}; {} when missing or unreadable.
+
+    What Ultralytics 8.4's ``BaseTrainer.read_results_csv`` returns (it stores it in every
+    checkpoint), read with the standard library instead of polars: polars' runtime wheel is
+    54 MB, which the GPU machine's 64 MiB carry cannot hold beside the tree.
+    """
+    import csv
+
+    try:
+        with Path(path).open(newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+    except OSError:
+        return {}
+    if not rows:
+        return {}
+    header = [h.strip() for h in rows[0]]
+    if any(len(row) != len(header) for row in rows[1:]):
+        return {}  # a line cut short by an interrupted write: as Ultralytics, nothing rather than a part
+    columns: dict[str, list[int] | list[float]] = {}
+    for i, h in enumerate(header):
+        text = [row[i].strip() for row in rows[1:]]
+        try:  # a column of whole numbers (the epoch) stays integer, as polars infers it
+            columns[h] = [int(v) for v in text]
+        except ValueError:
+            try:
+                columns[h] = [float(v) for v in text]
+            except ValueError:
+                return {}
+    return columns
+
+
+def trainer_class(*, uav_augment: bool) -> type:
+    """Ultralytics' DetectionTrainer (with :class:`UavPhotometric` when ``uav_augment``) reading
+    ``results.csv`` with :func:`read_results_csv`, so that training needs no polars."""
+    if uav_augment:
+        from insulator_rs.detection.uav_augment import uav_trainer_class
+
+        base = uav_trainer_class()
+    else:
+        from ultralytics.models.yolo.detect import DetectionTrainer
+
+        base = DetectionTrainer
+
+    class Trainer(base):  # type: ignore[misc, valid-type]  # ultralytics is untyped
+        def read_results_csv(self) -> dict[str, list[int] | list[float]]:
+            return read_results_csv(Path(self.csv))
+
+    return Trainer
 
 
 def _warm_start_checkpoint(cfg: TrainConfig) -> Path:
