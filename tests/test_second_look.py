@@ -132,6 +132,60 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     assert s["insulators_found"] == 2
 
 
+def test_a_string_whose_every_localization_is_refused_gets_a_look_at_its_track(tmp_path, monkeypatch):
+    """Session 21's live miss, in process with the ground-truth stand-in: the take-off side's
+    string is boxed with confidence in its side's passes but the gates refuse every localization
+    (as the scale check refused the live network's fragments), so it never reaches the registry.
+    Where that side's passes end, the pipeline's refused track is looked at from its anchor, and
+    there (the gates let it through again) it is confirmed and inspected. Reference: the scene's
+    ground truth (found within 0.3 m, photographed from both its waypoints), the summary's second
+    look (source "refused track", at the string, confirmed)."""
+    from insulator_rs.flight.loop import FlightLoop
+    from insulator_rs.perception.pipeline import PerceptionPipeline
+    from insulator_rs.sim.towers import load_tower
+
+    scene, mission = small_scene(tmp_path)
+    geom = MissionGeometry.from_mission(load_mission(mission))
+    truth = [ins.center for ins in load_tower(str(scene)).insulators]
+    first = geom.line.side(geom.takeoff)
+    string = next(c for c in truth if geom.line.side(c) == first)
+    looking: list[bool] = []
+    refused: list[np.ndarray] = []
+    plausible = PerceptionPipeline._scale_plausible
+
+    def refuse_on_the_string_until_the_look(self, center, axis, box, T_c_w, camera):
+        if not looking and float(np.linalg.norm(center - string)) < 1.0:
+            refused.append(center)
+            return False
+        return plausible(self, center, axis, box, T_c_w, camera)
+
+    second_look = FlightLoop._second_look
+
+    def mark_the_look(self, candidate):
+        looking.append(True)
+        return second_look(self, candidate)
+
+    monkeypatch.setattr(PerceptionPipeline, "_scale_plausible", refuse_on_the_string_until_the_look)
+    monkeypatch.setattr(FlightLoop, "_second_look", mark_the_look)
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 0 and s["status"] == "finished", s["status"]
+    assert len(refused) >= 2, "the passes never tried the string: the test did not act"
+    looks = [look for look in s["second_looks"] if look["source"] == "refused track"]
+    assert len(looks) == 1, s["second_looks"]
+    look = looks[0]
+    # the anchor is on the string, not at its centre: the median of the nearest returns (measured
+    # 0.69 m under the centre of this hanging string, seen from below)
+    assert np.linalg.norm(np.subtract(look["center"], string)) < 1.0 and look["observations_before"] == 0
+    assert look["confirmed"] and look["observations_after"] >= 4 and look["note"] is None, look
+    found = min(s["insulators"], key=lambda r: float(np.linalg.norm(np.subtract(r["center"], string))))
+    assert np.linalg.norm(np.subtract(found["center"], string)) < 0.3
+    shots = [p for p in s["photos"] if p["insulator_id"] == found["id"] and p.get("attempt", 1) == 1]
+    assert len(shots) == 2, shots
+    assert s["insulators_found"] == 2
+
+
 def test_the_views_are_out_across_the_line_below_the_candidate_clear_and_facing_it(tmp_path):
     """Reference: the small scene's mission geometry (its safety volumes, checked by their own
     ``points_clear``) and plain vector arithmetic for the distance, the shift along the line,

@@ -54,7 +54,8 @@ from insulator_rs.flight.record import (camera_record, candidate_records, insula
                                         setpoint_stream_record, timesync_record)
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
 from insulator_rs.flight.stall_watch import StallWatch
-from insulator_rs.flight.second_look import SecondLook, look_events, look_target, look_viewpoints
+from insulator_rs.flight.second_look import (REFUSED_TRACK_MIN_CONFIDENT, SecondLook, look_events, look_target,
+                                              look_viewpoints, observations_near, refused_track_candidate)
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
@@ -177,6 +178,8 @@ class FlightLoop:
         # the companion's stalls (flight/stall_watch.py), set by whoever flies an outside autopilot
         self.stall_watch: StallWatch | None = None
         self._looked: list[Insulator] = []  # the candidates looked at (the records themselves)
+        # look targets made for the pipeline's refused tracks, one per track (``_looked`` holds them)
+        self._refused_targets: dict[int, Insulator] = {}
         self._search_end: PlanItem | None = None  # the item where the search ended, once caught up
         self.status = "running"
         self.abort_reason: str | None = None
@@ -501,13 +504,30 @@ class FlightLoop:
         # where a side's passes end (perception caught up where the search ends): a string they
         # saw too few times is looked at again, one a call (False: re-plan from the viewpoint,
         # back here or to the find's waypoints)
-        target = look_target(self.registry.candidates, self.geom.line, self.vehicle.state().position,
-                             self.mission.max_width, self._looked)
+        position = self.vehicle.state().position
+        target = look_target(self.registry.candidates, self.geom.line, position, self.mission.max_width, self._looked)
+        if target is None:  # then a track confidently boxed whose every localization was refused
+            target = look_target(self._refused_candidates(), self.geom.line, position, self.mission.max_width,
+                                 self._looked)
         if target is None:
             return True
         self._looked.append(target)
         self._second_look(target)
         return False
+
+    def _refused_candidates(self) -> list[Insulator]:
+        """Look targets for the pipeline's tracks boxed REFUSED_TRACK_MIN_CONFIDENT times with
+        confidence whose every localization the gates refused, at their anchors (the same record
+        for a track at every call, so ``_looked`` knows it), the most confident first."""
+        tracks = self.runner.pipeline.refused_tracks(REFUSED_TRACK_MIN_CONFIDENT)
+        tracks.sort(key=lambda t: -t.evidence.confident_boxes)
+        for track in tracks:
+            if id(track) not in self._refused_targets:
+                self._refused_targets[id(track)] = refused_track_candidate(track.anchor, self.geom.line)
+        return [self._refused_targets[id(t)] for t in tracks]
+
+    def _is_refused_target(self, candidate: Insulator) -> bool:
+        return any(candidate is target for target in self._refused_targets.values())
 
     def _second_look(self, candidate: Insulator) -> None:
         """Watch ``candidate`` from its look viewpoints in turn (flight/second_look.py), each
@@ -515,14 +535,17 @@ class FlightLoop:
         ended by a find (the plan changes: its waypoints come first), cut short by a hold, an
         abort, lost health or an obstacle on the way. The look goes into summary.json."""
         before = candidate.observations
+        source = "refused track" if self._is_refused_target(candidate) else "candidate"
         try:
             views = look_viewpoints(candidate.center, self.geom.line, self.geom.volumes,
                                     min_height=float(self.geom.takeoff[2]) + MIN_PASS_HEIGHT)
         except PlanningError as exc:
             self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, before,
-                                                candidate.confirmed, f"not flown: {exc}"))
+                                                candidate.confirmed, f"not flown: {exc}", source=source))
             return
-        self.say(f"[{self.now():7.1f} s] a second look at a candidate seen {before} times at "
+        seen = (f"seen {before} times" if source == "candidate"
+                else "boxed with confidence, every localization refused")
+        self.say(f"[{self.now():7.1f} s] a second look at a {source} ({seen}) at "
                  f"{np.round(candidate.center, 2).tolist()}")
         version = self.sm.plan_version
         note, flown = None, 0
@@ -540,8 +563,13 @@ class FlightLoop:
                and not self.runner.caught_up(watched)):
             st = self.tick(view.position, None, view.yaw)
             note = self._look_cut_short(version)
-        self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, candidate.observations,
-                                            candidate.confirmed, note, flown))
+        after, confirmed = candidate.observations, candidate.confirmed
+        if source == "refused track":  # what the registry now holds where the track was
+            gate = self.registry.gate
+            after = observations_near(self.registry.insulators + self.registry.candidates, candidate.center, gate)
+            confirmed = observations_near(self.registry.insulators, candidate.center, gate) > 0
+        self.second_looks.append(SecondLook(candidate.id, candidate.center.copy(), before, after, confirmed, note,
+                                            flown, source=source))
 
     def _look_cut_short(self, version: int) -> str | None:
         """Why a look stops here (None: it goes on, or a find changed the plan ``version``)."""

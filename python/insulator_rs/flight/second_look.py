@@ -76,6 +76,14 @@ LOOK_MAX_PUSH = 10.0
 LOOK_VIEWS = 3
 #: m along the line between views (at LOOK_DISTANCE: about 27 degrees round the candidate)
 LOOK_SHIFT = 3.5
+#: confident boxes (BIRTH_SCORE or more) a track needs to be looked at when the gates refused
+#: every localization it tried. Session 21's live miss: the small scene's first-side string
+#: boxed 4 times at 0.5 or more (best 0.78), all 5 attempts refused (box fragments of 15x19 and
+#: 5x25 px: the scale check; "not linear"), so it never reached the registry and got no look;
+#: the track's anchor lay 0.10 m from the string. On tower A's default flight (its replay) the
+#: tracks so refused that lie off the body had at most 2 confident boxes (the body's own, at the
+#: cross-arms' roots, up to 29, are left out by BODY_FRACTION): 3 looks at none of them.
+REFUSED_TRACK_MIN_CONFIDENT = 3
 
 
 @dataclass(frozen=True)
@@ -91,11 +99,27 @@ class SecondLook:
     confirmed: bool
     note: str | None = None
     views: int = 0
+    #: "candidate" (a registry record) or "refused track" (:func:`refused_track_candidate`)
+    source: str = "candidate"
 
     def as_record(self) -> dict[str, Any]:
         return {"insulator_id": self.insulator_id, "center": np.round(self.center, 3).tolist(),
                 "observations_before": self.observations_before, "observations_after": self.observations_after,
-                "confirmed": self.confirmed, "views": self.views, "note": self.note}
+                "confirmed": self.confirmed, "views": self.views, "note": self.note, "source": self.source}
+
+
+def refused_track_candidate(anchor: np.ndarray, line: LineFrame) -> Insulator:
+    """A look target for a track the gates refused throughout (no registry record: id 0, seen 0
+    times, no axis yet) at its ``anchor`` in W: the median of its boxes' nearest LiDAR returns."""
+    center = np.asarray(anchor, dtype=np.float64).reshape(3).copy()
+    return Insulator(id=0, center=center, axis=np.zeros(3), observations=0, side=line.side(center))
+
+
+def observations_near(records: list[Insulator], center: np.ndarray, gate: float) -> int:
+    """The localizations of the registry record within ``gate`` m of ``center`` (the most seen;
+    0 when none): what a look at a refused track gathered."""
+    c = np.asarray(center, dtype=np.float64)
+    return max((r.observations for r in records if float(np.linalg.norm(r.center - c)) <= gate), default=0)
 
 
 def look_target(candidates: list[Insulator], line: LineFrame, position: np.ndarray, max_width: float,

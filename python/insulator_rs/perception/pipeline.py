@@ -233,6 +233,14 @@ class PerceptionPipeline:
                          "first_time": e.first_time, "last_time": e.last_time})
         return sorted(rows, key=lambda r: (-r["localizations"], -r["boxes"]))
 
+    def refused_tracks(self, min_confident_boxes: int) -> list[Track]:
+        """Tracks boxed with confidence (``min_confident_boxes`` at BIRTH_SCORE or more) whose every
+        localization attempt the gates refused: never in the registry, so never a candidate. A
+        string boxed in fragments looks so (the flight's second look, flight/second_look.py)."""
+        return [t for t in self.tracks
+                if t.evidence.localizations == 0 and t.evidence.held_before_birth == 0
+                and t.evidence.refused > 0 and t.evidence.confident_boxes >= min_confident_boxes]
+
     # -- live / replay ----------------------------------------------------------------------
     def add_pose(self, pose: PoseStamped) -> None:
         """The vehicle's estimated pose (feed every control tick, in time order)."""
