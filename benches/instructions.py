@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TABLE = ROOT / "benches" / "instructions.json"
 EXAMPLE = "instructions"
 KERNELS = ("project_points_20k", "points_in_boxes_20k", "deskew_20k", "deskew_points_in_boxes_20k",
-           "dbscan_3k", "dbscan_30k", "pca_2k", "localize_dbscan_ransac_2k")
+           "dbscan_3k", "dbscan_30k", "dbscan_sparse_10k", "pca_2k", "localize_dbscan_ransac_2k")
 #: The most a kernel may grow over its committed count (the issue's +5 %).
 TOLERANCE = 0.05
 COLLECTED = re.compile(r"Collected\s*:\s*(\d+)")

@@ -68,6 +68,22 @@ fn strings(n: usize, per_string: usize, s: &mut Stream) -> Vec<[f64; 3]> {
     pts
 }
 
+/// A sparse tower-scale cloud like the DBSCAN tower bench's (whose generator uses `rand`):
+/// 24 conductors 60 m long, 96 % of the `n` points spread along them (about 15 cm apart, 2 cm
+/// noise), the rest uniform strays over the box: most grid cells hold a point or two.
+fn wires(n: usize, s: &mut Stream) -> Vec<[f64; 3]> {
+    let per_wire = n * 24 / 25 / 24;
+    let mut pts: Vec<[f64; 3]> = Vec::with_capacity(n);
+    for k in 0..24 {
+        let (x, z) = (-9.0 + 3.6 * (k % 6) as f64, 30.0 + 5.0 * (k / 6) as f64);
+        pts.extend((0..per_wire).map(|_| [x + s.range(-0.02, 0.02), s.range(-30.0, 30.0), z + s.range(-0.02, 0.02)]));
+    }
+    while pts.len() < n {
+        pts.push([s.range(-10.0, 10.0), s.range(-30.0, 30.0), s.range(25.0, 50.0)]);
+    }
+    pts
+}
+
 fn camera() -> (CameraModel, Isometry3<f64>) {
     let cam = CameraModel::new(1000.0, 1000.0, 640.0, 360.0, 1280, 720, [-0.1, 0.02, 0.001, -0.001, 0.0]).unwrap();
     let r = Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
@@ -126,6 +142,12 @@ fn run(kernel: &str, setup_only: bool) -> bool {
         "dbscan_3k" | "dbscan_30k" => {
             let n = if kernel == "dbscan_3k" { 3_000 } else { 30_000 };
             let pts = strings(n, 100, &mut s);
+            if !setup_only {
+                black_box(dbscan(black_box(&pts), 0.3, 5).unwrap());
+            }
+        }
+        "dbscan_sparse_10k" => {
+            let pts = wires(10_000, &mut s);
             if !setup_only {
                 black_box(dbscan(black_box(&pts), 0.3, 5).unwrap());
             }

@@ -2,7 +2,8 @@
 //!
 //! Layout (no module imports its parent): `clustering` holds what every back end returns and
 //! the merge of independent parts; `grid` is the near-linear uniform-grid DBSCAN that does the
-//! work; `kdtree` is kiddo's kd-tree version, for the one case the grid cannot take; this module
+//! work, handing sparse clouds to `sparse` (coarser cells, neighbour pairs listed once);
+//! `kdtree` is kiddo's kd-tree version, for the one case the grid cannot take; this module
 //! validates the arguments and splits the cloud.
 //!
 //! A far point must not cost more than a near one. The grid packs cell coordinates into 21
@@ -23,6 +24,7 @@ use crate::points::{collect_finite, PointCloud};
 mod clustering;
 mod grid;
 mod kdtree;
+mod sparse;
 
 pub use clustering::NOISE;
 use clustering::{merge, Clustering};
@@ -135,7 +137,7 @@ mod tower;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use grid::dbscan_grid_with_budget;
+    use grid::{dbscan_grid_with, Budgets, BUDGETS};
     use kdtree::{dbscan_with_budget, NEIGHBOUR_BUDGET};
     use proptest::prelude::*;
     use std::collections::HashMap;
@@ -416,9 +418,14 @@ mod tests {
         assert_equivalent(&pts, 0.1 + 1e-9, 3);
     }
 
+    /// Budgets that force the fine grid (never the coarse cells), and the coarse cells always.
+    const FINE: Budgets = Budgets { sparse_occupancy: 0.0, ..BUDGETS };
+    const COARSE: Budgets = Budgets { sparse_occupancy: f64::INFINITY, sparse_tests: usize::MAX, ..BUDGETS };
+
     /// The bench's sparse tower-scale clouds (lattice + conductors over ~60 m, most cells holding
-    /// fewer than 5 points): the grid gives the kd-tree's labels exactly, with the pair table
-    /// stored and with it over budget (every pass re-sweeps), at eps 0.3 and localize's 0.5.
+    /// fewer than 5 points): the grid gives the kd-tree's labels exactly, as chosen, on the fine
+    /// grid with the pair table stored and over budget (every pass re-sweeps), and on coarse
+    /// cells, at eps 0.3 and localize's 0.5.
     #[test]
     fn tower_clouds_match_kdtree_stored_and_swept() {
         for (n, seed) in [(10_000, 7), (3_000, 1)] {
@@ -427,7 +434,9 @@ mod tests {
                 let want = dbscan_kdtree(&pts, eps, mp);
                 assert!(n_clusters(&want.labels) > 1 && (mp == 1 || want.labels.contains(&NOISE)));
                 assert_eq!(dbscan_grid(&pts, eps, mp).as_ref(), Some(&want), "n {n} eps {eps} min {mp}");
-                assert_eq!(dbscan_grid_with_budget(&pts, eps, mp, 0).as_ref(), Some(&want));
+                for budgets in [FINE, Budgets { table: 0, ..FINE }, COARSE] {
+                    assert_eq!(dbscan_grid_with(&pts, eps, mp, budgets).as_ref(), Some(&want), "{budgets:?}");
+                }
             }
         }
         assert_equivalent(&tower::tower_cloud(1_500, 3), 0.3, 5);
@@ -436,20 +445,22 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(64))]
         /// Sparse tower-like clouds of any size and seed, any eps/min_points: grid (stored pair
-        /// table, and a table budget that runs out part-way) equals the kd-tree exactly.
+        /// table, and a table budget that runs out part-way; fine grid, coarse cells as chosen,
+        /// always, or given up part-way) equals the kd-tree exactly.
         #[test]
         fn tower_clouds_grid_matches_kdtree(
             n in 0usize..2_500, seed in 0u64..1_000, eps in 0.05f64..1.0, min_points in 1usize..12,
-            budget in prop::sample::select(vec![0usize, 100, 5_000, grid::TABLE_BUDGET]),
+            table in prop::sample::select(vec![0usize, 100, 5_000, grid::TABLE_BUDGET]),
+            sparse in prop::sample::select(vec![FINE, BUDGETS, COARSE, Budgets { sparse_tests: 1, ..COARSE }]),
         ) {
             let pts = tower::tower_cloud(n, seed);
             let want = dbscan_kdtree(&pts, eps, min_points);
-            prop_assert_eq!(dbscan_grid_with_budget(&pts, eps, min_points, budget), Some(want));
+            prop_assert_eq!(dbscan_grid_with(&pts, eps, min_points, Budgets { table, ..sparse }), Some(want));
         }
 
         /// The grid and the kd-tree give identical labels (border rule included) on clouds with
-        /// clumps denser than min_points per cell, ties and duplicates; also with the pair
-        /// table over budget (every pass re-sweeps).
+        /// clumps denser than min_points per cell, ties and duplicates; on the fine grid (also
+        /// with the pair table over budget: every pass re-sweeps) and on coarse cells.
         #[test]
         fn grid_matches_kdtree(
             pts in prop::collection::vec(prop::array::uniform3(0i32..40), 0..400),
@@ -459,7 +470,9 @@ mod tests {
             let pts: Vec<[f64; 3]> = pts.iter().map(|p| p.map(|v| f64::from(v) * scale)).collect();
             let want = Some(dbscan_kdtree(&pts, eps, min_points));
             prop_assert_eq!(&dbscan_grid(&pts, eps, min_points), &want);
-            prop_assert_eq!(&dbscan_grid_with_budget(&pts, eps, min_points, 50), &want);
+            for budgets in [FINE, Budgets { table: 50, ..FINE }, COARSE, Budgets { sparse_tests: 2, ..COARSE }] {
+                prop_assert_eq!(&dbscan_grid_with(&pts, eps, min_points, budgets), &want);
+            }
         }
 
         /// Random clouds on a coarse grid (exact ties and duplicates) and continuous ones.
