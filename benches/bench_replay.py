@@ -87,10 +87,16 @@ def test_replay_tower_a_frame_by_frame(benchmark: Any, tower_a_bag: Path, tmp_pa
 
 
 @pytest.mark.benchmark(group="replay fleet, 2 flights")
-def test_fleet_of_two_on_local_ray(benchmark: Any, tower_a_bag: Path, tmp_path: Path) -> None:
-    """Two copies of the flight on a local Ray with 2 workers (Ray's start-up included)."""
+@pytest.mark.parametrize("threads", ["shared", "one a core"])
+def test_fleet_of_two_on_local_ray(benchmark: Any, tower_a_bag: Path, tmp_path: Path, threads: str) -> None:
+    """Two copies of the flight on a local Ray with 2 workers (Ray's start-up included); each
+    flight's network on its share of the cores (the fleet's default), and, as before, on one
+    thread a core in each flight."""
     ray = pytest.importorskip("ray")
     from insulator_rs.replay.fleet import replay_fleet
+    from insulator_rs.replay.lookahead import default_workers
+
+    options = ReplayOptions(overwrite=True, network_threads=None if threads == "shared" else default_workers())
 
     flights = []
     for k in range(2):
@@ -101,13 +107,14 @@ def test_fleet_of_two_on_local_ray(benchmark: Any, tower_a_bag: Path, tmp_path: 
 
     def run() -> dict[str, Any]:
         try:
-            return replay_fleet(flights, tmp_path / "fleet", ReplayOptions(overwrite=True), workers=2, address=None)
+            return replay_fleet(flights, tmp_path / "fleet", options, workers=2, address=None)
         finally:
             ray.shutdown()
 
     fleet = benchmark.pedantic(run, rounds=1, iterations=1, warmup_rounds=0)
     assert fleet["flights_ok"] == 2, fleet
-    benchmark.extra_info.update(impl="insulator_rs", flight_s=flight_s, target_realtime=TARGET_REALTIME)
+    impl = "insulator_rs" if threads == "shared" else "network one thread a core (before)"
+    benchmark.extra_info.update(impl=impl, flight_s=flight_s, target_realtime=TARGET_REALTIME)
 
 
 @pytest.mark.benchmark(group="replay tower A")

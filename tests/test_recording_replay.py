@@ -14,6 +14,7 @@ and 0.028 m (each 0.03-0.06 m from the truth). With the passes of before, 0.016 
 """
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -26,6 +27,8 @@ from insulator_rs.app.cli import main
 from insulator_rs.recording import types as T
 from insulator_rs.app.replay_command import ReplayOptions, replay_one
 from insulator_rs.recording.writer import McapRecorder
+from insulator_rs.replay.fleet import fleet_network_threads
+from insulator_rs.replay.lookahead import default_workers
 from test_mission_inspect import small_scene
 
 pytestmark = pytest.mark.slow
@@ -152,6 +155,16 @@ def test_bad_recordings_are_refused_by_name(tmp_path, capsys):
     assert "--workers: must be >= 1" in capsys.readouterr().err
 
 
+def test_a_fleets_flights_share_the_cores():
+    """Network threads a flight of a fleet: the local Ray's cores over its workers (at least one),
+    one a task on a cluster. Reference: the cores this process may use (os.sched_getaffinity)."""
+    cores = len(os.sched_getaffinity(0))
+    assert fleet_network_threads(1, None) == cores
+    assert fleet_network_threads(2, None) == max(1, cores // 2)
+    assert fleet_network_threads(cores + 3, None) == 1
+    assert fleet_network_threads(2, "10.0.0.1:6379") == 1
+
+
 def test_fleet_on_a_local_ray(flight):
     """Three recordings (one broken) on a local Ray with 2 CPUs: one report each plus the fleet
     summary; the same function as a single replay."""
@@ -173,9 +186,13 @@ def test_fleet_on_a_local_ray(flight):
     # scored by the command after the fleet, each against the scene: score.json and the fleet's rows
     assert [f.get("insulators_matched") for f in s["flights"]] == [2, 2, None]
     assert (out / "a" / "score.json").is_file() and not (out / "c" / "score.json").exists()
+    # each flight's read-ahead ran the network on its share of the cores, not one thread a core
+    share = fleet_network_threads(2, None)
+    assert share == max(1, default_workers() // 2)
     for name in ("a", "b"):
         one = json.loads((out / name / "summary.json").read_text())
         _same_insulators(flown, one)
+        assert one["network_threads"] == share, one["network_threads"]
     assert "c.mcap" in json.loads((out / "c" / "summary.json").read_text())["status"]
 
 

@@ -32,6 +32,15 @@ def _candidate(x: float, observations: int, *, z: float = 15.0) -> Insulator:
                      side=LINE.side(c), history=[c])
 
 
+def _inspect(tmp_path, scene, mission) -> dict:
+    """Runs the default inspect of ``scene`` with ``ARGS``; returns its summary, finished."""
+    out = tmp_path / "report"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 0 and s["status"] == "finished", s["status"]
+    return s
+
+
 def test_the_most_seen_candidate_on_the_vehicles_side_off_the_body_is_looked_at():
     """Reference: the rule as the module states it, case by case (lateral offset vs
     BODY_FRACTION * max_width, the side, not confirmed, not looked at, most seen first)."""
@@ -111,10 +120,7 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     monkeypatch.setattr(FlightLoop, "_watch_from", watch_from)
 
     monkeypatch.setattr(FlightLoop, "_localized", see_the_string_once)
-    out = tmp_path / "report"
-    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
-    s = json.loads((out / "summary.json").read_text())
-    assert rc == 0 and s["status"] == "finished", s["status"]
+    s = _inspect(tmp_path, scene, mission)
     assert kept, "the passes never saw the string: the test did not act"
     looks = s["second_looks"]
     assert len(looks) == 1, looks
@@ -167,10 +173,7 @@ def test_a_string_whose_every_localization_is_refused_gets_a_look_at_its_track(t
 
     monkeypatch.setattr(PerceptionPipeline, "_scale_plausible", refuse_on_the_string_until_the_look)
     monkeypatch.setattr(FlightLoop, "_second_look", mark_the_look)
-    out = tmp_path / "report"
-    rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
-    s = json.loads((out / "summary.json").read_text())
-    assert rc == 0 and s["status"] == "finished", s["status"]
+    s = _inspect(tmp_path, scene, mission)
     assert len(refused) >= 2, "the passes never tried the string: the test did not act"
     looks = [look for look in s["second_looks"] if look["source"] == "refused track"]
     assert len(looks) == 1, s["second_looks"]

@@ -40,6 +40,9 @@ class ReplayOptions:
     progress: bool = False
     overwrite: bool = False
     read_ahead: bool = True  # decode and detect in a thread ahead of the loop (replay/lookahead.py)
+    # network runs at once while reading ahead (None: one a core this process may use); a Ray
+    # fleet gives each flight its share of the cores (replay/fleet.py)
+    network_threads: int | None = None
 
 
 def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dict[str, Any]:
@@ -72,7 +75,7 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
         latency = camera_latency(meta, mission)
         settings = ReplaySettings(method=options.method, deskew=options.deskew, detect_period=options.detect_period,
                                   progress=options.progress, camera_shift_s=latency["shift_s"],
-                                  read_ahead=options.read_ahead)
+                                  read_ahead=options.read_ahead, network_threads=options.network_threads)
         # a recording of ours logs each scan at its window's end (McapRecorder.scan)
         with FlightBag(path, options.topics, max_gap=options.max_gap, scan_windows=bool(meta.mission_text)) as bag:
             summary = ReplayRun(bag, out, mission=mission, detector=detector, settings=settings,

@@ -7,6 +7,12 @@ local Ray with ``workers`` CPUs (and stops it after); an address joins a running
 see). ``workers=1`` without an address runs the flights one after another in this process
 (no Ray needed).
 
+Each flight's read-ahead runs the network on as many threads as it has cores
+(``ReplayOptions.network_threads``, when not given): its share of a local Ray's (the cores this
+process may use over ``workers``, at least one), and one on a cluster, where Ray fills every CPU
+of a node with a task. Left at one a core, N flights on N cores ran N x N network threads: two
+flights on 2 workers took longer than the same two one after the other.
+
 ``fleet_summary.json``: per flight its status, insulators found, detector and errors where
 ground truth exists; per tower (its GPS position) the insulators each flight found.
 """
@@ -19,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.replay.batch import ReplayOptions, replay_one
+from insulator_rs.replay.lookahead import default_workers
 from insulator_rs.report.jsonfile import write_json
 
 
@@ -65,6 +72,8 @@ def _on_ray(jobs: list[tuple[Path, Path]], options: ReplayOptions, workers: int,
         else:
             ray.init(address=address, log_to_driver=False, configure_logging=False)
         started = True
+    if options.network_threads is None:
+        options = replace(options, network_threads=fleet_network_threads(workers, address))
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(replay_one)
         refs = [task.remote(str(f), str(o), options) for f, o in jobs]
@@ -79,6 +88,14 @@ def _on_ray(jobs: list[tuple[Path, Path]], options: ReplayOptions, workers: int,
     finally:
         if started:
             ray.shutdown()
+
+
+def fleet_network_threads(workers: int, address: str | None) -> int:
+    """Network threads for each flight of a fleet: a local Ray's cores shared among its
+    ``workers`` (at least one each); one on a cluster (a task holds one CPU of its node)."""
+    if address is not None:
+        return 1
+    return max(1, default_workers() // max(1, workers))
 
 
 def fleet_summary(summaries: list[dict[str, Any]]) -> dict[str, Any]:

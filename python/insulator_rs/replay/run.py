@@ -57,7 +57,8 @@ class ReplaySettings:
     """``method``: localization method; ``deskew``: motion-compensate scans (default on);
     ``detect_period``: s between detection events (0: every recorded frame); ``pairing_window`` s;
     ``read_ahead``: decode (and, detecting every frame, run the network in batches) in a thread
-    ahead of the loop (lookahead.py; off: all in the loop, frame by frame, as before)."""
+    ahead of the loop (lookahead.py; off: all in the loop, frame by frame, as before);
+    ``network_threads``: network runs at once while reading ahead (None: one a core)."""
 
     method: str = BOUNDED  # the flight's default
     deskew: bool = True
@@ -67,6 +68,7 @@ class ReplaySettings:
     # s: frames exposed this much before their recorded stamps (a calibration made after the flight)
     camera_shift_s: float = 0.0
     read_ahead: bool = True
+    network_threads: int | None = None
 
 
 class ReplayRun:
@@ -92,7 +94,8 @@ class ReplayRun:
         # read and detected ahead in threads (lookahead.py): every frame a replay detecting each
         # one will ask for; a replay that detects every detect_period s only decodes ahead
         network = detector if isinstance(detector, NetworkDetector) and settings.detect_period == 0 else None
-        self.lookahead = Lookahead(bag.items(), network) if settings.read_ahead else None
+        self.lookahead = (Lookahead(bag.items(), network, workers=settings.network_threads)
+                          if settings.read_ahead else None)
         if self.lookahead is not None:
             detector = self.lookahead.detector() or detector
         self.player = RecordingPlayer(bag.items() if self.lookahead is None else self.lookahead.items())
@@ -175,7 +178,9 @@ class ReplayRun:
             deskew=self.settings.deskew, poses=c["poses"], scans=c["scans"], frames=c["frames"],
             wall_time_s=self.wall, speed_vs_real_time=duration / self.wall if self.wall > 0 else None,
             rerun=RERUN_FILE if self.rerun is not None else None,
-            attitude="yaw-only" if c["poses"] > 0 and self.poses_level == c["poses"] else "full")
+            attitude="yaw-only" if c["poses"] > 0 and self.poses_level == c["poses"] else "full",
+            network_threads=(self.lookahead.workers if self.lookahead is not None
+                             and self.lookahead.network is not None else None))
         return RunSummary(run="replay", status=self.status, error=self.error, detector=detector_name(self.detector),
                           method=self.settings.method, flight_time_s=duration,
                           perception=perception_record(self.runner),

@@ -129,6 +129,8 @@ class ReplayDetails:
     # level (a recording from before the vehicle port reported the attitude): the replay then
     # takes the body as level, as the flight did
     attitude: str = "full"
+    # network runs at once while reading ahead (None: not read ahead, or no network to run)
+    network_threads: int | None = None
 
 
 @dataclass
