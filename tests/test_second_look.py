@@ -11,8 +11,9 @@ from test_mission_inspect import small_scene
 from insulator_rs.app.cli import main
 import pytest
 
-from insulator_rs.flight.second_look import (BODY_FRACTION, LOOK_BELOW, LOOK_DISTANCE, LOOK_SHIFT, LOOK_VIEWS,
-                                             MAX_LOOKS, look_target, look_viewpoints)
+from insulator_rs.flight.second_look import (BODY_FRACTION, KNOWN_STRING_REACH, LOOK_BELOW, LOOK_DISTANCE,
+                                             LOOK_SHIFT, LOOK_VIEWS, MAX_LOOKS, look_target, look_viewpoints,
+                                             near_a_known_string)
 from insulator_rs.geodesy import line_frame
 from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
@@ -59,6 +60,31 @@ def test_the_most_seen_candidate_on_the_vehicles_side_off_the_body_is_looked_at(
     confirmed = _candidate(-4.5, 9)
     confirmed.confirmed = True
     assert look_target([confirmed], LINE, here, MAX_WIDTH, []) is None
+
+
+def test_a_refused_track_anchored_on_a_known_string_is_not_looked_at():
+    """Tower A's strain pair (session 23): a string found at the origin along the line (y), 2.2 m
+    long; refused tracks anchored on the cross-arm tip at its inner end (measured: 1.18 m along and
+    0.90 m off, -1.06 along and 1.15 off) are that string; the middle of its twin 2.87 m along
+    (0.3 m off) is not, nor is a point 1.3 m straight off the string's middle. Reference: the
+    distance to the segment by hand (numpy), against KNOWN_STRING_REACH."""
+    axis = np.array([0.0, 1.0, 0.0])
+    found = Insulator(id=1, center=np.zeros(3), axis=axis, observations=40, side=1, confirmed=True)
+
+    def by_hand(anchor):
+        along = float(np.clip(anchor @ axis, -1.1, 1.1))
+        return float(np.linalg.norm(anchor - along * axis))
+
+    for anchor, known in (([0.9, 1.18, 0.0], True), ([0.0, -1.06, 1.15], True), ([0.3, 2.87, 0.0], False),
+                          ([0.0, 0.0, 1.3], False), ([0.0, 2.2, 0.5], True)):
+        a = np.array(anchor)
+        assert (by_hand(a) <= KNOWN_STRING_REACH) == known, anchor
+        assert near_a_known_string(a, [found], 2.2) == known, anchor
+    # a record without an axis yet: its centre alone
+    bare = Insulator(id=2, center=np.zeros(3), axis=np.zeros(3), observations=1, side=1)
+    assert near_a_known_string(np.array([0.0, 1.2, 0.0]), [bare], 2.2)
+    assert not near_a_known_string(np.array([0.0, 1.3, 0.0]), [bare], 2.2)
+    assert not near_a_known_string(np.array([0.0, 1.2, 0.0]), [], 2.2)
 
 
 def test_looks_are_bounded_per_flight():

@@ -55,7 +55,8 @@ from insulator_rs.flight.record import (camera_record, candidate_records, insula
 from insulator_rs.flight.reserve import TOUCHDOWN_TIME, BatteryReserve
 from insulator_rs.flight.stall_watch import StallWatch
 from insulator_rs.flight.second_look import (REFUSED_TRACK_MIN_CONFIDENT, SecondLook, look_events, look_target,
-                                              look_viewpoints, observations_near, refused_track_candidate)
+                                              look_viewpoints, near_a_known_string, observations_near,
+                                              refused_track_candidate)
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
@@ -518,8 +519,12 @@ class FlightLoop:
     def _refused_candidates(self) -> list[Insulator]:
         """Look targets for the pipeline's tracks boxed REFUSED_TRACK_MIN_CONFIDENT times with
         confidence whose every localization the gates refused, at their anchors (the same record
-        for a track at every call, so ``_looked`` knows it), the most confident first."""
-        tracks = self.runner.pipeline.refused_tracks(REFUSED_TRACK_MIN_CONFIDENT)
+        for a track at every call, so ``_looked`` knows it), the most confident first; not those
+        anchored on a string the registry already holds (a known string seen from its steel)."""
+        known = self.registry.insulators + self.registry.candidates
+        length = self.mission.inspection.insulator_length
+        tracks = [t for t in self.runner.pipeline.refused_tracks(REFUSED_TRACK_MIN_CONFIDENT)
+                  if not near_a_known_string(t.anchor, known, length)]
         tracks.sort(key=lambda t: -t.evidence.confident_boxes)
         for track in tracks:
             if id(track) not in self._refused_targets:
