@@ -25,14 +25,15 @@ ARGS = ["--detect-period", "1.0", "--detect-scale", "0.2", "--photo-scale", "0.2
         "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
-def _inspect(tmp_path, *extra, confirmations=1, score=False):
+def _inspect(tmp_path, *extra, confirmations: int | None = 1, score=False):
     """Fly the small scene. The registry confirms at once (the paper's behaviour) unless told
     otherwise: over MAVLink the simulated PX4 flies on while a frame renders, so a fast pass
     gets too few detection events for the default 3 confirmations (test_mission_inspect
     exercises those in-process)."""
     scene, mission = small_scene(tmp_path)
-    # [inspection] is the mission file's last table
-    mission.write_text(mission.read_text() + f"confirmations = {confirmations}\n")
+    if confirmations is not None:  # None: the mission's default
+        # [inspection] is the mission file's last table
+        mission.write_text(mission.read_text() + f"confirmations = {confirmations}\n")
     out = tmp_path / "report"
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS, *extra])
     s = json.loads((out / "summary.json").read_text())
@@ -89,9 +90,12 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
     In real time (time scale 1): the simulated PX4 flies on while a frame renders, and at 4x
     those render stalls cost whole detection events on the small scene's fast pass. Detection
     twice a second: on a loaded machine one pass at 1 Hz once localized only one of the two
-    insulators (each is in view for a few seconds at 3 m/s)."""
+    insulators (each is in view for a few seconds at 3 m/s). At the mission's default
+    confirmations (session 23): with the paper's 1, CI under load confirmed one false
+    localization near the tower body and photographed it; a string seen too few times now gets
+    a second look instead."""
     rc, out, s, g = _inspect(tmp_path, "--vehicle", "mavlink", "--time-scale", "1", "--detect-period", "0.5",
-                             score=True)
+                             confirmations=None, score=True)
     assert rc == 0, s["status"]
     assert s["status"] == "finished" and s["state"] == "finish" and s["vehicle"] == "MavlinkVehicle"
     assert s["failsafe"] is None
