@@ -10,8 +10,10 @@ see). ``workers=1`` without an address runs the flights one after another in thi
 Each flight's read-ahead runs the network on as many threads as it has cores
 (``ReplayOptions.network_threads``, when not given): its share of a local Ray's (the cores this
 process may use over ``workers``, at least one), and one on a cluster, where Ray fills every CPU
-of a node with a task. Left at one a core, N flights on N cores ran N x N network threads: two
-flights on 2 workers took longer than the same two one after the other.
+of a node with a task. Left at one a core, N flights on N cores ran N x N network threads. On
+the 2-core development box the share measured no faster (2 flights on 2 workers: 23.3 s against
+23.1 s, both slower than the two one after the other by Ray's start-up); it bounds the threads
+where a node has many cores.
 
 ``fleet_summary.json``: per flight its status, insulators found, detector and errors where
 ground truth exists; per tower (its GPS position) the insulators each flight found.
