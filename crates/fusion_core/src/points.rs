@@ -207,15 +207,15 @@ pub struct FinitePoints {
 pub fn collect_finite<P: PointCloud + ?Sized>(points: &P) -> FinitePoints {
     let n = points.len();
     let mut out = FinitePoints { coords: Vec::with_capacity(n), indices: Vec::with_capacity(n), n_nonfinite: 0 };
-    for i in 0..n {
-        let p = points.point(i);
+    // The layout's own walk (no per-point index arithmetic or bounds checks on strided views).
+    points.for_each_point(|i, p| {
         if is_finite_point(&p) {
             out.coords.push(p);
             out.indices.push(i);
         } else {
             out.n_nonfinite += 1;
         }
-    }
+    });
     out
 }
 

@@ -25,10 +25,12 @@
 //! Clouds whose extent needs more than 2^21 cells per axis return `None` (the parent module
 //! then cuts the cloud at gaps wider than eps and grids each part).
 //!
-//! Sparse clouds (at most `SPARSE_OCCUPANCY` points per occupied cell, counted on the sorted
-//! keys before the cell table is built) go to module `sparse` instead: cells of side eps, each
-//! point pair within eps listed once. There the per-cell work above (a 5x5x5 sweep, five passes
-//! over the pair table) cost more than the two or three distance tests a point needs.
+//! Sparse clouds (at most `SPARSE_OCCUPANCY` points per occupied cell, and at most
+//! `SPARSE_GATE` distance tests a point on coarse cells, both estimated before any sort)
+//! go to module `sparse` first: cells
+//! of side eps, each point pair within eps listed once. There the per-cell work above (a
+//! 5x5x5 sweep, five passes over the pair table) costs more than the few distance tests a
+//! point needs.
 //!
 //! Measured on the sparse tower clouds of `benches/dbscan_tower.rs` (eps 0.3, min_points 5,
 //! best of 60 calls, old and new build alternated in one sitting on the loaded 2-core
@@ -42,7 +44,7 @@ use super::clustering::{Clustering, NOISE};
 use super::sparse::dbscan_sparse;
 
 /// Bits per axis in a packed cell key.
-const AXIS_BITS: u32 = 21;
+pub(super) const AXIS_BITS: u32 = 21;
 /// Empty cells kept on each side of the occupied range, so key offsets of +-2 never wrap.
 const PAD: u64 = 2;
 /// Largest usable cell coordinate (occupied cells stay in PAD..=MAX_CELL - PAD).
@@ -82,13 +84,15 @@ enum ByCell {
 }
 
 impl ByCell {
-    /// Sorts the points by `cell(p)` (each coordinate at most `max_cell(axis)`).
-    fn sort(coords: &[[f64; 3]], cell: impl Fn(&[f64; 3]) -> [u64; 3], max_cell: impl Fn(usize) -> u64) -> ByCell {
+    /// The points' keys by `cell(p)` (each coordinate at most `max_cell(axis)`), in input
+    /// order: [`ByCell::sort`] sorts them.
+    #[inline(always)]
+    fn keys(coords: &[[f64; 3]], cell: impl Fn(&[f64; 3]) -> [u64; 3], max_cell: impl Fn(usize) -> u64) -> ByCell {
         let bits = |v: u64| u64::BITS - v.leading_zeros();
         let axis_bits = [bits(max_cell(0)), bits(max_cell(1)), bits(max_cell(2))];
         let index_bits = bits(coords.len() as u64);
         if axis_bits.iter().sum::<u32>() + index_bits > u64::BITS {
-            let mut keyed: Vec<(u64, u32)> = coords
+            let keyed: Vec<(u64, u32)> = coords
                 .iter()
                 .enumerate()
                 .map(|(i, p)| {
@@ -96,32 +100,52 @@ impl ByCell {
                     (pack(x, y, z), i as u32)
                 })
                 .collect();
-            keyed.sort_unstable();
             return ByCell::Pairs(keyed);
         }
         let [_, by, bz] = axis_bits;
-        let mut sorted: Vec<u64> = coords
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                let [x, y, z] = cell(p);
-                ((((x << by) | y) << bz | z) << index_bits) | i as u64
-            })
-            .collect();
-        sorted.sort_unstable();
+        // A plain loop over a filled vector, not a collect: it inlines into the caller's
+        // SIMD dispatch (`Grid::bin`) and vectorises there, where the collect stayed a
+        // baseline-x86 call of ~70 instructions a point.
+        let mut sorted = vec![0u64; coords.len()];
+        for (i, (s, p)) in sorted.iter_mut().zip(coords).enumerate() {
+            let [x, y, z] = cell(p);
+            *s = ((((x << by) | y) << bz | z) << index_bits) | i as u64;
+        }
         ByCell::Packed { sorted, index_bits, by, bz }
     }
 
-    /// Number of occupied cells.
-    fn n_cells(&self) -> usize {
-        let distinct = |cells: &mut dyn Iterator<Item = u64>| {
-            let mut last = None;
-            cells.filter(|&c| last.replace(c) != Some(c)).count()
+    fn sort(&mut self) {
+        match self {
+            ByCell::Packed { sorted, .. } => sorted.sort_unstable(),
+            ByCell::Pairs(keyed) => keyed.sort_unstable(),
+        }
+    }
+
+    /// Occupied cells, estimated by linear counting (Whang, Vander-Zanden and Taylor, 1990):
+    /// each point's cell hashed into a bitmap of 8 bits a point, then `m ln(m / empty bits)`.
+    /// Standard error about 1 % at these loads; the keys in any order.
+    fn estimated_cells(&self) -> f64 {
+        let n = match self {
+            ByCell::Packed { sorted, .. } => sorted.len(),
+            ByCell::Pairs(keyed) => keyed.len(),
+        };
+        let bits = (8 * n).next_power_of_two().max(64);
+        let shift = u64::BITS - bits.trailing_zeros();
+        let mut bitmap = vec![0u64; bits / 64];
+        let mut mark = |cell: u64| {
+            // Fibonacci hashing: the top bits of the product index the bitmap.
+            let h = (cell.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> shift) as usize;
+            bitmap[h / 64] |= 1 << (h % 64);
         };
         match self {
-            ByCell::Packed { sorted, index_bits, .. } => distinct(&mut sorted.iter().map(|&v| v >> index_bits)),
-            ByCell::Pairs(keyed) => distinct(&mut keyed.iter().map(|&(k, _)| k)),
+            ByCell::Packed { sorted, index_bits, .. } => sorted.iter().for_each(|&v| mark(v >> index_bits)),
+            ByCell::Pairs(keyed) => keyed.iter().for_each(|&(k, _)| mark(k)),
         }
+        let empty = bitmap.iter().map(|w| w.count_zeros()).sum::<u32>();
+        if empty == 0 {
+            return f64::INFINITY;
+        }
+        bits as f64 * (bits as f64 / f64::from(empty)).ln()
     }
 
     /// Calls `f(packed cell key, input index)` for every point in sorted order.
@@ -139,19 +163,22 @@ impl ByCell {
     }
 }
 
-/// Points sorted by cell, before the cell table is built: enough to count occupied cells.
+/// The points' cell keys, before they are sorted and the cell table is built: enough to
+/// estimate how many cells are occupied.
 pub(super) struct Binned {
     by_cell: ByCell,
     reach: u64,
 }
 
 impl Binned {
-    pub fn n_cells(&self) -> usize {
-        self.by_cell.n_cells()
+    /// Occupied cells, estimated (see [`ByCell::estimated_cells`]).
+    pub fn estimated_cells(&self) -> f64 {
+        self.by_cell.estimated_cells()
     }
 
-    /// The cell table over the sorted points.
-    pub fn into_grid(self, coords: &[[f64; 3]]) -> Grid {
+    /// The cell table: the points sorted by cell.
+    pub fn into_grid(mut self, coords: &[[f64; 3]]) -> Grid {
+        self.by_cell.sort();
         let n = coords.len();
         let (mut pts, mut order) = (Vec::with_capacity(n), Vec::with_capacity(n));
         let mut keys: Vec<u64> = Vec::new();
@@ -168,16 +195,149 @@ impl Binned {
         let mut col_keys = Vec::new();
         let mut col_starts = Vec::new();
         let mut cell_col = Vec::with_capacity(keys.len());
-        for (c, &k) in keys.iter().enumerate() {
+        // Columns serve the sweep of the fine cells' 5x5x5 blocks; the coarse cells' path
+        // (module `sparse`) finds its neighbours by key cursors and skips building them.
+        let columns = if self.reach == Cells::Fine.reach() { keys.as_slice() } else { &[] };
+        for (c, &k) in columns.iter().enumerate() {
             if col_keys.last() != Some(&(k >> AXIS_BITS)) {
                 col_keys.push(k >> AXIS_BITS);
                 col_starts.push(c);
             }
             cell_col.push((col_keys.len() - 1) as u32);
         }
-        col_starts.push(keys.len());
+        col_starts.push(columns.len());
         Grid { pts, order, keys, starts, col_keys, col_starts, cell_col, reach: self.reach }
     }
+}
+
+/// [`Grid::bin`] as a pulp operation: its body inlined into each instruction set's
+/// `#[target_feature]` function (a closure there stayed a baseline-x86 call).
+struct BinOp<'a> {
+    coords: &'a [[f64; 3]],
+    eps: f64,
+    cells: Cells,
+}
+
+impl pulp::WithSimd for BinOp<'_> {
+    type Output = Option<Binned>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Option<Binned> {
+        Grid::bin_here(self.coords, self.eps, self.cells)
+    }
+}
+
+/// A cloud's bounds and cell side: each point's cell coordinates.
+struct Frame {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    inv: f64,
+}
+
+impl Frame {
+    /// `None` when the extent needs more than 2^21 cells per axis.
+    #[inline(always)]
+    fn new(coords: &[[f64; 3]], side: f64) -> Option<Frame> {
+        // Plain comparisons (the points are finite): they vectorise, f64::min's NaN rule
+        // did not.
+        let mut lo = coords.first().copied().unwrap_or([0.0; 3]);
+        let mut hi = lo;
+        for p in coords {
+            for a in 0..3 {
+                lo[a] = if p[a] < lo[a] { p[a] } else { lo[a] };
+                hi[a] = if p[a] > hi[a] { p[a] } else { hi[a] };
+            }
+        }
+        let inv = 1.0 / side;
+        // A cell of margin below the packed range, on top of PAD.
+        let limit = (MAX_CELL - 2 * PAD - 1) as f64;
+        let fits = (0..3).all(|a| ((hi[a] - lo[a]) * inv).is_finite() && (hi[a] - lo[a]) * inv < limit);
+        fits.then_some(Frame { lo, hi, inv })
+    }
+
+    /// Cell coordinate on axis `a`: floor((v - lo) / side) + PAD, computed as the nearest
+    /// integer to (v - lo) / side + PAD - 1/2 by adding 2^52 (the sum's low mantissa bits are
+    /// the rounded value, for 0 <= x < 2^51, checked in `new`): an add and a mask in any
+    /// vector unit, where `as u64` (or `as i32`) is a saturating conversion, scalar here.
+    /// Exact integers (a point on a cell boundary) round to the even neighbour, so such a
+    /// point may land in the cell below: every cell still spans one side, so the guarantees
+    /// hold (two points of a fine cell within eps, neighbours within `reach` cells).
+    #[inline(always)]
+    fn cell_coord(&self, v: f64, a: usize) -> u64 {
+        round_small((v - self.lo[a]) * self.inv + (PAD as f64 - 0.5))
+    }
+
+    #[inline(always)]
+    fn cell(&self, p: &[f64; 3]) -> [u64; 3] {
+        [self.cell_coord(p[0], 0), self.cell_coord(p[1], 1), self.cell_coord(p[2], 2)]
+    }
+}
+
+/// Points the cost estimate of the coarse-cell path samples (every point of smaller clouds).
+const SAMPLED_POINTS: usize = 256;
+
+/// Distance tests a point the coarse-cell path (module `sparse`) would make, estimated
+/// before any sort: each point's coarse cell is counted in a hashed table of 4 counters a
+/// point (a count sketch), and for a sample of points the counts of their own cell and its
+/// 13 forward neighbours are summed, less the expected count that hash collisions add to a
+/// lookup (n / table size each). Both paths give the same labels; only the time depends on
+/// it. `None` when the extent does not fit the cells (the fine grid's binning says so too).
+struct CoarseTests<'a> {
+    coords: &'a [[f64; 3]],
+    eps: f64,
+}
+
+impl pulp::WithSimd for CoarseTests<'_> {
+    type Output = Option<f64>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Option<f64> {
+        let (coords, n) = (self.coords, self.coords.len());
+        let frame = Frame::new(coords, Cells::Coarse.side(self.eps))?;
+        let mut keys = vec![0u64; n];
+        for (k, p) in keys.iter_mut().zip(coords) {
+            let [x, y, z] = frame.cell(p);
+            *k = pack(x, y, z);
+        }
+        let slots = (4 * n).next_power_of_two().max(64);
+        let shift = u64::BITS - slots.trailing_zeros();
+        // Fibonacci hashing: the top bits of the product index the table.
+        let slot = |key: u64| (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> shift) as usize;
+        let mut counts = vec![0u16; slots];
+        for &k in &keys {
+            let c = &mut counts[slot(k)];
+            *c = c.saturating_add(1);
+        }
+        // The forward half of the 3x3x3 block and the own cell, as key offsets written as
+        // (dx, dy, dz) + (1, 1, 1) less (1, 1, 1), so no step goes negative (PAD keeps the
+        // fields apart).
+        let at = |dx: u64, dy: u64, dz: u64| (dx << (2 * AXIS_BITS)) + (dy << AXIS_BITS) + dz;
+        let mut block = [0u64; 14];
+        let mut m = 0;
+        for dx in 0..=2u64 {
+            for dy in 0..=2u64 {
+                for dz in 0..=2u64 {
+                    if (dx, dy, dz) >= (1, 1, 1) {
+                        block[m] = at(dx, dy, dz) - at(1, 1, 1);
+                        m += 1;
+                    }
+                }
+            }
+        }
+        let stride = (n / SAMPLED_POINTS).max(1);
+        let sampled = keys.iter().step_by(stride);
+        let total: u64 = sampled.clone().map(|&k| block.iter().map(|&d| u64::from(counts[slot(k + d)])).sum::<u64>()).sum();
+        let phantom = block.len() as f64 * n as f64 / slots as f64;
+        Some(total as f64 / sampled.count() as f64 - phantom)
+    }
+}
+
+/// `x` rounded to the nearest integer (ties to even), for `0 <= x < 2^51`: the low 52
+/// bits of `x + 2^52`, whose unit in the last place is 1.
+#[inline(always)]
+fn round_small(x: f64) -> u64 {
+    const TWO_52: f64 = 4_503_599_627_370_496.0;
+    (x + TWO_52).to_bits() & ((1 << 52) - 1)
 }
 
 /// Cell size against eps.
@@ -191,6 +351,24 @@ pub(super) enum Cells {
     Coarse,
 }
 
+impl Cells {
+    /// Side of a cell.
+    fn side(self, eps: f64) -> f64 {
+        match self {
+            Cells::Fine => eps / 3f64.sqrt() * SIDE_MARGIN,
+            Cells::Coarse => eps / SIDE_MARGIN,
+        }
+    }
+
+    /// Cells up to this far away on every axis can hold points within eps of each other.
+    const fn reach(self) -> u64 {
+        match self {
+            Cells::Fine => 2,
+            Cells::Coarse => 1,
+        }
+    }
+}
+
 /// Points sorted by cell, with the cell table.
 pub(super) struct Grid {
     /// Coordinates in cell order.
@@ -201,7 +379,8 @@ pub(super) struct Grid {
     keys: Vec<u64>,
     /// Cell `c` holds sorted points `starts[c]..starts[c + 1]`.
     starts: Vec<usize>,
-    /// Sorted distinct (x, y) column keys (`key >> 21`).
+    /// Sorted distinct (x, y) column keys (`key >> 21`); these three are empty on a grid of
+    /// coarse cells, which is never swept.
     col_keys: Vec<u64>,
     /// Column `k` holds cells `col_starts[k]..col_starts[k + 1]` (in increasing z).
     col_starts: Vec<usize>,
@@ -217,31 +396,19 @@ impl Grid {
         Grid::bin(coords, eps, cells).map(|b| b.into_grid(coords))
     }
 
-    /// Sorts finite points by cell; `None` when the extent needs more than 2^21 cells per axis.
+    /// The finite points' cell keys; `None` when the extent needs more than 2^21 cells per
+    /// axis. Compiled for the CPU's widest vectors (pulp's dispatch): the bounds and the keys
+    /// are a pass of arithmetic a point, which took a third of a sparse cloud's binning at
+    /// baseline x86-64.
     pub(super) fn bin(coords: &[[f64; 3]], eps: f64, cells: Cells) -> Option<Binned> {
-        let (side, reach) = match cells {
-            Cells::Fine => (eps / 3f64.sqrt() * SIDE_MARGIN, 2),
-            Cells::Coarse => (eps / SIDE_MARGIN, 1),
-        };
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in coords {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
-        let inv = 1.0 / side;
-        let limit = (MAX_CELL - 2 * PAD) as f64;
-        if !(0..3).all(|a| ((hi[a] - lo[a]) * inv).is_finite() && (hi[a] - lo[a]) * inv < limit) {
-            return None;
-        }
-        // Cell coordinate: floor((x - lo) / side) + PAD, in range by the check above.
-        // v >= lo, so truncation is floor (and avoids a libm call per coordinate).
-        let cell = |v: f64, a: usize| ((v - lo[a]) * inv) as u64 + PAD;
-        let cell_of = |p: &[f64; 3]| [cell(p[0], 0), cell(p[1], 1), cell(p[2], 2)];
-        let by_cell = ByCell::sort(coords, cell_of, |a| ((hi[a] - lo[a]) * inv) as u64 + PAD);
-        Some(Binned { by_cell, reach })
+        pulp::Arch::new().dispatch(BinOp { coords, eps, cells })
+    }
+
+    #[inline(always)]
+    fn bin_here(coords: &[[f64; 3]], eps: f64, cells: Cells) -> Option<Binned> {
+        let frame = Frame::new(coords, cells.side(eps))?;
+        let by_cell = ByCell::keys(coords, |p| frame.cell(p), |a| frame.cell_coord(frame.hi[a], a));
+        Some(Binned { by_cell, reach: cells.reach() })
     }
 
     pub fn n_cells(&self) -> usize {
@@ -257,6 +424,11 @@ impl Grid {
             core_out[i as usize] = core[s];
         }
         Clustering { labels: out, core: core_out }
+    }
+
+    /// Sorted distinct packed cell keys (x, y, z; `AXIS_BITS` each).
+    pub(super) fn keys(&self) -> &[u64] {
+        &self.keys
     }
 
     /// Sorted indices of the points of cell `c`.
@@ -360,24 +532,47 @@ impl Sweep {
 /// Beyond the budget the sweep is re-run for each pass instead, so memory stays O(N).
 pub(crate) const TABLE_BUDGET: usize = 16 << 20;
 
-/// Points per occupied fine cell at or below which a cloud is clustered on coarse cells
-/// (module `sparse`). The tower clouds have 1.4 (10k points), 2.4 (30k) and 4.1 (65k).
-pub(crate) const SPARSE_OCCUPANCY: f64 = 2.0;
+/// Points per occupied fine cell (estimated) above which a cloud takes the fine grid with
+/// no further estimate: the tower clouds have 1.4 (10k points), 2.35 (30k) and 4.2 (65k), the
+/// kernels bench's line clusters 3.6. (The cost estimate below scatters a counter a point
+/// over a table of 8 bytes a point: 1.4 ms of 8 on the 65k cloud, so dense clouds skip it.)
+pub(crate) const SPARSE_OCCUPANCY: f64 = 3.0;
+
+/// Estimated distance tests a point (`CoarseTests`) up to which the coarse cells (module
+/// `sparse`) are used. The estimates: tower clouds 4.8 (10k points), 14 (30k), 29 (65k);
+/// strings of 100 points in 1.5 m with 20 % uniform noise (instruction guard's `dbscan_3k`)
+/// 29, lines of 100 points in 2 m with noise (2.0 points a fine cell) 21: there the fine
+/// grid was faster (1.8 against 2.7 ms at 10k), at the towers' 14 the coarse cells (4.2
+/// against 5.2 ms at 30k; crate example, min of 60).
+pub(crate) const SPARSE_GATE: f64 = 16.0;
+
+/// Points per occupied fine cell (estimated) at or below which the gate doubles: uniform
+/// volumes, where the fine grid spent about 600 ns a point (30k points in a 9 m cube, 1.1 a
+/// cell, estimate 16: 19.3 ms on the fine grid, 5.9 on coarse cells; in a 6.8 m cube, 1.3 a
+/// cell, estimate 30: 18.3 ms fine, 6.2 on coarse cells; crate example, min of 20).
+const LONE_OCCUPANCY: f64 = 1.5;
 
 /// Where the grid switches strategy; a parameter so the tests can force every path.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Budgets {
     /// Most entries of the cell-pair table (`Pairs`), else every pass sweeps again.
     pub table: usize,
-    /// Points per occupied fine cell up to which the coarse-cell path is tried.
+    /// Points per occupied fine cell up to which the coarse-cell path's cost is estimated.
     pub sparse_occupancy: f64,
+    /// Estimated tests a point up to which the coarse-cell path is tried.
+    pub sparse_gate: f64,
     /// Most distance tests per point the coarse-cell path may make before it gives up.
     pub sparse_tests: usize,
 }
 
 /// The budgets `dbscan_grid` runs with.
 pub(crate) const BUDGETS: Budgets =
-    Budgets { table: TABLE_BUDGET, sparse_occupancy: SPARSE_OCCUPANCY, sparse_tests: super::sparse::TESTS_PER_POINT };
+    Budgets {
+    table: TABLE_BUDGET,
+    sparse_occupancy: SPARSE_OCCUPANCY,
+    sparse_gate: SPARSE_GATE,
+    sparse_tests: super::sparse::TESTS_PER_POINT,
+};
 
 /// The pairs of neighbour cells, each once (from the lower-index cell), adjacent pairs
 /// apart from the outer-shell ones. Built by one sweep and kept while it fits the budget; the
@@ -462,6 +657,7 @@ impl Sets {
         Sets((0..n as u32).collect())
     }
 
+    #[inline]
     pub fn find(&mut self, mut i: usize) -> usize {
         while self.0[i] as usize != i {
             let parent = self.0[i] as usize;
@@ -473,6 +669,7 @@ impl Sets {
 
     /// Joins the sets of `a` and `b` when `linked()` says so; it is asked only when they are
     /// apart (it may cost distance tests).
+    #[inline]
     pub fn union_if(&mut self, a: usize, b: usize, linked: impl FnOnce() -> bool) {
         let (ra, rb) = (self.find(a), self.find(b));
         if ra != rb && linked() {
@@ -520,10 +717,21 @@ pub(crate) fn dbscan_grid_with(coords: &[[f64; 3]], eps: f64, min_points: usize,
         // No point has that many neighbours: all noise (and min_points fits a u32 below).
         return Some(Clustering { labels: vec![NOISE; coords.len()], core: vec![false; coords.len()] });
     }
-    // Sparse clouds are clustered on coarse cells (module `sparse`), chosen by the occupancy
-    // of the fine cells: counting them costs one pass over the sorted keys.
+    // Sparse clouds are clustered on coarse cells (module `sparse`). Two estimates on
+    // unsorted keys choose them: the fine cells' occupancy (linear counting: a bitmap of a
+    // byte a point), which sends dense clouds to the fine grid at once, then that path's own
+    // cost, its distance tests a point (`CoarseTests`), which tells a sparse tower from
+    // strings of dense points in sparse noise (their mean occupancy is as low, but their
+    // tests follow the dense part). Only the time depends on them; both paths give the same
+    // labels. A cloud that goes the sparse way is sorted once, on the coarse cells.
     let fine = Grid::bin(coords, eps, Cells::Fine)?;
-    if coords.len() as f64 <= budgets.sparse_occupancy * fine.n_cells() as f64 {
+    let occupancy = coords.len() as f64 / fine.estimated_cells();
+    // Nearly a cell a point: there the fine grid pays its per-cell work for almost every
+    // point, so the coarse cells win at twice the tests.
+    let gate = if occupancy <= LONE_OCCUPANCY { 2.0 * budgets.sparse_gate } else { budgets.sparse_gate };
+    if occupancy <= budgets.sparse_occupancy
+        && pulp::Arch::new().dispatch(CoarseTests { coords, eps }).is_some_and(|tests| tests <= gate)
+    {
         let sparse = Grid::build(coords, eps, Cells::Coarse).and_then(|g| dbscan_sparse(&g, eps, min_points, budgets.sparse_tests));
         if sparse.is_some() {
             return sparse;

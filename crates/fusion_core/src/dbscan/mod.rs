@@ -420,7 +420,8 @@ mod tests {
 
     /// Budgets that force the fine grid (never the coarse cells), and the coarse cells always.
     const FINE: Budgets = Budgets { sparse_occupancy: 0.0, ..BUDGETS };
-    const COARSE: Budgets = Budgets { sparse_occupancy: f64::INFINITY, sparse_tests: usize::MAX, ..BUDGETS };
+    const COARSE: Budgets =
+        Budgets { sparse_occupancy: f64::INFINITY, sparse_gate: f64::INFINITY, sparse_tests: usize::MAX, ..BUDGETS };
 
     /// The bench's sparse tower-scale clouds (lattice + conductors over ~60 m, most cells holding
     /// fewer than 5 points): the grid gives the kd-tree's labels exactly, as chosen, on the fine

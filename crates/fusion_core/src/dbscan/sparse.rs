@@ -2,42 +2,45 @@
 //!
 //! On sparse tower-scale clouds (most fine cells, side eps/sqrt(3), hold one or two points)
 //! the fine grid pays per cell, not per point: each cell's 5x5x5 neighbourhood is swept and
-//! every cell pair is visited by five passes, for two or three distance tests a point. Here
-//! cells have side eps, so neighbours are found in the 3x3x3 block (a sweep window of 5
-//! columns instead of 13), every point pair within eps is listed once as an edge (the few
-//! same-cell pairs included: a coarse cell does not make its points neighbours), and
-//! core flags, clusters (union-find on points) and border labels are each one pass over the
-//! short edge list. Dense clouds keep the fine grid, where a crowded cell is core wholesale
-//! and joined by one pair: listing their edges would cost |a| x |b| per cell pair. Which path
-//! runs is chosen after the fine binning by its occupancy, and this path gives the cloud back
-//! (`None`) once it would make more than a budget of distance tests.
+//! every cell pair is visited by five passes, for a few distance tests a point. Here cells
+//! have side eps, so a point's neighbours lie in the 3x3x3 block, whose forward half is five
+//! contiguous runs of sorted points found by four key cursors ([`ForwardRuns`]); every point
+//! pair within eps is listed once as an edge (the same-cell pairs included: a coarse cell does
+//! not make its points neighbours), and core flags, clusters (union-find on points) and border
+//! labels are each one pass over the short edge list. Dense clouds keep the fine grid, where a
+//! crowded cell is core wholesale and joined by one pair: listing their edges would cost
+//! |a| x |b| per cell pair. This path runs where the fine cells' occupancy is low and its
+//! own cost, the distance tests a point, estimated before any sort (`grid::CoarseTests`, a
+//! count sketch of the coarse cells and a sample of points), is within `grid::SPARSE_GATE`;
+//! the listing gives the cloud back (`None`) to the fine grid past [`TESTS_PER_POINT`],
+//! should the estimate err.
 //!
-//! Measured on the 10k-point tower cloud (eps 0.3, min_points 5; `ir.dbscan` through
-//! `benches/bench_core.py`, old and new builds alternated in one sitting on the loaded 2-core
-//! box): 2.10 ms before, 1.32 ms after (best of ~450 calls); callgrind on the guard's sparse
-//! kernel (`dbscan_sparse_10k`) 13.2M instructions before, 10.9M after. Tried and dropped
-//! (min of 200 calls on the crate's own 10k/65k tower clouds): listing edges on the fine cells
-//! (1.86 ms at 10k against about 1.55 here: the 5x5x5 sweep stays); building the coarse grid
-//! first and choosing by its occupancy (10k in 1.40 ms, but a whole extra binning for the
-//! clouds that then take the fine grid: 65k from 6.5 to 9.2 ms); taking the edge path up to
-//! 24 tests a point (30k and 65k slower, 65k twice as slow: there the fine grid settles
-//! crowded cells with no distance test at all); listing the neighbour cells before any test,
-//! so a cloud over budget is given back sooner (4 % slower at 10k).
-//!
-//! The cost of giving up: a uniform volume with about one point per fine cell passes the
-//! occupancy gate and then needs far more than 16 tests a point, so it pays the coarse binning
-//! and up to 16 tests a point before the fine grid: through `ir.dbscan`, 30k points in a
-//! 5.4 m or 6.8 m cube 21.5-21.9 ms before, 23.4-24.1 after (min of 40, alternated, loaded
-//! box); a sparser volume (30k in a 9 m cube) runs here and went from 18.0 to 6.9 ms. The
-//! bench's line clusters (1k-100k points, fine grid) are unchanged.
+//! Measured (crate example, min of 20-150 calls, the build before session 24 alternated with
+//! this one on the quiet 2-core box; the labels are the same): tower clouds 10k 1.58 -> 1.18
+//! ms, 30k 5.57 -> 4.46 (now here; it took the fine grid), 65k 6.9 -> 6.6 (fine grid, faster
+//! binning); 30k points uniform in a 9 m cube 7.5 -> 5.6, in a 6.8 m cube 21.8 -> 6.2 (it had
+//! given up at 16 tests a point and paid both paths), in a 5.4 m cube 21.1 -> 19.2 (fine
+//! grid); lines of 100 points in 2 m with noise (2.0 a fine cell, fine grid both times) 10k
+//! 1.81 -> 1.82, 100k 21.5 -> 21.1; strings of 100 points in 1.5 m with noise 3k 0.36 ->
+//! 0.38, 30k 4.93 -> 4.97. Through `ir.dbscan` and `benches/bench_core.py` side by side with
+//! scikit-learn and Open3D: the README's table. Tried and dropped in session 22 (min of 200
+//! calls): listing edges on the fine cells (the 5x5x5 sweep costs more); building the coarse
+//! grid first for every cloud (a whole extra binning for the clouds that take the fine grid).
+//! In session 24: an LSD radix sort of the cell bits (a third of std's sort's instructions at
+//! 10k, but slower in time at 30k); the 13 forward cells by one cursor each (the five runs
+//! need four); an occupancy gate alone at 3 points a fine cell (strings in noise, at 2.05,
+//! took this path and ran 15 % slower); cells centred on multiples of the side (the same
+//! guarantees, but the instruction guard's strings cloud fell differently on the cells: +15 %).
+
+use std::ops::Range;
 
 use super::clustering::Clustering;
-use super::grid::{dist2, rank_sets, Grid, Sets, Sweep, UNSET};
+use super::grid::{dist2, rank_sets, Grid, Sets, AXIS_BITS, UNSET};
 
-/// Most distance tests per point (pairs of points in neighbouring coarse cells) before the
-/// coarse path gives up. The bench's tower clouds need about 4 (10k points), 12 (30k) and
-/// 25 (65k); only the 10k one is sparse enough to come here.
-pub(crate) const TESTS_PER_POINT: usize = 16;
+/// Most distance tests per point (pairs of points in neighbouring coarse cells) the edge
+/// listing makes before it gives the cloud back: twice the largest gate on the estimate
+/// (`grid::SPARSE_GATE`, doubled for lone points), a guard should the estimate err.
+pub(crate) const TESTS_PER_POINT: usize = 64;
 
 /// Coarse-cell DBSCAN (module docs) on a grid built with `Cells::Coarse`; `None` when the
 /// cloud is denser than `tests_per_point` allows.
@@ -61,31 +64,84 @@ pub(super) fn dbscan_sparse(grid: &Grid, eps: f64, min_points: usize, tests_per_
     Some(grid.unsort(&labels, &core))
 }
 
+/// A coarse cell's forward neighbours (the half of its 3x3x3 block with larger keys) as
+/// contiguous runs of sorted points: the next cell of its own column, and three
+/// z-consecutive cells in each of four columns, (x, y+1), (x+1, y-1), (x+1, y) and
+/// (x+1, y+1). Cells of one column are consecutive in the sorted order, so each is one run,
+/// and one forward-only cursor per column finds it (keys ascend with the cells, and so does a
+/// key plus a fixed offset): four cursors a cell, no neighbour list. The grid's padding keeps
+/// every coordinate of a neighbour in range, so no key field borrows from the next.
+struct ForwardRuns<'a> {
+    grid: &'a Grid,
+    /// Offsets of the packed key to (x, y+1, z-1), (x+1, y-1, z-1), (x+1, y, z-1) and
+    /// (x+1, y+1, z-1): the first cell of each forward column's three.
+    offsets: [u64; 4],
+    cursors: [usize; 4],
+}
+
+impl<'a> ForwardRuns<'a> {
+    fn new(grid: &'a Grid) -> Self {
+        let at = |dx: u64, dy: u64, dz: u64| (dx << (2 * AXIS_BITS)) + (dy << AXIS_BITS) + dz;
+        // Written as (dx, dy, dz) + (1, 1, 1) less (1, 1, 1), so no step goes negative.
+        let base = at(1, 1, 1);
+        let offsets = [at(1, 2, 0) - base, at(2, 0, 0) - base, at(2, 1, 0) - base, at(2, 2, 0) - base];
+        ForwardRuns { grid, offsets, cursors: [0; 4] }
+    }
+
+    /// The forward runs of cell `c`: the next cell up its column (empty when there is none),
+    /// then the four other columns'. Calls must come in increasing `c`.
+    fn at(&mut self, c: usize) -> [Range<usize>; 5] {
+        let keys = self.grid.keys();
+        let key = keys[c];
+        let own_end = self.grid.cell_pts(c).end;
+        let up_end = if keys.get(c + 1) == Some(&(key + 1)) { self.grid.cell_pts(c + 1).end } else { own_end };
+        let mut runs = [own_end..up_end, 0..0, 0..0, 0..0, 0..0];
+        for ((run, cur), &d) in runs[1..].iter_mut().zip(&mut self.cursors).zip(&self.offsets) {
+            // Cells (dx, dy, z - 1 ..= z + 1) of this column.
+            let lo = key + d;
+            while *cur < keys.len() && keys[*cur] < lo {
+                *cur += 1;
+            }
+            let mut end = *cur;
+            while end < keys.len() && keys[end] <= lo + 2 {
+                end += 1;
+            }
+            if end > *cur {
+                *run = self.grid.cell_pts(*cur).start..self.grid.cell_pts(end - 1).end;
+            }
+        }
+        runs
+    }
+}
+
 /// Every pair of points within eps, once, as sorted indices (i, j) with i < j; `None` once
 /// more than `budget` distance tests would be made.
 fn edges(grid: &Grid, eps2: f64, budget: usize) -> Option<Vec<[u32; 2]>> {
-    let mut sweep = Sweep::new();
-    let mut near = Vec::new();
-    let mut list = Vec::new();
+    let mut forward = ForwardRuns::new(grid);
+    // Sparse clouds have a few edges a point: room for two each saves the regrowths.
+    let mut list = Vec::with_capacity(2 * grid.pts.len());
     let mut tests = 0usize;
     for c in 0..grid.n_cells() {
-        // Forward neighbours only (larger cell index, so larger sorted point index).
-        sweep.neighbours(grid, c, &mut near);
         let own = grid.cell_pts(c);
-        tests += own.len() * (own.len() + near.iter().map(|&b| grid.cell_pts(b as usize).len()).sum::<usize>());
+        let runs = forward.at(c);
+        tests += own.len() * (own.len() + runs.iter().map(ExactSizeIterator::len).sum::<usize>());
         if tests > budget {
             return None;
         }
         for i in own.clone() {
-            let p = &grid.pts[i];
-            let mut keep = |j: usize| {
-                if dist2(p, &grid.pts[j]) <= eps2 {
-                    list.push([i as u32, j as u32]);
+            let p = grid.pts[i];
+            let mut test_run = |run: Range<usize>| {
+                for (j, q) in (run.start..).zip(&grid.pts[run]) {
+                    if dist2(&p, q) <= eps2 {
+                        list.push([i as u32, j as u32]);
+                    }
                 }
             };
-            (i + 1..own.end).for_each(&mut keep);
-            for &b in &near {
-                grid.cell_pts(b as usize).for_each(&mut keep);
+            // The rest of the own cell and the first run (which continues it up the column)
+            // in one, then the other columns'.
+            test_run(i + 1..runs[0].end);
+            for run in &runs[1..] {
+                test_run(run.clone());
             }
         }
     }

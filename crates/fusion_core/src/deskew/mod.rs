@@ -308,7 +308,9 @@ fn check_inputs<P: PointCloud + ?Sized>(points: &P, times: &[f64], stream: &Pose
     let (lo, hi) = stream.span();
     // Branch-free scan first (vectorises); the position only on failure.
     let inside = |c: &[f64]| c.iter().fold(true, |ok, &t| ok & (t >= lo) & (t <= hi));
-    if !times.chunks(512).all(inside) {
+    // Compiled for the CPU's widest vectors (pulp's dispatch): the baseline SSE2 build of
+    // this scan took a twentieth of the fused kernel's time on 20k points.
+    if !pulp::Arch::new().dispatch(#[inline(always)] || times.chunks(512).all(inside)) {
         let i = times.iter().position(|&t| !(t >= lo && t <= hi)).unwrap_or(0);
         return Err(invalid(
             "times",
