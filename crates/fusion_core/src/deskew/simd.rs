@@ -15,7 +15,8 @@
 //! No slerp per point (issue 23): slerp turns `R(q0)` about the fixed axis of `q1 q0*` at a
 //! constant rate, so in a frame `Q` whose z is that axis the segment's rotation is
 //! `Qᵀ Rz(omega (t - t0)) Q R(q0)` ([`super::Segment::omega`]). Per tile (a `sin_cos`, or an
-//! earlier tile's turned by a series, see [`SinCosNear`]): the rotation at the centre angle of the tile's times. Per point: a 3x3 rotation + offset, a
+//! earlier tile's turned by a series, see [`SinCosNear`]): the rotation at the centre angle
+//! of the tile's times. Per point: a 3x3 rotation + offset, a
 //! 2-D rotation by the small angle ε from the centre (Taylor series of sin/cos, exact to f64
 //! rounding for |ε| <= [`EPS_MAX`]; 4 terms below [`EPS_SHORT`]), `Qᵀ`, and the translation,
 //! linear in t. This is the exact slerp (no pose grid, no interpolation error), ~30 fused
@@ -195,9 +196,9 @@ impl SinCosNear {
 }
 
 impl TileLanes {
-    /// The tile form for the points of segment `sg` with times in `[lo, hi]`; `None` when
-    /// their angles spread more than `EPS_MAX` either side of the centre.
-    /// `angles` gives sin and cos of the segment's angle at the centre.
+    /// The tile form for the points of segment `sg` with times in `[lo, hi]`, with `angles`
+    /// giving sin and cos of the segment's angle at their centre; `None` when their angles
+    /// spread more than `EPS_MAX` either side of the centre.
     #[inline(always)]
     fn new(sg: &Segment, lo: f64, hi: f64, angles: impl FnOnce(f64) -> (f64, f64)) -> Option<Self> {
         let tc = 0.5 * (lo + hi);
