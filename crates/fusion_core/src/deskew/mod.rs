@@ -33,8 +33,8 @@ mod simd;
 /// Below this rotation between two knots (rad) slerp is replaced by a normalised lerp:
 /// the two differ by O(θ³), far below f64 resolution of a point at 100 m.
 const SMALL_ANGLE: f64 = 1e-6;
-/// Below this rotation between two knots (rad) the slerp weights use [`sin_series`] instead of
-/// libm's `sin`: a Horner polynomial is a few ns where `sin` is tens, and it is exact to
+/// Below this rotation between two knots (rad) the slerp weights use the Taylor series of sin
+/// instead of libm's `sin`: a Horner polynomial is a few ns where `sin` is tens, and it is exact to
 /// f64 rounding there (the first omitted term, x^15/15!, is < 1e-20 at x = 0.3).
 const SERIES_ANGLE: f64 = 0.3;
 /// Smallest parallel chunk of points.
@@ -95,7 +95,7 @@ impl PoseStream {
         Ok(())
     }
 
-    /// Index k of the segment [times[k], times[k+1]] holding `t` (t inside the span).
+    /// Index k of the segment `[times[k], times[k+1]]` holding `t` (t inside the span).
     fn segment(&self, t: f64) -> usize {
         let upper = self.times.partition_point(|&x| x <= t);
         upper.saturating_sub(1).min(self.times.len() - 2)
