@@ -323,7 +323,7 @@ fn check_inputs<P: PointCloud + ?Sized>(points: &P, times: &[f64], stream: &Pose
 /// Chunk ranges for a cloud of `n` points (one chunk below [`PARALLEL_MIN_POINTS`]).
 fn chunks(n: usize) -> Vec<Range<usize>> {
     if n < PARALLEL_MIN_POINTS {
-        return vec![0..n];
+        return std::iter::once(0..n).collect();
     }
     let chunk = n.div_ceil(rayon::current_num_threads()).max(MIN_CHUNK_POINTS);
     (0..n.div_ceil(chunk)).map(|c| c * chunk..((c + 1) * chunk).min(n)).collect()
