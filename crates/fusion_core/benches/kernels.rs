@@ -8,7 +8,7 @@ use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use fusion_core::{
-    dbscan, deskew, deskew_points_in_boxes, deskew_points_in_boxes_scalar, localize, points_in_boxes, project_points, CameraModel, LocalizeParams,
+    dbscan, deskew, deskew_points_in_boxes, deskew_points_in_boxes_scalar, localize, points_in_boxes, points_in_boxes_scalar, project_points, CameraModel, LocalizeParams,
     Method, PixelBox, PoseStream,
 };
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
@@ -112,6 +112,18 @@ fn bench_project_cull(c: &mut Criterion) {
     let view = fusion_core::StridedPoints::new(&flat, FRAME_POINTS, 3, 1, 0).unwrap();
     g.bench_function("points_in_boxes_3_strided_f32", |b| b.iter(|| points_in_boxes(black_box(&view), &t, &cam, &boxes).unwrap()));
     g.finish();
+
+    // One core, scalar loop and SIMD lanes side by side (the same lists, bit for bit), as
+    // the fused kernel's group below.
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let mut g = c.benchmark_group(CULL_ONE_CORE_GROUP);
+    g.throughput(Throughput::Elements(FRAME_POINTS as u64));
+    g.bench_function(SCALAR_ID, |b| {
+        one.install(|| b.iter(|| points_in_boxes_scalar(black_box(&pts), &t, &cam, &boxes).unwrap()))
+    });
+    g.bench_function(SIMD_ID, |b| one.install(|| b.iter(|| points_in_boxes(black_box(&pts), &t, &cam, &boxes).unwrap())));
+    g.finish();
+    print_ratio(CULL_ONE_CORE_GROUP, CULL_TARGET_US);
 }
 
 fn bench_dbscan(c: &mut Criterion) {
@@ -232,7 +244,7 @@ fn bench_deskew(c: &mut Criterion) {
         })
     });
     g.finish();
-    print_ratio(ONE_CORE_GROUP, SCALAR_ID, SIMD_ID);
+    print_ratio(ONE_CORE_GROUP, FUSED_TARGET_US);
 }
 
 /// Group and ids of the one-core scalar-versus-SIMD comparison.
@@ -241,6 +253,9 @@ const SCALAR_ID: &str = "scalar";
 const SIMD_ID: &str = "simd";
 /// The target for the fused kernel on one core, microseconds per 20k points.
 const FUSED_TARGET_US: f64 = 60.0;
+/// Group of the one-core project + cull comparison, and its target (us per 20k points).
+const CULL_ONE_CORE_GROUP: &str = "points_in_boxes_20k_1core";
+const CULL_TARGET_US: f64 = 100.0;
 
 /// Criterion's mean estimate (ns) of `group/id` from this run's `new/estimates.json`.
 fn mean_ns(group: &str, id: &str) -> Option<f64> {
@@ -255,10 +270,11 @@ fn mean_ns(group: &str, id: &str) -> Option<f64> {
     rest[..rest.find([',', '}'])?].trim().parse().ok()
 }
 
-fn print_ratio(group: &str, scalar: &str, simd: &str) {
-    match (mean_ns(group, scalar), mean_ns(group, simd)) {
+/// Prints the scalar and SIMD means of a one-core group and their ratio beside `target_us`.
+fn print_ratio(group: &str, target_us: f64) {
+    match (mean_ns(group, SCALAR_ID), mean_ns(group, SIMD_ID)) {
         (Some(a), Some(b)) => println!(
-            "{group}: scalar {:.1} us, SIMD {:.1} us, ratio {:.2}x (target <= {FUSED_TARGET_US} us)",
+            "{group}: scalar {:.1} us, SIMD {:.1} us, ratio {:.2}x (target <= {target_us} us)",
             a / 1e3,
             b / 1e3,
             a / b

@@ -17,7 +17,7 @@ pub mod transform;
 
 pub use bounded::{localize_bounded, BoundedLocalization, BoundedParams, BoxView};
 pub use camera::{CameraModel, NEAR_LIMIT};
-pub use culling::{points_in_boxes, PixelBox};
+pub use culling::{points_in_boxes, points_in_boxes_scalar, PixelBox};
 pub use dbscan::{dbscan, NOISE};
 pub use deskew::{deskew, deskew_points_in_boxes, deskew_points_in_boxes_scalar, PoseStream};
 pub use error::{FusionError, Result};

@@ -38,14 +38,12 @@ use std::ops::Range;
 use pulp::{Arch, Simd, WithSimd};
 
 use super::{Motion, Segment};
-use crate::camera::NEAR_LIMIT;
+use crate::culling::simd::{PixelTile, ProjLanes, UnionLanes};
+// Points per tile: staged into SoA arrays, deskewed and projected lane by lane, written back.
+pub(super) use crate::culling::simd::TILE;
 use crate::culling::PixelBox;
 use crate::points::PointCloud;
 use crate::projection::Projector;
-
-/// Points per tile: staged into SoA arrays, deskewed and projected lane by lane, written back.
-/// A multiple of every lane count (1, 2, 4, 8), so the lane loops have no tail.
-pub(super) const TILE: usize = 128;
 
 /// What to cull a chunk's deskewed points into (absent for a plain deskew).
 #[derive(Clone, Copy)]
@@ -96,7 +94,7 @@ pub(super) fn scalar_chunk<P: PointCloud + ?Sized>(chunk: FusedChunk<'_, P>) -> 
         out.push(motion.apply(p, times[i], &mut k));
     });
     let Some(c) = cull else { return (out, Vec::new()) };
-    let mut lists = crate::culling::cull_range(&out, 0..out.len(), c.projector, c.boxes, c.union);
+    let mut lists = crate::culling::cull_range_scalar(&out, 0..out.len(), c.projector, c.boxes, c.union);
     for list in &mut lists {
         for i in list.iter_mut() {
             *i += start;
@@ -115,18 +113,14 @@ struct Tile {
     ox: [f64; TILE],
     oy: [f64; TILE],
     oz: [f64; TILE],
-    u: [f64; TILE],
-    v: [f64; TILE],
-    /// 1.0 where the pixel is inside the boxes' union, else 0.0.
-    m: [f64; TILE],
-    /// Per lane vector (at most [`TILE`] of them): whether any of its `m` is 1.0.
-    any: [bool; TILE],
+    /// The deskewed points' pixels and union mask.
+    px: PixelTile,
 }
 
 impl Tile {
     fn new() -> Self {
         let a = [0.0; TILE];
-        Self { x: a, y: a, z: a, t: a, ox: a, oy: a, oz: a, u: a, v: a, m: a, any: [false; TILE] }
+        Self { x: a, y: a, z: a, t: a, ox: a, oy: a, oz: a, px: PixelTile::new() }
     }
 }
 
@@ -260,56 +254,6 @@ impl TileLanes {
     }
 }
 
-/// The projector's constants for the lanes. Kept as scalars and splat where used: the
-/// compiler folds each into its instruction as a broadcast memory operand, where 26
-/// broadcast registers crowded the 32 vector registers and spilled in the loop.
-#[derive(Clone, Copy)]
-struct ProjLanes {
-    rot: [[f64; 3]; 3],
-    trans: [f64; 3],
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    k: [f64; 5],
-}
-
-impl ProjLanes {
-    fn new(p: &Projector) -> Self {
-        Self { rot: p.rotation, trans: p.translation, fx: p.cam.fx, fy: p.cam.fy, cx: p.cam.cx, cy: p.cam.cy, k: p.cam.dist }
-    }
-
-    /// `Projector::pixel` on lanes, with fused multiply-adds (within a few f64 ulps of the
-    /// scalar pixel, far inside the 1e-4 px), and the mask of lanes whose depth
-    /// is finite and past the near limit. Other lanes' pixels are meaningless; lanes with a
-    /// non-finite x or y (or a pixel past f64's range) come out non-finite, so every box
-    /// test (finite edges, `>=` and `<`) rejects them as the scalar `None` does.
-    #[inline(always)]
-    fn pixel<S: Simd>(&self, simd: S, p: [S::f64s; 3]) -> ([S::f64s; 2], S::m64s) {
-        let sp = |v: f64| simd.splat_f64s(v);
-        let m = |x, y| simd.mul_f64s(x, y);
-        let fma = |a, b, c| simd.mul_add_e_f64s(a, b, c);
-        let row = |r: &[f64; 3], t: f64| fma(sp(r[2]), p[2], fma(sp(r[1]), p[1], fma(sp(r[0]), p[0], sp(t))));
-        let z = row(&self.rot[2], self.trans[2]);
-        let x = row(&self.rot[0], self.trans[0]);
-        let y = row(&self.rot[1], self.trans[1]);
-        let valid =
-            simd.and_m64s(simd.greater_than_f64s(z, sp(NEAR_LIMIT)), simd.less_than_f64s(z, sp(f64::INFINITY)));
-        let inv_z = simd.div_f64s(sp(1.0), z);
-        let xp = m(x, inv_z);
-        let yp = m(y, inv_z);
-        let [k1, k2, p1, p2, k3] = self.k;
-        let r2 = fma(xp, xp, m(yp, yp));
-        let radial = fma(r2, fma(r2, fma(r2, sp(k3), sp(k2)), sp(k1)), sp(1.0));
-        // The tangential terms regrouped: x'' = x' w + p2 r², y'' = y' w + p1 r² with
-        // w = radial + 2 p1 y' + 2 p2 x' (the same polynomial in 7 operations, not 11).
-        let w = simd.add_f64s(radial, fma(sp(2.0 * p1), yp, m(sp(2.0 * p2), xp)));
-        let xpp = fma(xp, w, m(sp(p2), r2));
-        let ypp = fma(yp, w, m(sp(p1), r2));
-        ([fma(sp(self.fx), xpp, sp(self.cx)), fma(sp(self.fy), ypp, sp(self.cy))], valid)
-    }
-}
-
 impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
     type Output = ChunkResult;
 
@@ -404,18 +348,7 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                     [*ox, *oy, *oz] = p;
                 }
                 if let (Some(pl), Some(un)) = (&proj, &union) {
-                    let (ox, _) = S::as_simd_f64s(&tl.ox);
-                    let (oy, _) = S::as_simd_f64s(&tl.oy);
-                    let (oz, _) = S::as_simd_f64s(&tl.oz);
-                    let (us, _) = S::as_mut_simd_f64s(&mut tl.u);
-                    let (vs, _) = S::as_mut_simd_f64s(&mut tl.v);
-                    let (ms, _) = S::as_mut_simd_f64s(&mut tl.m);
-                    let lanes = (ox.iter().zip(oy).zip(oz)).zip(us.iter_mut().zip(vs.iter_mut()).zip(ms.iter_mut()).zip(tl.any.iter_mut()));
-                    for (((x, y), z), (((u, v), m), any)) in lanes {
-                        let ([pu, pv], valid) = pl.pixel(simd, [*x, *y, *z]);
-                        (*u, *v) = (pu, pv);
-                        (*m, *any) = un.contains(simd, pu, pv, valid);
-                    }
+                    tl.px.project::<S, true>(simd, pl, un, [&tl.ox, &tl.oy, &tl.oz], n);
                 }
             } else {
                 let mut k = k_lo;
@@ -423,30 +356,16 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
                     let p = motion.apply([tl.x[j], tl.y[j], tl.z[j]], t, &mut k);
                     [tl.ox[j], tl.oy[j], tl.oz[j]] = p;
                     if let Some(c) = cull {
-                        [tl.u[j], tl.v[j]] = c.projector.pixel(p).unwrap_or([f64::NAN; 2]);
-                        tl.m[j] = if c.union.contains([tl.u[j], tl.v[j]]) { 1.0 } else { 0.0 };
+                        tl.px.set_scalar(j, c.projector.pixel(p), c.union);
                     }
                 }
-                tl.any.fill(true);
+                tl.px.any.fill(true);
             }
             // SoA to AoS straight into the output (an exact-size iterator: no capacity check
             // a point). Through a fixed tile and a copy it took 8 % more.
             out.extend((0..n).map(|j| [tl.ox[j], tl.oy[j], tl.oz[j]]));
             if let Some(c) = cull {
-                // Lane vectors with no pixel in the union are skipped whole.
-                let w = lanes::<S>();
-                for g in (0..n.div_ceil(w)).filter(|&g| tl.any[g]) {
-                    for j in g * w..((g + 1) * w).min(n) {
-                        if tl.m[j] != 0.0 {
-                            let uv = [tl.u[j], tl.v[j]];
-                            for (b, list) in c.boxes.iter().zip(lists.iter_mut()) {
-                                if b.contains(uv) {
-                                    list.push(start + j);
-                                }
-                            }
-                        }
-                    }
-                }
+                tl.px.push_members::<S>(n, start, c.boxes, &mut lists);
             }
             start = end;
         }
@@ -454,35 +373,8 @@ impl<P: PointCloud + ?Sized> WithSimd for FusedChunk<'_, P> {
     }
 }
 
-/// f64 lanes of `S`.
-#[inline(always)]
-const fn lanes<S: Simd>() -> usize {
-    std::mem::size_of::<S::f64s>() / std::mem::size_of::<f64>()
-}
-
 /// Most segments one tile's times may touch on the SIMD path (more: the scalar reference).
 const MAX_TILE_SEGMENTS: usize = 3;
-
-/// The boxes' union: `PixelBox::contains` as a lane mask (edges splat where used, as in
-/// [`ProjLanes`]).
-struct UnionLanes(PixelBox);
-
-impl UnionLanes {
-    /// 1.0 where `valid` and `(u, v)` is inside (same comparisons as `PixelBox::contains`),
-    /// else 0.0; and whether any lane is.
-    #[inline(always)]
-    fn contains<S: Simd>(&self, simd: S, u: S::f64s, v: S::f64s, valid: S::m64s) -> (S::f64s, bool) {
-        let sp = |v: f64| simd.splat_f64s(v);
-        let b = &self.0;
-        let inside = simd.and_m64s(
-            simd.and_m64s(simd.greater_than_or_equal_f64s(u, sp(b.x1)), simd.less_than_f64s(u, sp(b.x2))),
-            simd.and_m64s(simd.greater_than_or_equal_f64s(v, sp(b.y1)), simd.less_than_f64s(v, sp(b.y2))),
-        );
-        let inside = simd.and_m64s(inside, valid);
-        let any = simd.first_true_m64s(inside) < lanes::<S>();
-        (simd.select_f64s(inside, sp(1.0), sp(0.0)), any)
-    }
-}
 
 #[cfg(test)]
 mod tests {
@@ -509,7 +401,7 @@ mod tests {
         ProptestConfig { cases: 64, rng_seed: RngSeed::Fixed(SEED), ..ProptestConfig::default() }
     }
 
-    /// `Projector::pixel` of each point through the SIMD lanes (ProjLanes::pixel).
+    /// `Projector::pixel` of each point through the SIMD lanes (ProjLanes::pixel_fused).
     struct PixelOp<'a> {
         projector: &'a Projector,
         pts: &'a [[f64; 3]],
@@ -528,14 +420,14 @@ mod tests {
                 let (xs, _) = S::as_simd_f64s(&t.x);
                 let (ys, _) = S::as_simd_f64s(&t.y);
                 let (zs, _) = S::as_simd_f64s(&t.z);
-                let (us, _) = S::as_mut_simd_f64s(&mut t.u);
-                let (vs, _) = S::as_mut_simd_f64s(&mut t.v);
+                let (us, _) = S::as_mut_simd_f64s(&mut t.px.u);
+                let (vs, _) = S::as_mut_simd_f64s(&mut t.px.v);
                 for ((((x, y), z), u), v) in xs.iter().zip(ys).zip(zs).zip(us.iter_mut()).zip(vs.iter_mut()) {
-                    let ([pu, pv], valid) = lanes.pixel(simd, [*x, *y, *z]);
+                    let ([pu, pv], valid) = lanes.pixel_fused(simd, [*x, *y, *z]);
                     let nan = simd.splat_f64s(f64::NAN);
                     [*u, *v] = [simd.select_f64s(valid, pu, nan), simd.select_f64s(valid, pv, nan)];
                 }
-                out.extend((0..block.len()).map(|j| [t.u[j], t.v[j]]));
+                out.extend((0..block.len()).map(|j| [t.px.u[j], t.px.v[j]]));
             }
             out
         }
@@ -645,7 +537,7 @@ mod tests {
         impl WithSimd for Level {
             type Output = (bool, usize);
             fn with_simd<S: Simd>(self, _simd: S) -> (bool, usize) {
-                (S::IS_SCALAR, lanes::<S>())
+                (S::IS_SCALAR, crate::culling::simd::lanes::<S>())
             }
         }
         let (scalar, lanes) = Arch::new().dispatch(Level);

@@ -1,5 +1,7 @@
 //! Box culling: which points of a LiDAR frame project inside each detection box.
 
+pub(crate) mod simd;
+
 use std::ops::Range;
 
 use nalgebra::Isometry3;
@@ -65,6 +67,38 @@ pub fn points_in_boxes<P: PointCloud + Sync + ?Sized>(
     cam: &CameraModel,
     boxes: &[PixelBox],
 ) -> Result<Vec<Vec<usize>>> {
+    cull(points, t_c_l, cam, boxes, Path::Simd)
+}
+
+/// [`points_in_boxes`] on the scalar loop only: the reference its SIMD path is tested and
+/// benchmarked against (the same lists, bit for bit).
+pub fn points_in_boxes_scalar<P: PointCloud + Sync + ?Sized>(
+    points: &P,
+    t_c_l: &Isometry3<f64>,
+    cam: &CameraModel,
+    boxes: &[PixelBox],
+) -> Result<Vec<Vec<usize>>> {
+    cull(points, t_c_l, cam, boxes, Path::Scalar)
+}
+
+/// Which loop culls the chunks.
+#[derive(Clone, Copy)]
+enum Path {
+    /// SIMD lanes where pulp finds an instruction set (the scalar loop otherwise).
+    Simd,
+    Scalar,
+    /// The AVX2 + FMA lanes even under AVX-512 (tests).
+    #[cfg(test)]
+    Avx2,
+}
+
+fn cull<P: PointCloud + Sync + ?Sized>(
+    points: &P,
+    t_c_l: &Isometry3<f64>,
+    cam: &CameraModel,
+    boxes: &[PixelBox],
+    path: Path,
+) -> Result<Vec<Vec<usize>>> {
     cam.validate()?;
     for b in boxes {
         b.validate("boxes")?;
@@ -83,15 +117,22 @@ pub fn points_in_boxes<P: PointCloud + Sync + ?Sized>(
         return Ok(vec![Vec::new(); boxes.len()]);
     }
     let projector = Projector::new(t_c_l, cam);
+    let cull_one = |range: Range<usize>| {
+        let chunk = simd::CullChunk { points, range, projector: &projector, boxes, union: &union };
+        match path {
+            Path::Simd => simd::cull_chunk(chunk),
+            Path::Scalar => cull_range_scalar(points, chunk.range, &projector, boxes, &union),
+            #[cfg(test)]
+            Path::Avx2 => simd::avx2_cull_chunk(chunk),
+        }
+    };
     let n = points.len();
     if n < PARALLEL_MIN_POINTS {
-        return Ok(cull_range(points, 0..n, &projector, boxes, &union));
+        return Ok(cull_one(0..n));
     }
     let chunk = n.div_ceil(rayon::current_num_threads()).max(MIN_CHUNK_POINTS);
-    let chunks: Vec<Vec<Vec<usize>>> = (0..n.div_ceil(chunk))
-        .into_par_iter()
-        .map(|c| cull_range(points, c * chunk..((c + 1) * chunk).min(n), &projector, boxes, &union))
-        .collect();
+    let chunks: Vec<Vec<Vec<usize>>> =
+        (0..n.div_ceil(chunk)).into_par_iter().map(|c| cull_one(c * chunk..((c + 1) * chunk).min(n))).collect();
     let mut out: Vec<Vec<usize>> = (0..boxes.len())
         .map(|k| Vec::with_capacity(chunks.iter().map(|c| c[k].len()).sum()))
         .collect();
@@ -103,8 +144,9 @@ pub fn points_in_boxes<P: PointCloud + Sync + ?Sized>(
     Ok(out)
 }
 
-/// The per-box lists of the points in `range` (ascending).
-pub(crate) fn cull_range<P: PointCloud + ?Sized>(
+/// The per-box lists of the points in `range` (ascending), one point at a time: the scalar
+/// reference of the SIMD lanes ([`simd::CullChunk`]), and their path on CPUs without SIMD.
+pub(crate) fn cull_range_scalar<P: PointCloud + ?Sized>(
     points: &P,
     range: Range<usize>,
     projector: &Projector,
@@ -187,6 +229,48 @@ mod tests {
         let f32s: Vec<[f32; 3]> = pts.iter().map(|p| p.map(|v| v as f32)).collect();
         let wide: Vec<[f64; 3]> = f32s.iter().map(|p| p.map(f64::from)).collect();
         assert_eq!(points_in_boxes(&f32s[..], &t, &cam, &boxes).unwrap(), brute(&wide, &t, &cam, &boxes));
+    }
+
+    /// The SIMD lanes (the CPU's level, and AVX2 + FMA where the CPU has it) against the
+    /// scalar loop and the brute-force filter of `project_points`: the same lists, exactly
+    /// (bit-identical pixels), on clouds ending mid-tile, with points on box edges, at the
+    /// near limit and non-finite ones, under strong distortion.
+    #[test]
+    fn simd_lanes_give_the_scalar_lists_exactly() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        let cam = CameraModel::new(100.0, 120.0, 50.0, 40.0, 100, 80, [-0.3, 0.1, 2e-3, -1e-3, -0.02]).unwrap();
+        let t = Isometry3::new(Vector3::new(0.05, -0.1, 0.2), Vector3::new(0.02, -0.03, 0.01));
+        let boxes = [
+            PixelBox::new(10.0, 10.0, 60.0, 50.0).unwrap(),
+            PixelBox::new(50.0, 0.0, 100.0, 80.0).unwrap(),
+            PixelBox::new(-20.0, 30.0, 20.0, 90.0).unwrap(),
+        ];
+        for n in [0, 1, 7, 127, 128, 129, 1000, 3 * PARALLEL_MIN_POINTS + 5] {
+            let mut pts: Vec<[f64; 3]> =
+                (0..n).map(|_| [rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0), rng.random_range(-1.0..6.0)]).collect();
+            for (i, bad) in [[f64::NAN, 0.0, 2.0], [f64::INFINITY, 0.0, 2.0], [0.0, f64::NEG_INFINITY, 2.0], [0.0, 0.0, f64::INFINITY]]
+                .into_iter()
+                .enumerate()
+            {
+                if let Some(p) = pts.get_mut(3 * i) {
+                    *p = bad;
+                }
+            }
+            if n > 20 {
+                // Placed in C and mapped back to L (so to rounding): a point at the near limit,
+                // and one at the principal point (50, 40), on the second box's left edge.
+                let inv = t.inverse();
+                let near = inv * nalgebra::Point3::new(0.0, 0.0, crate::camera::NEAR_LIMIT);
+                pts[13] = [near.x, near.y, near.z];
+                let edge = inv * nalgebra::Point3::new(0.0, 0.0, 2.0);
+                pts[17] = [edge.x, edge.y, edge.z];
+            }
+            let want = brute(&pts, &t, &cam, &boxes);
+            assert_eq!(points_in_boxes_scalar(&pts, &t, &cam, &boxes).unwrap(), want, "scalar, n = {n}");
+            assert_eq!(points_in_boxes(&pts, &t, &cam, &boxes).unwrap(), want, "SIMD, n = {n}");
+            assert_eq!(cull(&pts, &t, &cam, &boxes, Path::Avx2).unwrap(), want, "AVX2, n = {n}");
+        }
     }
 
     #[test]
