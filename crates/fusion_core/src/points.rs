@@ -123,7 +123,8 @@ pub struct StridedPoints<'a, T> {
 }
 
 impl<'a, T: Copy + Into<f64>> StridedPoints<'a, T> {
-    /// Wraps `data` as a (rows, 3) array; errors (naming `points`) if any element would fall outside `data`.
+    /// Wraps `data` as a (rows, 3) array; errors (naming `points`) if any element would fall
+    /// outside `data`.
     pub fn new(data: &'a [T], rows: usize, row_stride: isize, col_stride: isize, offset: usize) -> Result<Self> {
         if rows > 0 {
             // Extreme element indices over i in {0, rows-1}, j in {0, 2}; i128 cannot overflow here.
@@ -269,7 +270,8 @@ mod tests {
         check_ranges(&v32[..]);
     }
 
-    /// Sub-range walks (the parallel chunks' form) visit `range` clamped to the cloud, never panicking.
+    /// Sub-range walks (the parallel chunks' form) visit `range` clamped to the cloud, never
+    /// panicking.
     fn check_ranges<P: PointCloud + ?Sized>(p: &P) {
         for (lo, hi) in [(1, 3), (0, 0), (2, 100), (7, 9), (3, 1)] {
             let mut got = Vec::new();

@@ -34,8 +34,8 @@ mod simd;
 /// the two differ by O(θ³), far below f64 resolution of a point at 100 m.
 const SMALL_ANGLE: f64 = 1e-6;
 /// Below this rotation between two knots (rad) the slerp weights use the Taylor series of sin
-/// instead of libm's `sin`: a Horner polynomial is a few ns where `sin` is tens, and it is exact to
-/// f64 rounding there (the first omitted term, x^15/15!, is < 1e-20 at x = 0.3).
+/// instead of libm's `sin`: a Horner polynomial is a few ns where `sin` is tens, and it is exact
+/// to f64 rounding there (the first omitted term, x^15/15!, is < 1e-20 at x = 0.3).
 const SERIES_ANGLE: f64 = 0.3;
 /// Smallest parallel chunk of points.
 const MIN_CHUNK_POINTS: usize = 4096;
