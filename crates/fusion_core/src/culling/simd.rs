@@ -14,7 +14,7 @@ use pulp::{Arch, Simd, WithSimd};
 
 use super::PixelBox;
 use crate::points::PointCloud;
-pub(crate) use crate::projection::lanes::{lanes, stage, ProjLanes, TILE};
+use crate::projection::lanes::{lanes, stage, ProjLanes, TILE};
 use crate::projection::Projector;
 
 /// The boxes' union: `PixelBox::contains` as a lane mask (edges splat where used, as in

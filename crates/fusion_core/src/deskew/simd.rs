@@ -38,11 +38,12 @@ use std::ops::Range;
 use pulp::{Arch, Simd, WithSimd};
 
 use super::{Motion, Segment};
-use crate::culling::simd::{PixelTile, ProjLanes, UnionLanes};
-// Points per tile: staged into SoA arrays, deskewed and projected lane by lane, written back.
-pub(super) use crate::culling::simd::TILE;
+use crate::culling::simd::{PixelTile, UnionLanes};
 use crate::culling::PixelBox;
 use crate::points::PointCloud;
+// Points per tile (TILE): staged into SoA arrays, deskewed and projected lane by lane, written
+// back.
+use crate::projection::lanes::{ProjLanes, TILE};
 use crate::projection::Projector;
 
 /// What to cull a chunk's deskewed points into (absent for a plain deskew).
@@ -537,7 +538,7 @@ mod tests {
         impl WithSimd for Level {
             type Output = (bool, usize);
             fn with_simd<S: Simd>(self, _simd: S) -> (bool, usize) {
-                (S::IS_SCALAR, crate::culling::simd::lanes::<S>())
+                (S::IS_SCALAR, crate::projection::lanes::lanes::<S>())
             }
         }
         let (scalar, lanes) = Arch::new().dispatch(Level);

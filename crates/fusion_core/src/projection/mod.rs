@@ -80,8 +80,8 @@ impl Projector {
 ///
 /// `uv` is NaN where the point is behind/near the camera ([`crate::camera::NEAR_LIMIT`])
 /// or non-finite; `valid` is true where it is in front and inside the image. SIMD lanes
-/// ([`lanes`]) compute the scalar formula operation for operation: the same bits as the
-/// point-by-point loop.
+/// (`projection/lanes.rs`) compute the scalar formula operation for operation: the same bits
+/// as the point-by-point loop.
 pub fn project_points<P: PointCloud + ?Sized>(points: &P, t_c_l: &Isometry3<f64>, cam: &CameraModel) -> Projection {
     project(points, t_c_l, cam, lanes::project_chunk)
 }
