@@ -50,7 +50,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     sub = parser.add_subparsers(dest="calibrate_command", required=True)
     p = sub.add_parser("time-offset", help="the camera's time offset against the LiDAR (s, + = frames stamped late)")
     p.add_argument("flight", help="a recorded flight (.mcap, .bag or a rosbag2 folder)")
-    p.add_argument("--rig", default=None, help="rig file (TOML) whose [camera] latency_s gets the result")
+    p.add_argument("--rig", default=None, help="rig file (TOML) whose [camera] latency_s gets the result "
+                        "(default: printed only)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, help="shipped network name or ONNX file")
     p.add_argument("--max-offset", type=_max_offset, default=MAX_OFFSET,
                    help=f"s: offsets scanned, either sign (default {MAX_OFFSET:g})")

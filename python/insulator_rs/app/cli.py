@@ -43,10 +43,42 @@ def import_optional(module_name: str) -> ModuleType | None:
         return None
 
 
+class UserHelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """``--help`` for users: descriptions printed as written, and every option that takes a
+    value shows its default, unless its help already states one in words (a default of None
+    means "not given"; such an option says what happens then)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        help_text = action.help or ""
+        takes_value = bool(action.option_strings) and action.nargs != 0
+        if not takes_value or "default" in help_text:
+            return help_text
+        if action.required:
+            return f"{help_text} (required)"
+        if action.default in (None, argparse.SUPPRESS):
+            return help_text
+        return f"{help_text} (default: %(default)s)"
+
+
+def _apply_user_help(parser: argparse.ArgumentParser) -> None:
+    """Give every parser of the tree the users' help format; a subcommand without a
+    description of its own shows its one-line help as the description."""
+    parser.formatter_class = UserHelpFormatter
+    for action in parser._actions:
+        if not isinstance(action, argparse._SubParsersAction):
+            continue
+        helps = {choice.dest: choice.help for choice in action._choices_actions}
+        for name, subparser in action.choices.items():
+            if subparser.description is None and helps.get(name):
+                subparser.description = f"{name}: {helps[name]}."
+            _apply_user_help(subparser)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="insulator-rs",
-        description="Insulator detection, localization and single-flight inspection for UAVs.",
+        description="Insulator detection, localization and single-flight inspection for UAVs. "
+                    "Run 'insulator-rs COMMAND --help' for a command's options.",
     )
     subparsers = parser.add_subparsers(dest="command", required=True)
     for name, module_name in SUBCOMMANDS:
@@ -59,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
             continue
         if module is not None:
             module.register(subparsers)
+    _apply_user_help(parser)
     return parser
 
 

@@ -40,7 +40,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                         help="image height in px (default: the simulated camera's)")
     parser.add_argument("--min-visible-pixels", type=_positive_int, default=30,
                         help="leave out insulators with fewer visible pixels (default 30)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the renders (integer)")
     parser.add_argument("--steel-views", action="store_true",
                         help="render hard negatives instead: views aimed at the tower's steel (peak, arms, legs) "
                              "from where the inspection path flies, at the flight's 320x240 detection size unless "

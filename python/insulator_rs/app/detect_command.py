@@ -214,20 +214,23 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         p.add_argument("--conf", type=float, default=conf, help="confidence threshold (default %(default)s)")
         p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold (default %(default)s)")
         p.add_argument("--threads", type=bounds.option("--threads"), default=None,
-                       help="onnxruntime CPU threads (bounded: bounds.py)")
-        p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
+                       help="onnxruntime CPU threads (default: onnxruntime's choice)")
+        p.add_argument("--json", type=Path, default=None,
+                       help="write the results as JSON to this file (default: printed only)")
 
     run = sub.add_parser("run", help="detect insulators in images")
     common(run, 0.25)
     run.add_argument("images", nargs="+", type=Path)
-    run.add_argument("--draw", type=Path, default=None, help="write annotated copies into this folder")
+    run.add_argument("--draw", type=Path, default=None,
+                     help="write annotated copies into this folder (default: none written)")
     run.set_defaults(func=run_images)
 
     ev = sub.add_parser("eval", help="COCO mAP50-95/mAP50 on a labelled split (pycocotools)")
     common(ev, EVAL_CONF)
     ev.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
     ev.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
-                    help="a named split: field-test = the field photos held back from training (by photo)")
+                    help="a named split: field-test = the field photos held back from training (by photo; default: "
+                         "none, the split folder given)")
     ev.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
                     help="field-photo set for --split field-test (default %(default)s)")
     ev.add_argument("--imgsz", type=int, default=None, help="network input size (default: the model's own)")
@@ -237,7 +240,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     common(fb, 0.25)
     fb.add_argument("folder", type=Path, help="a folder written by `insulator-rs dataset --steel-views`")
     fb.add_argument("--list", type=Path, default=None,
-                    help="write the views with a false box here (an image list a training data.yaml can name)")
+                    help="write the views with a false box to this file (an image list a training data.yaml can name; "
+                         "default: not written)")
     fb.set_defaults(func=count_steel_false_boxes)
 
     ng = sub.add_parser("negatives", help="false boxes per tile on the parts of labelled photos without an "
@@ -245,7 +249,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     common(ng, 0.25)
     ng.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
     ng.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
-                    help="a named split: field-test = the field photos held back from training (by photo)")
+                    help="a named split: field-test = the field photos held back from training (by photo; default: "
+                         "none, the split folder given)")
     ng.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
                     help="field-photo set for --split field-test (default %(default)s)")
     ng.set_defaults(func=count_photo_negatives)
@@ -254,5 +259,5 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ex.add_argument("model", help="shipped model name or ONNX path")
     ex.add_argument("out", type=Path, help="the FP16 ONNX file to write")
     ex.add_argument("--threads", type=bounds.option("--threads"), default=None,
-                    help="onnxruntime CPU threads for the check that loads it")
+                    help="onnxruntime CPU threads for the check that loads it (default: onnxruntime's choice)")
     ex.set_defaults(func=export_fp16_model)

@@ -130,7 +130,18 @@ def load_network(model: str | None, *, live_camera: bool = False) -> NetworkDete
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("inspect", help="fly a whole single-flight inspection (simulator or PX4)",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                              description="""\
+Fly a whole single-flight inspection: take off, explore both sides of the tower, localize every
+insulator with the camera and the LiDAR, photograph each one, cross over the top and land. The
+report folder (--out) is written as the flight goes.
+
+Vehicle: the built-in simulated multirotor (default); --vehicle mavlink flies the same mission
+through a simulated PX4 over UDP; --connection flies a real PX4 or PX4 SITL.
+Sensors: rendered from the built-in scene (tower A unless --scene); against an outside autopilot
+add --sim-sensors (a SITL setup) or live sensors (--lidar and --camera).
+Detector: the shipped network that fits the camera (insulator-sim on the simulator's frames,
+insulator-field on a real camera's), another ONNX file, or 'standin' (the simulator's true boxes).
+After a simulated flight, score.json compares the report with the scene's ground truth.""")
     p.add_argument("--scene", default="tower_a",
                    help="built-in scene name (tower_a, tower_b) or a scene TOML file (default tower_a)")
     p.add_argument("--mission", type=Path, default=None,
@@ -145,7 +156,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")
-    p.add_argument("--seed", type=bounds.option("--seed"), default=0)
+    p.add_argument("--seed", type=bounds.option("--seed"), default=0,
+                   help="random seed of the simulator (integer, 0 to 2^32-1): the same seed flies the same flight")
     p.add_argument("--wind", type=bounds.wind_option, default=(0.0, 0.0), metavar="SPEED[,DIR_DEG]",
                    help="mean wind in the simulator (m/s, from DIR_DEG clockwise from north; default "
                         "0), with seeded Dryden turbulence (the simulated airframe only)")
@@ -162,9 +174,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="detection camera resolution as a fraction of the rig camera's (default 0.25)")
     p.add_argument("--photo-scale", type=bounds.option("--photo-scale"), default=1.0,
                    help="inspection photo resolution as a fraction of the rig camera's (default 1)")
-    p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s)")
-    p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2)")
-    p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight")
+    p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s; default: the mission's [vehicle] limits)")
+    p.add_argument("--a-max", type=bounds.option("--a-max"), default=None, help="override the mission's acceleration limits (m/s^2; default: the mission's [vehicle] limits)")
+    p.add_argument("--max-flight-time", type=bounds.option("--max-flight-time"), default=1800.0, help="abort after this many s of flight (default %(default)g s)")
     p.add_argument("--sim-battery", type=bounds.option("--sim-battery"), default=None, metavar="FRACTION",
                    help="the simulated airframe's charge at take-off (fraction of the pack; default 1: full). "
                         "Its pack drains with time and distance (25 min hover); the mission comes back "
@@ -176,10 +188,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--sim-camera-latency", type=bounds.option("--sim-camera-latency"), default=0.0,
                    help="s: the simulated camera's frames are stamped this long after their exposure (a late "
-                        "camera, for `insulator-rs calibrate time-offset`; default 0)")
+                        "camera, for 'insulator-rs calibrate time-offset'; default 0)")
     p.add_argument("--record", type=Path, default=None,
                    help="record the raw sensor stream (LiDAR, detection camera, pose, extrinsics) as ROS 2 "
-                        "messages in this MCAP file (replay it with `insulator-rs replay`)")
+                        "messages in this MCAP file (replay it with 'insulator-rs replay'; default: not recorded)")
     p.add_argument("--record-images", choices=("jpeg", "raw"), default="jpeg",
                    help="how --record stores the detection frames: jpeg (CompressedImage, small) or raw "
                         "(Image, lossless: a replay detects on exactly the flight's pixels)")
@@ -188,7 +200,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                         "client, to the simulated PX4 it starts on loopback unless --connection is given")
     p.add_argument("--connection", default=None,
                    help="MAVLink connection of a real PX4 or its SITL, e.g. udpin:0.0.0.0:14540 or "
-                        "/dev/ttyTHS1:921600 (implies --vehicle mavlink; needs --sim-sensors, or --lidar and --camera)")
+                        "/dev/ttyTHS1:921600 (implies --vehicle mavlink; needs --sim-sensors, or --lidar and --camera; "
+                        "default: none, the in-process or simulated PX4)")
     p.add_argument("--sim-sensors", action="store_true",
                    help="with --connection: the camera and LiDAR are simulated from the scene at the pose the "
                         "autopilot reports (a SITL setup)")
@@ -196,10 +209,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help=f"MAVLink only: speed-up of the simulated PX4 (default 1, at most "
                         f"{MAX_MAVLINK_TIME_SCALE:g}; give the SITL's speed factor with --connection)")
     p.add_argument("--signing-key", type=Path, default=None,
-                   help="MAVLink only: file with the 32-byte MAVLink 2 signing key (both ends sign)")
+                   help="MAVLink only: file with the 32-byte MAVLink 2 signing key (both ends sign; default: unsigned)")
     p.add_argument("--gcs-port", type=int, default=None,
                    help="MAVLink, the simulated PX4 only: UDP port of its GCS link (as PX4 SITL's 18570+N), where a "
-                        "ground station sees the mission's STATUSTEXT and photo markers")
+                        "ground station sees the mission's STATUSTEXT and photo markers (default: no GCS link)")
     cli_options.add_arguments(p)
     p.set_defaults(func=run)
 

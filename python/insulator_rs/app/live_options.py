@@ -30,12 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lidar", default=None, metavar="URL",
                         help="live Livox Mid-360: mid360://HOST (configure and start the sensor at HOST) or "
                              "mid360://listen[:PORT] (only listen, default port 56301); needs --connection "
-                             "and --camera")
+                             "and --camera (default: none, the simulated sensors)")
     parser.add_argument("--camera", default=None, metavar="SOURCE",
                         help="live camera: a V4L2 index (0), a GStreamer pipeline (gst:PIPELINE, or any text with "
                              "'!'; run through PyGObject, frames stamped at exposure; BGR appsink appended when "
                              "none is named), a stream URL, or a video file; its frames must match the rig's "
-                             "calibration size")
+                             "calibration size (default: none, the simulated sensors)")
 
 
 def check_arguments(args: argparse.Namespace) -> bool:

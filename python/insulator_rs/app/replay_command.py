@@ -32,14 +32,26 @@ from insulator_rs.report.jsonfile import write_json
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("replay", help="re-process recorded flights (MCAP, rosbag2, ROS 1 bag) offline",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                              description="""\
+Re-process recorded flights offline through the flight's own perception, and write each
+flight's report folder.
+
+FLIGHT is an MCAP file, a rosbag2 folder (sqlite3 or MCAP) or a ROS 1 .bag. A folder of
+recordings (or several FLIGHTs) is re-processed into --out/NAME/ each, with fleet_summary.json;
+--workers N runs them in parallel on Ray (a local Ray, or a running cluster with --address).
+The mission comes from the recording when insulator_rs recorded it, else from --mission; where
+the recording (or --scene) names a simulated scene, each report is scored (score.json).
+Topic and frame names default to livox_ros_driver2's, a ROS camera driver's and PX4's.""")
     p.add_argument("flights", nargs="+", type=Path, help="recordings, or folders of recordings")
     p.add_argument("--out", type=Path, default=Path("replay_report"), help="report folder (created)")
     p.add_argument("--mission", default=None, help="mission file (default: the one the recording carries)")
     p.add_argument("--rig", default=None,
                    help="rig file to replay with instead of the mission's (its [camera] latency_s, e.g. as "
-                        "calibrate time-offset wrote it, is applied to the recorded frame stamps)")
-    p.add_argument("--scene", default=None, help="scene whose ground truth scores the replay (simulated flights)")
+                        "calibrate time-offset wrote it, is applied to the recorded frame stamps; "
+                        "default: the mission's rig)")
+    p.add_argument("--scene", default=None,
+                   help="scene whose ground truth scores the replay (simulated flights; default: the scene the "
+                        "recording names, if any)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR,
                    help=f"shipped model name or ONNX file (default {DEFAULT_DETECTOR})")
     p.add_argument("--method", default=BOUNDED, choices=METHODS,

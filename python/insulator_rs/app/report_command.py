@@ -15,7 +15,10 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("report", help="write report.html of a report folder (flight or replay)",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                              description="""\
+Write report.html of a report folder (a flight's or a replay's) from the folder's own files
+(summary.json, inspection.geojson, images/). A folder that is not a readable report is refused
+naming the file (exit status 2); missing or unreadable photos are listed and shown as missing.""")
     p.add_argument("folder", type=Path, help="the report folder (holds summary.json and inspection.geojson)")
     p.set_defaults(func=run)
 

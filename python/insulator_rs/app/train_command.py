@@ -274,37 +274,41 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--out", type=parse_out_folder, required=True, help="output folder (runs, ONNX, model card)")
     p.add_argument("--name", default=REAL_CROP_MODEL, help="model name (file stem)")
     p.add_argument("--model-cfg", default="yolo11n.yaml", help="Ultralytics architecture file")
-    p.add_argument("--epochs", type=int, default=100)
-    p.add_argument("--hours", type=float, default=None, help="wall-clock budget; overrides --epochs")
-    p.add_argument("--imgsz", type=int, default=320)
-    p.add_argument("--batch", type=int, default=16)
-    p.add_argument("--workers", type=int, default=0)
-    p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--patience", type=int, default=100)
+    p.add_argument("--epochs", type=int, default=100, help="training epochs")
+    p.add_argument("--hours", type=float, default=None,
+                   help="wall-clock budget in hours; overrides --epochs (default: none, --epochs decides)")
+    p.add_argument("--imgsz", type=int, default=320, help="network input size, px")
+    p.add_argument("--batch", type=int, default=16, help="images per batch")
+    p.add_argument("--workers", type=int, default=0, help="data-loader worker processes (0: in the main process)")
+    p.add_argument("--threads", type=int, default=2, help="PyTorch CPU threads")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the training (integer)")
+    p.add_argument("--patience", type=int, default=100, help="epochs without improvement before stopping early")
     p.add_argument("--close-mosaic", type=int, default=5, help="last epochs without mosaic augmentation")
     p.add_argument("--cache", choices=("ram", "disk"), default=None,
-                   help="keep decoded, resized images between epochs (large rendered PNGs decode slowly)")
+                   help="keep decoded, resized images between epochs (large rendered PNGs decode slowly; "
+                        "default: no cache)")
     p.add_argument("--fractions", type=float, nargs=3, default=list(DEFAULT_FRACTIONS),
                    metavar=("TRAIN", "VALID", "TEST"), help="source-photo fractions when re-splitting")
     p.add_argument("--static", action="store_true",
                    help="export a fixed input size (default: dynamic height/width, metadata imgsz = --imgsz)")
     p.add_argument("--field-photos", type=Path, default=None,
                    help="field photos (images/ + labels/ VOC, full frames): train/test on them, split by photo; "
-                        "--data is then the Roboflow export whose copies are matched to the photos")
+                        "--data is then the Roboflow export whose copies are matched to the photos (default: none)")
     p.add_argument("--with-export", action="store_true",
                    help="with --field-photos: add the export's copies of training photos to the training split")
     p.add_argument("--start-weights", default=None,
                    help="shipped model name or .pt/.onnx to fine-tune from (default: from scratch)")
     p.add_argument("--warmup-epochs", type=float, default=3.0,
-                   help="learning-rate warm-up (Ultralytics default 3; short fine-tunes want less)")
+                   help="learning-rate warm-up in epochs (short fine-tunes want less)")
     p.add_argument("--uav-augment", action="store_true", help="add blur, haze and sun flare augmentation")
-    p.add_argument("--resume", type=Path, default=None, help="continue an interrupted run from its last.pt")
+    p.add_argument("--resume", type=Path, default=None,
+                   help="continue an interrupted run from its last.pt (default: a new run)")
     p.add_argument("--hard-negatives", type=Path, default=None,
-                   help="a folder of steel views (`dataset --steel-views`): added to the training set, and those "
-                        "where the start model draws a false box repeated (--mined-repeats)")
+                   help="a folder of steel views ('dataset --steel-views'): added to the training set, and those "
+                        "where the start model draws a false box repeated (--mined-repeats; default: none)")
     p.add_argument("--mined-repeats", type=int, default=2, help="extra copies of each mined steel view (default 2)")
     p.add_argument("--steel-eval", type=Path, default=None,
-                   help="held-out steel views: the card reports false boxes per view before and after")
-    p.add_argument("--limit-per-split", type=int, default=None, help="keep only N images per split (smoke runs)")
+                   help="held-out steel views: the card reports false boxes per view before and after (default: none)")
+    p.add_argument("--limit-per-split", type=int, default=None,
+                   help="keep only N images per split (smoke runs; default: all)")
     p.set_defaults(func=run_train)

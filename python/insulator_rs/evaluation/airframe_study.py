@@ -218,16 +218,19 @@ def run_airframe_study(cfg: StudyConfig, winds: Sequence[float], braking: float)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``insulator-rs eval airframe``."""
-    parser.add_argument("--towers", nargs="+", choices=sorted(TOWERS), default=["A"])
+    parser.add_argument("--towers", nargs="+", choices=sorted(TOWERS), default=["A"], help="towers to fly")
     parser.add_argument("--standoffs", nargs="+", type=float, default=[8.0], help="m (default 8)")
     parser.add_argument("--events", type=int, default=8, help="events per cell (default 8)")
-    parser.add_argument("--methods", nargs="+", choices=METHODS, default=["bounded", "dbscan+ransac"])
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=["bounded", "dbscan+ransac"],
+                        help="localization methods to compare")
     parser.add_argument("--winds", nargs="+", type=bounds.option("--wind"), default=[0.0, 5.0, 10.0],
                         help="mean winds, m/s (default 0 5 10)")
     parser.add_argument("--braking", type=bounds.option("--a-max"), default=3.0,
                         help="m/s^2 (default 3: the paper's a_max)")
-    parser.add_argument("--seed", type=bounds.option("--seed"), default=0)
-    parser.add_argument("--out", type=parse_out_folder, default=Path("results/airframe"))
+    parser.add_argument("--seed", type=bounds.option("--seed"), default=0,
+                        help="random seed of the study (integer, 0 to 2^32-1)")
+    parser.add_argument("--out", type=parse_out_folder, default=Path("results/airframe"),
+                        help="folder for the study's table and plot (created)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -347,7 +347,7 @@ def plot(rows: list[StudyRow], path: Path) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=parse_out_folder, default=Path("docs/results/efficiency"),
                         help="folder for efficiency.csv and efficiency.png (created)")
-    parser.add_argument("--towers", nargs="+", choices=TOWERS, default=list(TOWERS))
+    parser.add_argument("--towers", nargs="+", choices=TOWERS, default=list(TOWERS), help="towers to plan for")
     parser.add_argument("--n", type=int, nargs="+", default=list(N_VALUES), metavar="N",
                         help="numbers of inspection waypoints (default 4..24)")
 

@@ -609,11 +609,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "A: 8 9 10, B: 8 9)")
     parser.add_argument("--events", type=_positive_int, default=150,
                         help="localization events per cell (default 150, as the paper)")
-    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
-    parser.add_argument("--seed", type=bounds.option("--seed"), default=0)
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
+                        help="localization methods to run (default: all)")
+    parser.add_argument("--seed", type=bounds.option("--seed"), default=0,
+                        help="random seed of the study (integer, 0 to 2^32-1)")
     parser.add_argument("--box-jitter", type=float, default=StudyConfig.box_jitter,
                         help="detector stand-in: box edge noise, fraction of the box size")
-    parser.add_argument("--miss-rate", type=float, default=StudyConfig.miss_rate)
+    parser.add_argument("--miss-rate", type=float, default=StudyConfig.miss_rate,
+                        help="detector stand-in: probability that a visible insulator gets no box")
     parser.add_argument("--false-positives", type=bounds.option("--false-positives"),
                         default=StudyConfig.false_positives,
                         help="detector stand-in: mean false boxes per image")

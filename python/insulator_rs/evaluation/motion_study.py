@@ -169,10 +169,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--yaw-rates", nargs="+", type=float, default=list(DEFAULT_YAW_RATES), help="deg/s")
     parser.add_argument("--pitch-rates", nargs="+", type=float, default=list(DEFAULT_PITCH_RATES),
                         help="deg/s: the body tilting during the frame (braking, gusts)")
-    parser.add_argument("--tower", choices=("A", "B"), default="A")
-    parser.add_argument("--standoff", type=float, default=8.0)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("results/motion"))
+    parser.add_argument("--tower", choices=("A", "B"), default="A", help="tower to fly past")
+    parser.add_argument("--standoff", type=float, default=8.0, help="distance w from the line plane, m")
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the study (integer)")
+    parser.add_argument("--out", type=Path, default=Path("results/motion"), help="folder for the table and plot")
 
 
 def run(args: argparse.Namespace) -> int:
