@@ -28,10 +28,10 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-import reference_algorithms as ref
+import helpers.reference_algorithms as ref
 from sklearn.cluster import DBSCAN  # type: ignore[import-untyped]
 
-from tower_scans import tower_scan
+from helpers.tower_scans import tower_scan
 
 import insulator_rs as ir
 from insulator_rs.synthetic import insulator_cloud, lidar_frame, line_clusters, tower_cloud

@@ -1,10 +1,31 @@
 #!/usr/bin/env bash
-# The project's test command (README): Rust crates with cargo, the stub check, mypy, then
-# the Python suite against the installed package. Run from the repository root inside the venv.
+# The project's test command (README). Run from the repository root inside the venv.
+#
+#   bash scripts/test.sh          the quick tier, before every commit (at most 5 minutes on a
+#                                 2-core machine): the Rust crates' tests, the stub check, mypy, and
+#                                 the pytest tests not marked slow (unit, parity, property) plus the
+#                                 one small-scene flight marked smoke
+#   bash scripts/test.sh --all    everything, as CI runs it: the same, and every test marked slow
+#                                 (whole-mission flights, PX4 SITL flights, training, studies)
+#
+# Further arguments go to pytest (e.g. a file, -k, --durations=20). The markers are declared in
+# pyproject.toml [tool.pytest.ini_options] and described in docs/guide/testing.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+tier="quick"
+if [ "${1:-}" = "--all" ]; then
+  tier="all"
+  shift
+fi
+if [ "$tier" = "quick" ]; then
+  marker="smoke or not slow"
+else
+  marker=""
+fi
+
 echo "== cargo test (fusion_core, scene_raycast, livox_mid360)"
-cargo test --release -p fusion_core -p scene_raycast -p livox_mid360
+cargo test --quiet --release -p fusion_core -p scene_raycast -p livox_mid360
 echo "== stub check (_core.pyi against the compiled module)"
 python -m mypy.stubtest insulator_rs._core --allowlist scripts/stubtest_allowlist.txt
 if [ "${INSULATOR_RS_MYPY:-1}" = "1" ]; then
@@ -15,7 +36,11 @@ else
   # differently): CI gates mypy once, in its 3.11 venv
   echo "== mypy: not in this venv (INSULATOR_RS_MYPY=0)"
 fi
-echo "== pytest (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci})"
+echo "== pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci})"
 # The gate draws the same examples on every run (tests/conftest.py, profile "ci");
 # HYPOTHESIS_PROFILE=dev explores new ones.
-HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q "$@"
+if [ -n "$marker" ]; then
+  HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q -m "$marker" "$@"
+else
+  HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q "$@"
+fi

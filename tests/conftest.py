@@ -33,6 +33,6 @@ def reference_flight(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201 
     """The small scene flown once through PX4 SITL for the whole session, read by three SITL tests
     (``tests/sitl_reference_flight.py``). Here, not imported into each module: a session fixture
     imported into several modules is one fixture per module, and would fly once each."""
-    from sitl_reference_flight import fly_once_for_the_session
+    from helpers.sitl_reference_flight import fly_once_for_the_session
 
     return fly_once_for_the_session(tmp_path_factory)

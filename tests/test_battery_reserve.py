@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 from test_mission_config import GOOD
-from test_mission_inspect import ARGS, small_scene
+from helpers.flights import ARGS, small_scene
 from test_safe_abort import footprint_distance, inside_any
 
 from insulator_rs.app import inspect_command

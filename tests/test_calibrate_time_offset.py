@@ -20,7 +20,7 @@ from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.recording.metadata import read_metadata
 from insulator_rs.rig import RIGS_DIR, load_rig, write_camera_latency
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 pytestmark = pytest.mark.slow
 ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet", "--detector", "standin"]

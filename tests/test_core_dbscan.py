@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.cluster import DBSCAN  # type: ignore[import-untyped]
 from sklearn.neighbors import NearestNeighbors  # type: ignore[import-untyped]
-from tower_scans import tower_scan
+from helpers.tower_scans import tower_scan
 
 import insulator_rs as ir
 from insulator_rs.synthetic import line_clusters, tower_cloud

@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-import reference_algorithms as ref
+import helpers.reference_algorithms as ref
 
 import insulator_rs as ir
 from insulator_rs.synthetic import insulator_cloud

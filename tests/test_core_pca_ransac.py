@@ -6,7 +6,7 @@ import inspect
 
 import numpy as np
 import pytest
-from reference_algorithms import canonical_direction, reference_pca
+from helpers.reference_algorithms import canonical_direction, reference_pca
 
 import insulator_rs as ir
 

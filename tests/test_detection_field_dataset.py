@@ -115,7 +115,7 @@ def test_field_comparison_before_and_after(tmp_path: Path) -> None:
 
 def _field_photos() -> Path | None:
     """``../shared/data/insulator_field_photos`` beside the repository or its main checkout (worktrees)."""
-    from px4_sitl import REPO, _main_checkout
+    from helpers.px4_sitl import REPO, _main_checkout
 
     for root in (REPO, _main_checkout(REPO)):
         folder = root.parent / "shared" / "data" / "insulator_field_photos"

@@ -44,7 +44,7 @@ def test_model_from_onnx_rejects_a_foreign_graph(tmp_path: Path) -> None:
     from insulator_rs.detection.train import prepare_offline
 
     prepare_offline(tmp_path / "cfg", threads=1)
-    from test_detection_sanitize import hostile_model
+    from helpers.onnx_models import hostile_model
 
     from insulator_rs.detection.warm_start import model_from_onnx
 

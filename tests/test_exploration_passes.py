@@ -24,7 +24,7 @@ from insulator_rs.planning.exploration import MIN_PASS_HEIGHT, VIEW_EDGE_MARGIN,
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.scene import load_scene
 from insulator_rs.sim.towers import build_tower
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])

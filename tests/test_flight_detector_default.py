@@ -12,7 +12,7 @@ from insulator_rs.detection.detector import Detector
 from insulator_rs.ports.detector import (REAL_PHOTO_MODEL, SIMULATOR_MODEL, NetworkDetector, default_model,
                                           detections_dropped)
 from insulator_rs.app.inspect_command import load_network
-from test_detection_sanitize import hostile_model  # tests/ is on sys.path (conftest)
+from helpers.onnx_models import hostile_model
 
 
 def test_default_network_fits_the_camera() -> None:

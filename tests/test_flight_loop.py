@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.app import inspect_command
 from insulator_rs.app.cli import main

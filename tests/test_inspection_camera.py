@@ -224,7 +224,7 @@ def test_a_rig_without_an_inspection_camera_flies_as_before(tmp_path):
 
     from insulator_rs.app.cli import main
     from insulator_rs.rig import RIGS_DIR
-    from test_mission_inspect import ARGS, small_scene
+    from helpers.flights import ARGS, small_scene
 
     scene, mission = small_scene(tmp_path)
     text = (RIGS_DIR / "simulator.toml").read_text()

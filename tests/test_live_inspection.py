@@ -24,7 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.evaluation.scoring import score_flight
 from insulator_rs.flight.loop import FlightLoop, FlightSettings

@@ -31,7 +31,7 @@ import numpy as np
 
 from insulator_rs.drivers.livox import LivoxMid360, wait_for
 
-SENDER = Path(__file__).with_name("livox_realtime_sender.py")
+SENDER = Path(__file__).parent / "helpers" / "livox_realtime_sender.py"
 SECONDS = 8.0
 DRIFT = 25e-6
 OFFSET_S = 5000.0

@@ -14,7 +14,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 import pytest
-from gcs_listener import GcsListener, M
+from helpers.gcs_listener import GcsListener, M
 
 from insulator_rs.app.cli import main
 from insulator_rs.mavlink.gcs import (
@@ -250,7 +250,7 @@ def test_the_simulated_px4_drops_a_burst_of_large_frames_as_px4_does():
 
 @pytest.mark.slow
 def test_small_scene_flight_over_mavlink_shows_every_photo_on_the_gcs(tmp_path):
-    from test_mission_inspect import ARGS, small_scene
+    from helpers.flights import ARGS, small_scene
 
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"

@@ -17,8 +17,8 @@ import struct
 
 import numpy as np
 import pytest
-from gcs_listener import GcsListener
-from test_mission_inspect import ARGS, small_scene
+from helpers.gcs_listener import GcsListener
+from helpers.flights import ARGS, small_scene
 
 from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ParameterError, PlanningError

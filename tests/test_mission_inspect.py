@@ -5,32 +5,17 @@ report against the scene's ground truth, after the flight). Assertions on ground
 the scorer's output."""
 
 import json
-from pathlib import Path
 
 import pytest
+from helpers.flights import ARGS, MISSIONS, small_scene
 
 from insulator_rs.app.cli import main
-from insulator_rs.evaluation import fault_matrix, track_evidence
+from insulator_rs.evaluation import track_evidence
 from insulator_rs.flight.loop import FlightLoop
-
-REPO = Path(__file__).resolve().parents[1]
-SCENES = REPO / "python" / "insulator_rs" / "scenes"
-MISSIONS = REPO / "python" / "insulator_rs" / "missions"
-
-
-def small_scene(tmp_path):
-    """Tower B's design cut down to a 12 m body with one cross-arm (two insulators): the fault
-    matrix's scene (``insulator_rs.evaluation.fault_matrix.small_scene``), files in ``tmp_path``."""
-    return fault_matrix.small_scene(tmp_path, SCENES, MISSIONS)
-
-
-# Detection twice a second: the false-find filter judges a string's shape on its first three
-# localizations, and at 3 m/s a 1 Hz pass saw the far string only three times (12-16 points each).
-ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
-        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
 @pytest.mark.slow
+@pytest.mark.smoke  # the quick tier's one flight
 def test_inspect_end_to_end_on_a_small_scene(tmp_path, capsys):
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"

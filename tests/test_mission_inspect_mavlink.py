@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.app.cli import main
 from insulator_rs.mission.config import InspectionParams

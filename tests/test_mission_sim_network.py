@@ -22,7 +22,7 @@ def test_inspection_with_the_sim_network_in_the_loop(tmp_path: Path) -> None:
     """The whole mission with the shipped network on the rendered detection images, which is
     inspect's default in the simulator (no --detector): both insulators of the small scene
     found and inspected; the sanitiser refused nothing the real network returned."""
-    from test_mission_inspect import ARGS, small_scene
+    from helpers.flights import ARGS, small_scene
 
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"

@@ -15,7 +15,7 @@ from insulator_rs.planning.obstacle_map import GROUND_BAND, ObstacleMap, SeenVol
 from insulator_rs.planning.safety import OrientedBox, SafetyVolumes
 from insulator_rs.sim.scene import SceneError, load_scene
 
-from test_mission_inspect import ARGS, small_scene
+from helpers.flights import ARGS, small_scene
 
 VOXEL = 0.4
 DIAGONAL = np.sqrt(3.0) * VOXEL  # the map's distances are within one voxel diagonal of the truth

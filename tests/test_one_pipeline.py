@@ -15,7 +15,7 @@ import pytest
 
 from insulator_rs.app.cli import main
 from insulator_rs.perception import pairing
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 pytestmark = pytest.mark.slow
 ARGS = ["--detect-period", "1.0", "--detect-scale", "0.25", "--photo-scale", "0.2", "--quiet",

@@ -178,7 +178,7 @@ def test_an_unfit_photo_is_retaken_a_bounded_number_of_times(tmp_path, monkeypat
     attempt (the small scene keeps its photos fit)."""
     import insulator_rs.flight.loop as loop_module
     from insulator_rs.app.cli import main
-    from test_mission_inspect import ARGS, small_scene
+    from helpers.flights import ARGS, small_scene
 
     scene, mission = small_scene(tmp_path)
     aims = []
@@ -245,7 +245,7 @@ def test_without_an_inspection_camera_an_unfit_photo_is_kept_not_retaken(tmp_pat
     1 + photo_retakes times: the test above.)"""
     from insulator_rs.app.cli import main
     from insulator_rs.rig import RIGS_DIR
-    from test_mission_inspect import ARGS, small_scene
+    from helpers.flights import ARGS, small_scene
 
     scene, mission = small_scene(tmp_path)
     text = (RIGS_DIR / "simulator.toml").read_text()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_mission_inspect import ARGS, small_scene
+from helpers.flights import ARGS, small_scene
 from test_safe_abort import _Statustexts
 
 from insulator_rs.app import inspect_command

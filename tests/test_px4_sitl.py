@@ -38,9 +38,9 @@ import socket
 import time
 
 import pytest
-from live_sitl import fly_live
-from px4_sitl import FAILSAFE_LINE, Px4Sitl, companion_link, mission_at_home, sitl_folder
-from test_mission_inspect import small_scene
+from helpers.live_sitl import fly_live
+from helpers.px4_sitl import FAILSAFE_LINE, Px4Sitl, companion_link, mission_at_home, sitl_folder
+from helpers.flights import small_scene
 
 from insulator_rs.app.cli import main
 from insulator_rs.mission.config import load_mission
@@ -49,6 +49,7 @@ from insulator_rs.sim.towers import load_tower
 FOLDER = sitl_folder()
 pytestmark = [
     pytest.mark.slow,
+    pytest.mark.sitl,
     pytest.mark.skipif(FOLDER is None, reason="PX4 SITL folder absent: no ../shared/px4_sitl beside the "
                                               "repository and INSULATOR_RS_PX4_SITL not set"),
 ]

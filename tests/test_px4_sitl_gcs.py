@@ -26,8 +26,8 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from gcs_listener import GcsListener, M
-from px4_sitl import Px4Sitl, sitl_folder
+from helpers.gcs_listener import GcsListener, M
+from helpers.px4_sitl import Px4Sitl, sitl_folder
 
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.gcs import CAMERA_COMPONENT, COMPANION_COMPONENT, MavlinkGcsObserver
@@ -36,6 +36,7 @@ from insulator_rs.ports.observer import PhaseChange, PhotoTaken
 FOLDER = sitl_folder()
 pytestmark = [
     pytest.mark.slow,
+    pytest.mark.sitl,
     pytest.mark.skipif(FOLDER is None, reason="PX4 SITL folder absent: no ../shared/px4_sitl beside the "
                                               "repository and INSULATOR_RS_PX4_SITL not set"),
 ]

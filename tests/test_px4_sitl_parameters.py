@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from gcs_listener import GcsListener
-from px4_sitl import FAILSAFE_LINE, REPO, companion_link, mission_at_home
-from test_mission_inspect import small_scene
+from helpers.gcs_listener import GcsListener
+from helpers.px4_sitl import FAILSAFE_LINE, REPO, companion_link, mission_at_home
+from helpers.flights import small_scene
 from test_px4_sitl import ARGS, SPEED, px4  # noqa: F401  (px4: the fixture)
 from test_px4_sitl import pytestmark as sitl_pytestmark
 

@@ -29,7 +29,7 @@ from insulator_rs.app.replay_command import ReplayOptions, replay_one
 from insulator_rs.recording.writer import McapRecorder
 from insulator_rs.replay.fleet import fleet_network_threads
 from insulator_rs.replay.lookahead import default_workers
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 pytestmark = pytest.mark.slow
 ARGS = ["--detect-period", "1.0", "--detect-scale", "0.25", "--photo-scale", "0.2", "--quiet",

@@ -30,8 +30,8 @@ from insulator_rs.app.cli import main
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import ReportWriter, check_out_folder
 from insulator_rs.report import folder as folder_mod
-from summaries import run_summary
-from test_mission_inspect import ARGS, small_scene  # the small scene of the inspect tests (tests/ is on sys.path)
+from helpers.summaries import run_summary
+from helpers.flights import ARGS, small_scene  # the small scene of the inspect tests (tests/ is on sys.path)
 
 # where the insulator_rs under test was imported from (the source tree, or site-packages in CI)
 PACKAGE_PARENT = Path(insulator_rs.__file__).resolve().parents[1]

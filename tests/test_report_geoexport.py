@@ -22,7 +22,7 @@ import pytest
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.geoexport import PATH_SPACING
-from summaries import run_summary
+from helpers.summaries import run_summary
 
 ORIGIN = GeoPoint(49.5, 15.0, 420.0)
 ROUND_TRIP_M = 0.01

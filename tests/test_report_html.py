@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import pytest
 
-from chromium_cdp import Chromium, find_chromium
+from helpers.chromium_cdp import Chromium, find_chromium
 from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ReportError
 from insulator_rs.geodesy import GeoPoint

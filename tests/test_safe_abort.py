@@ -277,7 +277,7 @@ def test_low_battery_aborts_by_the_safe_route_and_lands(tmp_path, monkeypatch):
     jumps down, faster than any fit: the reserve itself is the last check): the abort names it,
     flies its route out and lands clear of the small scene's volumes. The planned return before
     the reserve: tests/test_battery_reserve.py."""
-    from test_mission_inspect import small_scene
+    from helpers.flights import small_scene
 
     from insulator_rs.mission.geometry import MissionGeometry
 

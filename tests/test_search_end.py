@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.app.inspect_command import kinematic_vehicle
 from insulator_rs.evaluation.scoring import score_flight

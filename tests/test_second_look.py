@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.app.cli import main
 import pytest

@@ -43,7 +43,7 @@ from typing import Any
 #: the normal one (``nice`` would warn on the output the head's readiness line is read from).
 HARDWARE_PRIORITY = ["nice", "-n", "-10"] if os.geteuid() == 0 else []
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENV_VAR = "INSULATOR_RS_PX4_SITL"
 # PX4 SITL's home (SIH defaults: SIH_LOC_LAT0/LON0/H0), as its README states.
 PX4_HOME = (47.397742, 8.545594, 488.0)

@@ -27,9 +27,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from px4_sitl import FAILSAFE_LINE, HARDWARE_PRIORITY, Px4Sitl, mission_at_home, sitl_folder
+from helpers.px4_sitl import FAILSAFE_LINE, HARDWARE_PRIORITY, Px4Sitl, mission_at_home, sitl_folder
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # A live flight's camera: the simulator's lens at 320 x 240 (the rig's calibration must match
 # the frames the camera delivers), rendered and served at 3 fps by the sensor head.
 LIVE_SCALE = 0.25
@@ -202,7 +202,7 @@ def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: l
 
 def main(argv: list[str] | None = None) -> int:
     """Soak the live path: consecutive live-sensor flights against fresh PX4 SITLs, at the defaults."""
-    from test_mission_inspect import small_scene
+    from helpers.flights import small_scene
 
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--small", type=int, default=10, help="small-scene flights")

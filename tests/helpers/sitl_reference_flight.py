@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from gcs_listener import GcsListener
-from px4_sitl import Px4Sitl, mission_at_home
-from test_mission_inspect import small_scene
+from helpers.gcs_listener import GcsListener
+from helpers.px4_sitl import Px4Sitl, mission_at_home
+from helpers.flights import small_scene
 
 GCS_PORT = 18570  # PX4 SITL's GCS link: udp 18570 + instance
 # s of wall time to wait for PX4's own disarm after the landing (COM_DISARM_LAND 2 s; loaded box)
