@@ -1,6 +1,8 @@
 """The flight's perception, per camera frame: the fused deskew + cull against the two-step path.
 
     pytest benches/bench_perception_frame.py --benchmark-enable
+    python benches/bench_perception_frame.py [ROUNDS]   # the two alternated call by call
+
 
 What flies: ``PerceptionPipeline.process`` on one frame of a flight past a tower (a Mid-360's
 200,000 points/s, the frame paired with the points within 0.1 s of it, from 3 scans: about
@@ -10,14 +12,21 @@ on the tower's steel). ``insulator_rs`` is the pipeline as it flies, one
 (``ir.deskew`` of each scan, then ``ir.points_in_boxes`` of the paired cloud in W), the
 reference of tests/test_fused_perception.py, which checks the two agree (same points, same
 lists). A second group times the deskew + cull step alone (``paired_points_in_boxes_w``). The
-ratio table at the end of the run prints two-step / fused.
+ratio table at the end of the run prints two-step / fused. On a loaded machine, run the script
+itself: it alternates the two pipelines call by call, so both meet the same load, and prints the
+minimum and the first quartile of each, and their ratios.
 """
 
 from __future__ import annotations
 
+import sys
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # as conftest.py does
 from test_fused_perception import CAM, T_B_C, TwoStepPipeline, boxes_at, fed, frame_at, scans_with_string, string_box
 
 from insulator_rs.perception.pipeline import PerceptionPipeline
@@ -72,3 +81,26 @@ def test_deskew_cull_fused_insulator_rs(benchmark: Any) -> None:
 
 def test_deskew_cull_two_step(benchmark: Any) -> None:
     _step(benchmark, TwoStepPipeline, "two-step: deskew, points_in_boxes")
+
+
+def alternated(rounds: int) -> None:
+    """Both pipelines, call by call in turn; min and first quartile of each, two-step / fused."""
+    setups = {"fused": _pipeline(PerceptionPipeline), "two-step": _pipeline(TwoStepPipeline)}
+    for what in ("deskew + cull", "process"):
+        seconds: dict[str, list[float]] = {name: [] for name in setups}
+        for _ in range(rounds):
+            for name, (pipeline, boxes) in setups.items():
+                T_c_w = np.linalg.inv(pipeline.poses.pose_at(TIME) @ T_B_C)
+                start = time.perf_counter()
+                if what == "process":
+                    pipeline.process(frame_at(TIME), boxes)
+                else:
+                    pipeline.paired_points_in_boxes_w(TIME, T_c_w, CAM, boxes)
+                seconds[name].append(time.perf_counter() - start)
+        (f_min, f_q1), (t_min, t_q1) = ((min(v) * 1e3, float(np.percentile(v, 25)) * 1e3) for v in seconds.values())
+        print(f"{what:14s} fused {f_min:6.2f} / {f_q1:6.2f} ms   two-step {t_min:6.2f} / {t_q1:6.2f} ms   "
+              f"two-step / fused {t_min / f_min:4.2f}x / {t_q1 / f_q1:4.2f}x   (min / first quartile, {rounds} calls)")
+
+
+if __name__ == "__main__":
+    alternated(int(sys.argv[1]) if len(sys.argv) > 1 else 100)

@@ -15,7 +15,9 @@ a bag replay and the studies call, so that what is measured offline is what flie
    point, which the tracks, the viewer and the studies need, and the index lists that
    ``ir.deskew`` then ``ir.points_in_boxes`` in W give (the same points to the bit, the same
    lists but for a point within float rounding of a box edge: tests/test_fused_perception.py),
-   in less time a frame (benches/bench_perception_frame.py prints the ratio).
+   with one pass over the points where the two-step path made two. A frame costs the same
+   within the noise either way (the numpy pairing and the localization dominate it):
+   benches/bench_perception_frame.py prints both, side by side.
 4. **Accumulate**: boxes are associated across events by the W position of their nearest
    points (median), so each track holds the culled points of the last
    :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
