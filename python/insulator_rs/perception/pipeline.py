@@ -8,8 +8,16 @@ a bag replay and the studies call, so that what is measured offline is what flie
    one vehicle clock).
 2. **Deskew**: each point goes to W with the vehicle's pose at its own time, interpolated
    from the pose history (the vehicle's estimate, not ground truth), ``T_w_b(t_i) @ T_b_l``.
-3. **Cull** to each detection box with ``ir.points_in_boxes`` in the camera at the frame's
-   instant, ``T_w_c = T_w_b(t_frame) @ T_b_c``.
+3. **Cull** to each detection box in the camera at the frame's instant,
+   ``T_w_c = T_w_b(t_frame) @ T_b_c``. Steps 2 and 3 are one fused pass a scan,
+   ``ir.deskew_points_in_boxes`` (deskew to L at the newest pose, then project and cull in L
+   through ``T_c_l = T_c_w @ T_w_l`` while the chunk is in cache): it returns every deskewed
+   point, which the tracks, the viewer and the studies need, and the index lists that
+   ``ir.deskew`` then ``ir.points_in_boxes`` in W give (the same points to the bit, the same
+   lists but for a point within float rounding of a box edge: tests/test_fused_perception.py),
+   with one pass over the points where the two-step path made two. A frame costs the same
+   within the noise either way (the numpy pairing and the localization dominate it):
+   benches/bench_perception_frame.py prints both, side by side.
 4. **Accumulate**: boxes are associated across events by the W position of their nearest
    points (median), so each track holds the culled points of the last
    :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
@@ -267,39 +275,81 @@ class PerceptionPipeline:
         if not self.poses.covers(frame.time):
             self.counters.outside_poses += 1
             return []
-        points_w = self.paired_points_w(frame.time) if self.deskew else self._nearest_scan_w(frame.time)
+        T_w_b = self.poses.pose_at(frame.time)
+        culled: list[np.ndarray] | None = None
+        if self.deskew:
+            T_c_w = np.linalg.inv(T_w_b @ frame.T_b_c)
+            points_w, culled = self.paired_points_in_boxes_w(frame.time, T_c_w, frame.camera, boxes)
+        else:
+            points_w = self._nearest_scan_w(frame.time)
         if len(points_w) == 0:
             self.counters.unpaired += 1
             return []
-        T_w_b = self.poses.pose_at(frame.time)
         self.last_paired = (points_w, T_w_b)  # for a viewer (the replay's Rerun log)
-        return self._event_w(boxes, points_w, T_w_b, frame.camera, frame.T_b_c, frame.time)
+        return self._event_w(boxes, points_w, T_w_b, frame.camera, frame.T_b_c, frame.time, culled)
 
-    def paired_points_w(self, time: float) -> np.ndarray:
-        """The buffered scans' points within the pairing window of ``time`` and the pose
-        history's span, each moved to W with the pose at its own time."""
-        parts = []
+    def _paired_scans(self, time: float) -> list[tuple[LidarScan, np.ndarray]]:
+        """Each buffered scan with points within the pairing window of ``time`` and the pose
+        history's span, with the boolean mask of those points."""
+        out = []
         for scan in self.scans:
             times = np.asarray(scan.times)
             near = (np.abs(times - time) <= self.pairing_window) & self.poses.covering(times)
             if np.any(near):
-                parts.append(self.scan_points_w(scan, near))
+                out.append((scan, near))
+        return out
+
+    def paired_points_w(self, time: float) -> np.ndarray:
+        """The buffered scans' points within the pairing window of ``time`` and the pose
+        history's span, each moved to W with the pose at its own time."""
+        parts = [self.scan_points_w(scan, near) for scan, near in self._paired_scans(time)]
         return np.vstack(parts) if parts else np.zeros((0, 3))
+
+    def paired_points_in_boxes_w(self, time: float, T_c_w: np.ndarray, camera: ir.CameraModel,
+                                 boxes: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``paired_points_w(time)`` and, for each of ``boxes`` (K, 4 or 5) px, the ascending
+        indices of those points inside it, seen by ``camera`` at ``T_c_w`` (4x4): what
+        ``ir.points_in_boxes`` gives on them, deskewed and culled in one fused pass a scan."""
+        parts: list[np.ndarray] = []
+        lists: list[list[np.ndarray]] = [[] for _ in range(len(boxes))]
+        offset = 0
+        for scan, near in self._paired_scans(time):
+            pts_w, culled = self._deskew_to_w(scan, near, (T_c_w, camera, boxes))
+            for k, idx in enumerate(culled):
+                lists[k].append(idx + offset)
+            parts.append(pts_w)
+            offset += len(pts_w)
+        points_w = np.vstack(parts) if parts else np.zeros((0, 3))
+        return points_w, [np.concatenate(k) if k else np.zeros(0, dtype=np.int64) for k in lists]
 
     def scan_points_w(self, scan: LidarScan, select: np.ndarray | None = None) -> np.ndarray:
         """The points of ``scan`` (those ``select`` picks, a boolean mask; all by default), each
         moved to W with the pose at its own time (the pose history's; empty before any pose)."""
         if len(self.poses) == 0:
             return np.zeros((0, 3))
+        return self._deskew_to_w(scan, select)[0]
+
+    def _deskew_to_w(self, scan: LidarScan, select: np.ndarray | None,
+                     cull: tuple[np.ndarray, ir.CameraModel, np.ndarray] | None = None
+                     ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The points of ``scan`` that ``select`` picks (all with None) deskewed to W and, with
+        ``cull = (T_c_w, camera, boxes)``, the indices of them inside each box (else none)."""
         knots_t, knots_T = self.poses.knots()
         keep = np.ones(len(scan.times), dtype=bool) if select is None else select
         # the history clamps outside its span (a point newer than the newest pose): as PoseTrack
         t = np.clip(np.asarray(scan.times, dtype=np.float64)[keep], knots_t[0], knots_t[-1])
         T_b_l = np.asarray(scan.T_b_l, dtype=np.float64)
-        # fusion_core's deskew (slerp + lerp per point) to L at the newest pose, then to W
-        pts_l = ir.deskew(np.asarray(scan.points_l)[keep], t, knots_t, knots_T, float(knots_t[-1]), T_b_l)
+        points_l, t_ref = np.asarray(scan.points_l)[keep], float(knots_t[-1])
         T_w_l = knots_T[-1] @ T_b_l
-        return pts_l @ T_w_l[:3, :3].T + T_w_l[:3, 3]
+        # fusion_core's deskew (slerp + lerp per point) to L at the newest pose, then to W
+        culled: list[np.ndarray] = []
+        if cull is None:
+            pts_l = ir.deskew(points_l, t, knots_t, knots_T, t_ref, T_b_l)
+        else:
+            T_c_w, camera, boxes = cull
+            pts_l, culled = ir.deskew_points_in_boxes(points_l, t, knots_t, knots_T, t_ref, T_b_l,
+                                                      T_c_w @ T_w_l, camera, boxes)
+        return pts_l @ T_w_l[:3, :3].T + T_w_l[:3, 3], culled
 
     def _nearest_scan_w(self, time: float) -> np.ndarray:
         """The buffered scan nearest ``time`` (within the pairing window), all its points moved to
@@ -330,10 +380,13 @@ class PerceptionPipeline:
 
     # -- the shared core ----------------------------------------------------------------------
     def _event_w(self, boxes: np.ndarray, points_w: np.ndarray, T_w_b: np.ndarray,
-                 camera: ir.CameraModel, T_b_c: np.ndarray, time: float) -> list[LocalizedInsulator]:
+                 camera: ir.CameraModel, T_b_c: np.ndarray, time: float,
+                 culled: list[np.ndarray] | None = None) -> list[LocalizedInsulator]:
+        """One event from ``points_w`` and, when the fused pass made them, their box lists."""
         T_w_c = T_w_b @ T_b_c
         T_c_w = np.linalg.inv(T_w_c)
-        culled = ir.points_in_boxes(points_w, T_c_w, camera, boxes)
+        if culled is None:
+            culled = ir.points_in_boxes(points_w, T_c_w, camera, boxes)
         T_b_w = np.linalg.inv(T_w_b)
         out = []
         for box, idx in zip(boxes, culled):

@@ -21,6 +21,7 @@
 use crate::error::{check_positive, invalid, Result};
 use crate::points::{collect_finite, PointCloud};
 
+mod cells;
 mod clustering;
 mod grid;
 mod kdtree;

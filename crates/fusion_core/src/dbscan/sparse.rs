@@ -38,7 +38,7 @@
 use std::ops::Range;
 
 use super::clustering::Clustering;
-use super::grid::{dist2, rank_sets, Grid, Sets, AXIS_BITS, UNSET};
+use super::cells::{dist2, rank_sets, Grid, Sets, AXIS_BITS, UNSET};
 
 /// Most distance tests per point (pairs of points in neighbouring coarse cells) the edge
 /// listing makes before it gives the cloud back: twice the largest gate on the estimate

@@ -12,6 +12,16 @@
 //! the box culling of [`crate::points_in_boxes`] in one parallel pass over the cloud (per
 //! chunk: deskew, then cull the chunk while it is in cache).
 //!
+//! [`deskew_points_in_boxes`] is what flies: the Python perception pipeline
+//! (`perception/pipeline.py`) calls it once a paired scan for each camera frame, because it
+//! returns both things a frame needs, every deskewed point (the tracks keep them) and the box
+//! lists, in one pass where the two-step path made two (`deskew`, then `points_in_boxes` over
+//! the frame's cloud). Same points to the bit, same lists but for a point within rounding of
+//! a box edge (`tests/test_fused_perception.py`). The kernel time it saves a frame is small
+//! beside the numpy pairing and the localization, so a frame costs the same within the noise
+//! (`benches/bench_perception_frame.py`). [`deskew`] alone serves the obstacle map, which
+//! takes every point of a scan and no box.
+//!
 //! Why the per-knot precomputation below is exact: quaternion slerp is bi-invariant
 //! (`slerp(M q0 N, M q1 N, s) = M slerp(q0, q1, s) N`), so the rotation of
 //! `A(t) = M · T_w_b(t) · N` (with `M = (T_w_b(t_ref) T_b_l)^-1`, `N = T_b_l`) is the slerp
