@@ -25,6 +25,7 @@ from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.exceptions import ImageError, ModelError
 from insulator_rs import bounds
+from insulator_rs.ports.detector import DETECT_CONF
 
 
 def draw(image: cv2.typing.MatLike, det: Detections) -> cv2.typing.MatLike:
@@ -218,7 +219,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
 
     run = sub.add_parser("run", help="detect insulators in images")
-    common(run, 0.25)
+    common(run, DETECT_CONF)
     run.add_argument("images", nargs="+", type=Path)
     run.add_argument("--draw", type=Path, default=None, help="write annotated copies into this folder")
     run.set_defaults(func=run_images)
@@ -234,7 +235,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ev.set_defaults(func=evaluate_split)
 
     fb = sub.add_parser("false-boxes", help="false boxes per view on rendered steel views (`dataset --steel-views`)")
-    common(fb, 0.25)
+    common(fb, DETECT_CONF)
     fb.add_argument("folder", type=Path, help="a folder written by `insulator-rs dataset --steel-views`")
     fb.add_argument("--list", type=Path, default=None,
                     help="write the views with a false box here (an image list a training data.yaml can name)")
@@ -242,7 +243,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
     ng = sub.add_parser("negatives", help="false boxes per tile on the parts of labelled photos without an "
                                           "insulator (detection/negatives.py)")
-    common(ng, 0.25)
+    common(ng, DETECT_CONF)
     ng.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
     ng.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
                     help="a named split: field-test = the field photos held back from training (by photo)")

@@ -54,6 +54,7 @@ from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.mission_airframe import LIMIT_HEADROOM, kinematic_vehicle  # noqa: F401 (their old home)
 from insulator_rs.sim.wind import WindSpec
 from insulator_rs.sim.sensors import (
+    DETECT_SCALE,
     SimulatedSensors,
     kinematic_true_pose,
     reported_pose,
@@ -158,8 +159,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="min-snap segment times: pmm (point-mass proportions, default) or snap "
                         "(redistributed to minimise snap, Richter et al.; slower to plan)")
     p.add_argument("--detect-period", type=bounds.option("--detect-period"), default=1.0, help="s between detection events (default 1)")
-    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=0.25,
-                   help="detection camera resolution as a fraction of the rig camera's (default 0.25)")
+    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=DETECT_SCALE,
+                   help="detection camera resolution as a fraction of the rig camera's (default %(default)s)")
     p.add_argument("--photo-scale", type=bounds.option("--photo-scale"), default=1.0,
                    help="inspection photo resolution as a fraction of the rig camera's (default 1)")
     p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s)")

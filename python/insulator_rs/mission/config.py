@@ -62,7 +62,7 @@ import yaml
 from insulator_rs.exceptions import ConfigError
 from insulator_rs import bounds
 from insulator_rs.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
-from insulator_rs.rig import SensorRig, load_rig, resolve_rig
+from insulator_rs.rig import SensorRig, load_rig, resolve_rig, simulator_rig
 from insulator_rs.textfile import read_config_text
 from insulator_rs.tracking.confirmation import CONFIRMATIONS, MIN_CONFIRMATIONS
 
@@ -127,6 +127,10 @@ class Mission:
     vehicle: VehicleLimits
     inspection: InspectionParams
     rig: SensorRig | None = None  # the airframe's sensors; None: the file names none
+
+    def sensor_rig(self) -> SensorRig:
+        """The rig this mission flies: the file's, or the shipped simulator rig when it names none."""
+        return self.rig if self.rig is not None else simulator_rig()
 
     def neighbours_enu(self) -> np.ndarray:
         """Neighbour tower bases in W (N, 3), m."""
