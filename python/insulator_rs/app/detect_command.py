@@ -218,6 +218,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                        help="onnxruntime CPU threads (bounded: bounds.py)")
         p.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
 
+    def split_arguments(p: argparse.ArgumentParser) -> None:
+        p.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
+        p.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
+                       help="a named split: field-test = the field photos held back from training (by photo)")
+        p.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
+                       help="field-photo set for --split field-test (default %(default)s)")
+
     run = sub.add_parser("run", help="detect insulators in images")
     common(run, DETECT_CONF)
     run.add_argument("images", nargs="+", type=Path)
@@ -226,11 +233,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
     ev = sub.add_parser("eval", help="COCO mAP50-95/mAP50 on a labelled split (pycocotools)")
     common(ev, EVAL_CONF)
-    ev.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
-    ev.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
-                    help="a named split: field-test = the field photos held back from training (by photo)")
-    ev.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
-                    help="field-photo set for --split field-test (default %(default)s)")
+    split_arguments(ev)
     ev.add_argument("--imgsz", type=int, default=None, help="network input size (default: the model's own)")
     ev.set_defaults(func=evaluate_split)
 
@@ -244,11 +247,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ng = sub.add_parser("negatives", help="false boxes per tile on the parts of labelled photos without an "
                                           "insulator (detection/negatives.py)")
     common(ng, DETECT_CONF)
-    ng.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
-    ng.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
-                    help="a named split: field-test = the field photos held back from training (by photo)")
-    ng.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
-                    help="field-photo set for --split field-test (default %(default)s)")
+    split_arguments(ng)
     ng.set_defaults(func=count_photo_negatives)
 
     ex = sub.add_parser("export-fp16", help="write a model's FP16 ONNX for the Jetson's GPU (needs the onnx package)")

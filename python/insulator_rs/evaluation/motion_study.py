@@ -78,12 +78,8 @@ def _event(rig: StudyRig, target: InsulatorTruth, trajectory: Callable[[float], 
     raw, desk = [], []
     for t in times:
         T_true = trajectory(t)
-        box = rig.target_box(T_true, target.instance_id)
-        if box is None:
-            continue
-        det = detector.detect(box[None, :], rig.image_size, instance_ids=[target.instance_id])
-        mine = det.boxes[det.instance_ids == target.instance_id]
-        if len(mine) == 0:
+        mine = rig.detected_target(T_true, target.instance_id, detector)
+        if mine is None:
             continue
         frame = rig.lidar.scan(rig.mesh, trajectory, t - rig.lidar.frame_period, seed=int(rng.integers(2**31)))
         knots = t - np.arange(4, -1, -1) / POSE_RATE_HZ  # the last knot exactly at the image time

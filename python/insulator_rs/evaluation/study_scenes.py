@@ -102,6 +102,16 @@ class StudyRig:
         frame = self.lidar.scan(self.mesh, trajectory, t_end - self.lidar.frame_period, seed=seed)
         return LidarScan(frame.points_l, frame.timestamps, self.T_b_l)
 
+    def detected_target(self, T_w_b: np.ndarray, instance_id: int, detector: DetectorStandin) -> np.ndarray | None:
+        """The boxes (K, 5) ``detector`` gives the insulator ``instance_id`` in the image taken at
+        body pose ``T_w_b``; None when it is not visible or the detector missed it."""
+        box = self.target_box(T_w_b, instance_id)
+        if box is None:
+            return None
+        det = detector.detect(box[None, :], self.image_size, instance_ids=[instance_id])
+        mine = det.boxes[det.instance_ids == instance_id]
+        return mine if len(mine) else None
+
     def target_box(self, T_w_b: np.ndarray, instance_id: int) -> np.ndarray | None:
         """Ground-truth box (x1, y1, x2, y2) px of one insulator's visible pixels in the image
         taken at body pose ``T_w_b``, or None when fewer than MIN_BOX_PIXELS are visible.
@@ -212,12 +222,8 @@ def localize_event(rig: StudyRig, target: InsulatorTruth, trajectory: Callable[[
     period = rig.lidar.frame_period
     fed_until = times[0] - 1.0
     for t in times:
-        box = rig.target_box(trajectory(t), target.instance_id)
-        if box is None:
-            continue
-        det = detector.detect(box[None, :], rig.image_size, instance_ids=[target.instance_id])
-        mine = det.boxes[det.instance_ids == target.instance_id]
-        if len(mine) == 0:
+        mine = rig.detected_target(trajectory(t), target.instance_id, detector)
+        if mine is None:
             continue
         # the scan ending at the image and the next one: the flight pairs a frame with +-100 ms
         scans = [rig.lidar_scan(trajectory, t_end, seed=int(rng.integers(2**31))) for t_end in (t, t + period)]
