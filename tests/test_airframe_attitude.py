@@ -175,10 +175,11 @@ def test_localizations_in_8_mps_wind_and_3_mps2_braking_need_the_full_attitude(c
     two pipelines: with the attitude the vehicle reports, the mean centre error against the
     scene's truth is <= 0.10 m; with the same poses made level (yaw only) it is worse."""
     from insulator_rs.evaluation.airframe_study import format_airframe_table, run_airframe_cell, summarize_airframe
-    from insulator_rs.evaluation.localization_study import TOWERS, SensorRig, StudyConfig
+    from insulator_rs.evaluation.localization_study import TOWERS, StudyConfig
+    from insulator_rs.evaluation.study_scenes import StudyRig
 
     cfg = StudyConfig(towers=("A",), events=8, methods=("bounded",))
-    rig = SensorRig(TOWERS["A"], cfg, seed=0)
+    rig = StudyRig(TOWERS["A"], cfg, seed=0)
     cells = summarize_airframe(run_airframe_cell(rig, "A", 8.0, cfg, wind=8.0, braking=3.0))
     with capsys.disabled():
         print("\n" + format_airframe_table(cells))

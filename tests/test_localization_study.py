@@ -10,6 +10,7 @@ import pytest
 
 from insulator_rs.app.cli import main
 from insulator_rs.evaluation import localization_study as study
+from insulator_rs.evaluation import study_scenes as scenes
 from insulator_rs.evaluation.localization_study import EventResult, StudyConfig
 
 
@@ -52,7 +53,7 @@ def test_localize_overrides_reach_localize(tmp_path):
 def test_cells_are_deterministic_under_a_seed():
     cfg = StudyConfig(towers=("B",), standoffs={"B": (9.0,)}, events=2, methods=("dbscan+ransac",),
                       seed=4)
-    rig = study.SensorRig("tower_b", cfg, seed=cfg.seed)
+    rig = scenes.StudyRig("tower_b", cfg, seed=cfg.seed)
     a = study.run_cell(rig, "B", 9.0, cfg)
     b = study.run_cell(rig, "B", 9.0, cfg)
     assert a == b
@@ -68,15 +69,15 @@ def test_the_flying_pipeline_puts_the_accumulated_points_on_the_target_insulator
     inside and the centre metres off."""
     cfg = StudyConfig(towers=("A",), standoffs={"A": (8.0,)}, events=1, odom_position_noise=0.0,
                       odom_yaw_noise_deg=0.0, box_jitter=0.0, speed=0.0, methods=("dbscan+ransac", "bounded"))
-    rig = study.SensorRig("tower_a", cfg, seed=1)
+    rig = scenes.StudyRig("tower_a", cfg, seed=1)
     rng = np.random.default_rng(1)
     from insulator_rs.sim.detector_standin import DetectorStandin
 
     det = DetectorStandin(jitter=0.0)
     hits = 0
     for target in rig.tower.insulators[:4]:
-        trajectory, times = study._event_poses(rig.tower, target, 8.0, rng, cfg)
-        got = study._localize_event(rig, target, trajectory, times, det, rng, cfg, insulator_length=2.2)
+        trajectory, times = scenes.event_poses(rig.tower, target, 8.0, rng, cfg)
+        got = scenes.localize_event(rig, target, trajectory, times, det, rng, cfg, insulator_length=2.2)
         if got is None:
             continue
         # the fifth method through the same pipeline; one pose stream ("full": the level study's)
@@ -94,11 +95,11 @@ def test_error_components():
         center = np.array([1.0, 2.0, 3.0])
         axis = np.array([0.0, 1.0, 0.0])
 
-    err, h, v, ang, ax = study._errors(np.array([1.3, 2.4, 2.9]), np.array([0.0, -1.0, 0.0]), Truth)
+    err, h, v, ang, ax = scenes.localization_errors(np.array([1.3, 2.4, 2.9]), np.array([0.0, -1.0, 0.0]), Truth)
     assert err == pytest.approx(math.sqrt(0.09 + 0.16 + 0.01))
     assert h == pytest.approx(0.5) and v == pytest.approx(0.1) and ax == pytest.approx(0.4)
     assert ang == pytest.approx(0.0, abs=1e-6)  # the axis sign does not matter
-    _, _, _, ang, _ = study._errors(Truth.center, np.array([0.0, 1.0, 1.0]) / math.sqrt(2), Truth)
+    _, _, _, ang, _ = scenes.localization_errors(Truth.center, np.array([0.0, 1.0, 1.0]) / math.sqrt(2), Truth)
     assert ang == pytest.approx(45.0)
 
 
@@ -143,7 +144,7 @@ def test_missed_detections_are_skipped_until_three_accumulate():
     later images (up to MAX_IMAGES_PER_EVENT), so the cell completes."""
     cfg = StudyConfig(towers=("B",), standoffs={"B": (8.0,)}, events=2, methods=("dbscan",),
                       miss_rate=0.5, seed=2)
-    rig = study.SensorRig("tower_b", cfg, seed=cfg.seed)
+    rig = scenes.StudyRig("tower_b", cfg, seed=cfg.seed)
     results = study.run_cell(rig, "B", 8.0, cfg)
     assert [r.event for r in results] == [0, 1]
     assert all(r.n_input > 0 for r in results)

@@ -4,7 +4,10 @@ inspected) only after ``confirmations`` localizations within its gate."""
 import numpy as np
 import pytest
 
+from insulator_rs import bounds
 from insulator_rs.geodesy import line_frame
+from insulator_rs.mission.config import InspectionParams
+from insulator_rs.tracking.confirmation import CONFIRMATIONS, MIN_CONFIRMATIONS
 from insulator_rs.tracking.registry import InsulatorRegistry
 
 LINE = line_frame(np.array([[0.0, -280.0, 0.0], [0.0, 300.0, 1.5]]))  # along +y, lateral +x
@@ -43,10 +46,27 @@ def test_ids_follow_the_order_of_confirmation():
 
 
 def test_one_confirmation_is_the_paper_behaviour():
-    reg = InsulatorRegistry(LINE, gate=1.5)
+    reg = InsulatorRegistry(LINE, gate=1.5, confirmations=1)
     assert reg.observe(REAL, AXIS)[1] is True and len(reg) == 1
+
+
+def test_the_default_is_the_missions():
+    """One default for the registry and the mission file (tracking/confirmation.py): what flies."""
+    reg = InsulatorRegistry(LINE, gate=1.5)
+    assert reg.confirmations == CONFIRMATIONS == InspectionParams(standoff=8.0, safety_margin=2.0).confirmations
+    assert [reg.observe(REAL, AXIS)[1] for _ in range(CONFIRMATIONS)] == [False] * (CONFIRMATIONS - 1) + [True]
 
 
 def test_bad_confirmations_is_named():
     with pytest.raises(ValueError, match="confirmations"):
         InsulatorRegistry(LINE, gate=1.5, confirmations=0)
+    with pytest.raises(ValueError, match="confirmations"):
+        InsulatorRegistry(LINE, gate=1.5, confirmations=2.5)  # type: ignore[arg-type]
+
+
+def test_the_registry_and_the_mission_file_share_one_bound():
+    """The lowest count the mission file takes is the registry's lowest (bounds.py)."""
+    assert MIN_CONFIRMATIONS == bounds.MISSION["inspection.confirmations"].lo == 1
+    InsulatorRegistry(LINE, gate=1.5, confirmations=MIN_CONFIRMATIONS)
+    with pytest.raises(ValueError, match="confirmations"):
+        InsulatorRegistry(LINE, gate=1.5, confirmations=MIN_CONFIRMATIONS - 1)

@@ -25,7 +25,7 @@ AXIS = np.array([0.0, 1.0, 0.1])
 def machine(policy="immediate", per_insulator=2):
     path = exploration_path(LINE, VOL, takeoff=TAKEOFF, max_width=10.0, max_height=31.0, standoff=8.0,
                             pass_spacing=8.0, crossing_clearance=3.0)
-    reg = InsulatorRegistry(LINE, gate=1.5)
+    reg = InsulatorRegistry(LINE, gate=1.5, confirmations=1)  # the paper: at once
 
     def make(ins):
         return inspection_waypoints(ins.center, ins.axis, insulator_id=ins.id, line=LINE, volumes=VOL,

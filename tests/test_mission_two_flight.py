@@ -59,7 +59,7 @@ def test_tour_is_optimal_against_brute_force_and_safe(geom):
 
 
 def run_single(geom, sense, policy="immediate"):
-    reg = InsulatorRegistry(geom.line, 1.5)
+    reg = InsulatorRegistry(geom.line, 1.5, confirmations=1)  # the paper: at once
 
     def make(ins):
         return viewpoints(geom, [ins.center])

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from insulator_rs.perception.insulator_shape import STRING_DIAMETER
+from insulator_rs.perception.photo_quality import STRING_DIAMETER
 from insulator_rs.perception.surface_offset import surface_to_axis
 
 

@@ -105,6 +105,7 @@ MISSION: dict[str, Limit] = {
                                            "not into the sky", lo_open=True),
     "inspection.insulator_length": Limit(0.1, 15.0, "m", "the longest strings (1000 kV UHV) are "
                                          "about 10-12 m"),
+    # the registry's bound too (tracking/confirmation.py reads it)
     "inspection.confirmations": Limit(1, 20, "", "an insulator is seen by about 10-30 detection "
                                       "events per pass; more confirmations never register one",
                                       integer=True),

@@ -25,6 +25,7 @@ from insulator_rs.detection.image_file import read_image
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.exceptions import ImageError, ModelError
 from insulator_rs import bounds
+from insulator_rs.ports.detector import DETECT_CONF
 
 
 def draw(image: cv2.typing.MatLike, det: Detections) -> cv2.typing.MatLike:
@@ -218,8 +219,16 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         p.add_argument("--json", type=Path, default=None,
                        help="write the results as JSON to this file (default: printed only)")
 
+    def split_arguments(p: argparse.ArgumentParser) -> None:
+        p.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
+        p.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
+                       help="a named split: field-test = the field photos held back from training (by photo; "
+                            "default: none, the split folder given)")
+        p.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
+                       help="field-photo set for --split field-test (default %(default)s)")
+
     run = sub.add_parser("run", help="detect insulators in images")
-    common(run, 0.25)
+    common(run, DETECT_CONF)
     run.add_argument("images", nargs="+", type=Path)
     run.add_argument("--draw", type=Path, default=None,
                      help="write annotated copies into this folder (default: none written)")
@@ -227,17 +236,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
     ev = sub.add_parser("eval", help="COCO mAP50-95/mAP50 on a labelled split (pycocotools)")
     common(ev, EVAL_CONF)
-    ev.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
-    ev.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
-                    help="a named split: field-test = the field photos held back from training (by photo; default: "
-                         "none, the split folder given)")
-    ev.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
-                    help="field-photo set for --split field-test (default %(default)s)")
+    split_arguments(ev)
     ev.add_argument("--imgsz", type=int, default=None, help="network input size (default: the model's own)")
     ev.set_defaults(func=evaluate_split)
 
     fb = sub.add_parser("false-boxes", help="false boxes per view on rendered steel views (`dataset --steel-views`)")
-    common(fb, 0.25)
+    common(fb, DETECT_CONF)
     fb.add_argument("folder", type=Path, help="a folder written by `insulator-rs dataset --steel-views`")
     fb.add_argument("--list", type=Path, default=None,
                     help="write the views with a false box to this file (an image list a training data.yaml can name; "
@@ -246,13 +250,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
     ng = sub.add_parser("negatives", help="false boxes per tile on the parts of labelled photos without an "
                                           "insulator (detection/negatives.py)")
-    common(ng, 0.25)
-    ng.add_argument("split", type=Path, nargs="?", default=None, help="VOC folder or YOLO images/<split> folder")
-    ng.add_argument("--split", dest="named_split", choices=[FIELD_TEST], default=None,
-                    help="a named split: field-test = the field photos held back from training (by photo; default: "
-                         "none, the split folder given)")
-    ng.add_argument("--field-photos", type=Path, default=DEFAULT_FIELD_PHOTOS,
-                    help="field-photo set for --split field-test (default %(default)s)")
+    common(ng, DETECT_CONF)
+    split_arguments(ng)
     ng.set_defaults(func=count_photo_negatives)
 
     ex = sub.add_parser("export-fp16", help="write a model's FP16 ONNX for the Jetson's GPU (needs the onnx package)")

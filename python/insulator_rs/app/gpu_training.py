@@ -47,7 +47,6 @@ from insulator_rs.models import model_path
 
 SCENES = ("tower_a", "tower_b")
 CARD_TEST_SEED = 6  # `insulator-rs dataset --images 1500 --seed 6`: the card's test split, never trained on
-FALSE_BOX_THRESHOLDS = (0.25, 0.5)
 
 
 @dataclass(frozen=True)
@@ -192,7 +191,7 @@ def measure(onnx_path: Path, root: Path) -> dict[str, Any]:
         det = flight(image)
         return det.boxes, det.scores
 
-    false_boxes = count_false_boxes(detect_flight, root / "steel_test", thresholds=FALSE_BOX_THRESHOLDS)
+    false_boxes = count_false_boxes(detect_flight, root / "steel_test")  # at FALSE_BOX_THRESHOLDS
     return {"val_shard": coco_evaluate(samples, detect_all).to_dict(), "steel_test": false_boxes.to_dict()}
 
 
@@ -200,6 +199,7 @@ def run(recipe: GpuRecipe, out: Path, work: Path, *, processes: int | None = Non
     """All four steps; returns (and writes as ``out/summary.json``) what was done and measured."""
     from insulator_rs.detection.train import TrainConfig, export_onnx, prepare_offline, train_yolo
     from insulator_rs.detection.training_plots import plot_training_curves
+    from insulator_rs.sim.steel_views import FALSE_BOX_THRESHOLDS
 
     log = Progress()
     out.mkdir(parents=True, exist_ok=True)

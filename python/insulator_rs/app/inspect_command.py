@@ -38,7 +38,7 @@ from insulator_rs.app import live_options as cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
 from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
-from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.flight.loop import FlightSettings
 from insulator_rs.flight.gc_pauses import startup_heap_frozen
 from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
@@ -48,13 +48,12 @@ from insulator_rs.planning.minsnap import TIME_ALLOCATIONS
 from insulator_rs.perception.pipeline import METHODS
 from insulator_rs.mission.state_machine import POLICIES
 from insulator_rs.report import check_out_folder, parse_out_folder
-from insulator_rs.rig import simulator_rig
-from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
+from insulator_rs.sim.flight_assembly import assemble_flight, simulated_ports
 from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.mission_airframe import LIMIT_HEADROOM, kinematic_vehicle  # noqa: F401 (their old home)
 from insulator_rs.sim.wind import WindSpec
 from insulator_rs.sim.sensors import (
-    SimulatedSensors,
+    DETECT_SCALE,
     kinematic_true_pose,
     reported_pose,
     simulated_px4_true_pose,
@@ -170,8 +169,8 @@ After a simulated flight, score.json compares the report with the scene's ground
                    help="min-snap segment times: pmm (point-mass proportions, default) or snap "
                         "(redistributed to minimise snap, Richter et al.; slower to plan)")
     p.add_argument("--detect-period", type=bounds.option("--detect-period"), default=1.0, help="s between detection events (default 1)")
-    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=0.25,
-                   help="detection camera resolution as a fraction of the rig camera's (default 0.25)")
+    p.add_argument("--detect-scale", type=bounds.option("--detect-scale"), default=DETECT_SCALE,
+                   help="detection camera resolution as a fraction of the rig camera's (default %(default)s)")
     p.add_argument("--photo-scale", type=bounds.option("--photo-scale"), default=1.0,
                    help="inspection photo resolution as a fraction of the rig camera's (default 1)")
     p.add_argument("--v-max", type=bounds.option("--v-max"), default=None, help="override the mission's velocity limits (m/s; default: the mission's [vehicle] limits)")
@@ -297,7 +296,7 @@ def run(args: argparse.Namespace) -> int:
               "autopilot flies in its own wind (PX4 SIH: its SIH wind parameters)", file=sys.stderr)
         return 2
     mission = _with_limits(mission, args.v_max, args.a_max)
-    rig = mission.rig if mission.rig is not None else simulator_rig()
+    rig = mission.sensor_rig()
     if mavlink:
         try:
             vehicle, simulator = mavlink_vehicle(mission, args.seed, connection=args.connection,
@@ -331,11 +330,10 @@ def run(args: argparse.Namespace) -> int:
                   "the inspection photos are the detection camera's, framed for its lens", file=sys.stderr)
             rig = replace(rig, inspection=None)
     else:
-        sensors = SimulatedSensors(tower.mesh, pose, rig, detect_scale=args.detect_scale,
-                                   photo_scale=args.photo_scale, seed=args.seed,
-                                   camera_latency_s=args.sim_camera_latency)
-        detector = network if network is not None else GroundTruthDetector(sensors, seed=args.seed)
-        photo_camera = sensors.photo_model
+        ports = simulated_ports(tower.mesh, pose, rig, seed=args.seed, detect_scale=args.detect_scale,
+                                photo_scale=args.photo_scale, camera_latency_s=args.sim_camera_latency,
+                                network=network)
+        sensors, detector, photo_camera = ports.sensors, ports.detector, ports.photo_camera
     settings = FlightSettings(method=args.method, policy=args.policy, detect_period=args.detect_period,
                               max_flight_time=args.max_flight_time, time_allocation=args.time_allocation,
                               quiet=args.quiet, obstacle_map=not args.no_obstacle_map)
@@ -354,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
     stall_watch = None
     if args.record is not None:  # recording wraps the ports: the flight does not know it is recorded
         from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
-        from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
+        from insulator_rs.recording.writer import McapRecorder
 
         recorder = McapRecorder(args.record, image_format=args.record_images)
         recorder.metadata(RECORD_NAME, FlightMetadata(
@@ -363,11 +361,11 @@ def run(args: argparse.Namespace) -> int:
             scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene,
             # what the frames' stamps already carry: a replay applies a later calibration's difference
             camera_latency_s=repr(rig.camera_latency_s if live else 0.0)).as_record())
-        vehicle = RecordingVehicle(vehicle, recorder)
-        sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
     try:
-        loop = FlightLoop(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
-                          overwrite=args.overwrite, photo_camera=photo_camera, observer=observer)
+        flight = assemble_flight(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
+                                 photo_camera=photo_camera, recorder=recorder, observer=observer,
+                                 overwrite=args.overwrite)
+        loop, vehicle, sensors = flight.loop, flight.vehicle, flight.sensors
         if mavlink:  # an outside autopilot fails safe when our setpoint thread stalls: watch for it
             stall_watch = loop.stall_watch = StallWatch(dump=Path(args.out) / STALL_STACKS).start()
         code = 0

@@ -53,7 +53,7 @@ import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,6 +126,16 @@ class ImuBatch:
     acc: np.ndarray
 
 
+def datagrams_until(sock: socket.socket, deadline: float) -> Iterator[bytes]:
+    """The datagrams ``sock`` receives until ``deadline`` (``time.monotonic()`` s), as they come."""
+    while (left := deadline - time.monotonic()) > 0:
+        ready, _, _ = select.select([sock], [], [], left)
+        if not ready:
+            return
+        data, _ = sock.recvfrom(MAX_DATAGRAM)
+        yield data
+
+
 def discover(*, timeout: float = 1.0, broadcast: str = "255.255.255.255",
              bind_ip: str = "0.0.0.0", port: int = PORT_DISCOVERY) -> list[dict[str, object]]:
     """Broadcasts a discovery request (cmd 0x0000) to port 56000; returns every ack."""
@@ -134,12 +144,7 @@ def discover(*, timeout: float = 1.0, broadcast: str = "255.255.255.255",
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
         sock.bind((bind_ip, 0))
         sock.sendto(livox_discovery_request(1), (broadcast, port))
-        deadline = time.monotonic() + timeout
-        while (left := deadline - time.monotonic()) > 0:
-            ready, _, _ = select.select([sock], [], [], left)
-            if not ready:
-                break
-            data, _ = sock.recvfrom(MAX_DATAGRAM)
+        for data in datagrams_until(sock, time.monotonic() + timeout):
             try:
                 acks.append(livox_parse_discovery_ack(data))
             except PacketError:
@@ -244,12 +249,7 @@ class LivoxMid360:
         sock = self._cmd_sock
         seq = self._seq
         sock.sendto(frame, (self.lidar_ip, self.lidar_command_port))
-        deadline = time.monotonic() + self.command_timeout
-        while (left := deadline - time.monotonic()) > 0:
-            ready, _, _ = select.select([sock], [], [], left)
-            if not ready:
-                break
-            data, _ = sock.recvfrom(MAX_DATAGRAM)
+        for data in datagrams_until(sock, time.monotonic() + self.command_timeout):
             try:
                 cmd_id, ack_seq, _, _, _ = livox_decode_command(data)
                 if cmd_id != 0x0100 or ack_seq != seq:

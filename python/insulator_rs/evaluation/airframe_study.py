@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from insulator_rs import bounds
-from insulator_rs.evaluation.localization_study import (MAX_IMAGES_PER_EVENT, METHODS, POSE_RATE_HZ, TOWERS, SensorRig,
-                                                        StudyConfig, _errors, _localize_event, cell_inputs,
-                                                        draw_events, write_study)
+from insulator_rs.evaluation.localization_study import METHODS, TOWERS, StudyConfig, cell_inputs, draw_events, write_study
+from insulator_rs.evaluation.study_scenes import (MAX_IMAGES_PER_EVENT, POSE_RATE_HZ, StudyRig, localization_errors,
+                                                  localize_event)
 from insulator_rs.report.folder import parse_out_folder
 from insulator_rs.poses import interpolate_poses, level_pose, tilt_of
 from insulator_rs.ports.sensors import PoseStamped
@@ -79,7 +79,7 @@ class AirframeCell:
     tilt_mean_deg: float
 
 
-def flown_event(rig: SensorRig, target_center: np.ndarray, side: float, standoff: float, rng: np.random.Generator,
+def flown_event(rig: StudyRig, target_center: np.ndarray, side: float, standoff: float, rng: np.random.Generator,
                 cfg: StudyConfig, wind: float, braking: float
                 ) -> tuple[Callable[[float], np.ndarray], list[float], list[PoseStamped]]:
     """Fly one event (module docstring): (true trajectory t -> T_w_b, image times, the vehicle's
@@ -136,7 +136,7 @@ def flown_event(rig: SensorRig, target_center: np.ndarray, side: float, standoff
     return trajectory, times, poses
 
 
-def run_airframe_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: StudyConfig, wind: float,
+def run_airframe_cell(rig: StudyRig, tower_key: str, standoff: float, cfg: StudyConfig, wind: float,
                       braking: float) -> list[AirframeResult]:
     """``cfg.events`` flown events in ``wind`` m/s braking at ``braking`` m/s^2; one result per
     event, method and pose stream (full attitude, level)."""
@@ -154,7 +154,7 @@ def run_airframe_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: Stud
             chosen = [poses[k] for k in np.flatnonzero((stamps >= t0 - 1e-9) & (stamps <= t1 + 1e-9))]
             return {"full": chosen, "level": [PoseStamped(p.time, level_pose(p.T_w_b)) for p in chosen]}
 
-        got = _localize_event(rig, target, trajectory, times, detector, rng, cfg, length, odometry)
+        got = localize_event(rig, target, trajectory, times, detector, rng, cfg, length, odometry)
         if got is None:
             return False
         tilt = math.degrees(tilt_of(trajectory(times[0])))
@@ -163,7 +163,7 @@ def run_airframe_cell(rig: SensorRig, tower_key: str, standoff: float, cfg: Stud
                 # a stream whose pipeline had not attempted yet when the other did (its culled
                 # points differ): no localization at that image, a failure
                 loc, outcome, _, _ = got.get((method, stream), (None, "not attempted", 0, math.nan))
-                err = _errors(loc.center, loc.axis, target)[0] if loc is not None else math.nan
+                err = localization_errors(loc.center, loc.axis, target)[0] if loc is not None else math.nan
                 results.append(AirframeResult(tower_key, standoff, wind, braking, event, method, stream,
                                               loc is not None, err, outcome, tilt))
         return True
@@ -209,7 +209,7 @@ def run_airframe_study(cfg: StudyConfig, winds: Sequence[float], braking: float)
     """The airframe cells of every tower and standoff of ``cfg``, each wind, braking at ``braking``."""
     results: list[AirframeResult] = []
     for tower_key in cfg.towers:
-        rig = SensorRig(TOWERS[tower_key], cfg, seed=cfg.seed)
+        rig = StudyRig(TOWERS[tower_key], cfg, seed=cfg.seed)
         for w in cfg.standoffs[tower_key]:
             for wind in winds:
                 results.extend(run_airframe_cell(rig, tower_key, w, cfg, wind, braking))

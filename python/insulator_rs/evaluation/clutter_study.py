@@ -12,12 +12,12 @@ half the scenes a cross-arm plate at the string's attached end. The vehicle flie
 (1-2 m/s along the line, level or tilted by up to 5 degrees in roll and pitch, a small heading
 error) and takes three detection events 0.2 s apart (the paper's three).
 
-Sensing is the studies' (``evaluation.localization_study``): the simulated Mid-360 (``sim.lidar``)
+Sensing is the studies' (``evaluation.study_scenes``): the simulated Mid-360 (``sim.lidar``)
 scans ending at each image and one scan later, odometry at 20 Hz with the localization study's
 noise (2 cm, 0.2 degrees), the pipeline's live path (``add_pose``/``add_scan``/``process``). The
 detection box is the true string's projected outline (its mesh vertices through the rig camera)
 with 3 % of the box size of Gaussian jitter on each edge. The pipeline is built as the flight
-builds it, ``PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, insulator_length=<true
+builds it, ``rig_pipeline(rig, insulator_length=<true
 length>)``, so its plausibility and shape gates apply.
 
 Per scene the outcome is ``localized`` (error = distance between the estimated and true
@@ -43,8 +43,10 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.mavlink.frames import rotation_from_euler_ned_frd
-from insulator_rs.evaluation.localization_study import POSE_RATE_HZ, StudyConfig, _noisy, _purity
-from insulator_rs.perception.pipeline import AMBIGUOUS, PerceptionPipeline
+from insulator_rs.evaluation.localization_study import StudyConfig
+from insulator_rs.evaluation.study_scenes import POSE_RATE_HZ, envelope_purity, noisy_pose
+from insulator_rs.perception.pipeline import AMBIGUOUS, EVENTS_PER_LOCALIZATION, PerceptionPipeline
+from insulator_rs.perception.stack import rig_pipeline
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 from insulator_rs.rig import SensorRig, simulator_rig
 from insulator_rs.sim.lidar import Mid360
@@ -68,7 +70,6 @@ from insulator_rs.sim.towers import (
 
 INSULATOR_ID = 1
 PLATE_ID = TOWER_STEEL_ID  # a cross-arm plate is tower steel
-EVENTS = 3  # detection events per scene (the pipeline's EVENTS_PER_LOCALIZATION)
 EVENT_INTERVAL = 0.2  # s between detection events
 BOX_JITTER = 0.03  # fraction of the box size, 1 sigma, on each edge
 STRING_HEIGHT = 15.0  # m above the ground plane (which the Mid-360 then barely sees)
@@ -237,7 +238,7 @@ def _flight(rng: np.random.Generator, truth: InsulatorTruth) -> tuple[Callable[[
     def trajectory(t: float) -> np.ndarray:
         return _rpy_pose(start + velocity * (t - t0), yaw, pitch, roll)
 
-    return trajectory, [t0 + (k + 1) * EVENT_INTERVAL for k in range(EVENTS)], standoff
+    return trajectory, [t0 + (k + 1) * EVENT_INTERVAL for k in range(EVENTS_PER_LOCALIZATION)], standoff
 
 
 def _box(vertices: np.ndarray, T_w_b: np.ndarray, rig: SensorRig, rng: np.random.Generator) -> np.ndarray | None:
@@ -267,7 +268,7 @@ def run_scene(index: int, seed: int, rig: SensorRig | None = None, lidar: Mid360
     truth = scene.truth
     trajectory, times, standoff = _flight(rng, truth)
     cfg = StudyConfig()
-    pipe = PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, insulator_length=truth.length)
+    pipe = rig_pipeline(rig, insulator_length=truth.length)
     verts = scene.mesh.vertices[np.unique(scene.mesh.triangles[scene.mesh.instance_ids == INSULATOR_ID])]
     image = np.broadcast_to(np.zeros(3, np.uint8), (rig.camera.height, rig.camera.width, 3))
     period = lidar.frame_period
@@ -278,7 +279,7 @@ def run_scene(index: int, seed: int, rig: SensorRig | None = None, lidar: Mid360
         if b is None:
             continue
         for tp in np.arange(fed_until + 1.0 / POSE_RATE_HZ, t + period + 1e-9, 1.0 / POSE_RATE_HZ):
-            pipe.add_pose(PoseStamped(float(tp), _noisy(trajectory(float(tp)), rng, cfg)))
+            pipe.add_pose(PoseStamped(float(tp), noisy_pose(trajectory(float(tp)), rng, cfg)))
         fed_until = t + period
         for t_end in (t, t + period):
             frame = lidar.scan(scene.mesh, trajectory, t_end - period, seed=int(rng.integers(2**31)))
@@ -287,7 +288,7 @@ def run_scene(index: int, seed: int, rig: SensorRig | None = None, lidar: Mid360
     c = pipe.counters
     track = max(pipe.tracks, key=lambda tr: len(tr.events)) if pipe.tracks else None
     acc = np.vstack(list(track.events)) if track is not None and track.events else np.zeros((0, 3))
-    purity = _purity(acc, truth)
+    purity = envelope_purity(acc, truth)
     if found:
         loc = found[-1]
         d = loc.center - truth.center

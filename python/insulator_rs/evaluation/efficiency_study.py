@@ -49,7 +49,7 @@ import numpy as np
 
 import insulator_rs as ir
 from insulator_rs.mission.config import Mission, load_mission
-from insulator_rs.perception.pipeline import PerceptionPipeline
+from insulator_rs.perception.stack import rig_pipeline
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.planning.pmm import rest_to_rest_times
 from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
@@ -126,7 +126,7 @@ class PipelineSensing:
         self.visibility = VisibilityModel(tower)
         self.lidar = Mid360(rig.T_b_l)
         self.camera, self.T_b_c = rig.camera, rig.T_b_c
-        self.pipeline = PerceptionPipeline(rig.camera, rig.T_b_c, rig.T_b_l, insulator_length=insulator_length)
+        self.pipeline = rig_pipeline(rig, insulator_length=insulator_length)
         self.image = np.broadcast_to(np.zeros(3, np.uint8), (rig.camera.height, rig.camera.width, 3))
         mesh = tower.mesh
         self.vertices = [mesh.vertices[np.unique(mesh.triangles[mesh.instance_ids == i.instance_id])]

@@ -202,15 +202,14 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     from insulator_rs.sim.mission_airframe import kinematic_vehicle
     from insulator_rs.flight.loop import FlightLoop, FlightSettings
     from insulator_rs.mission.config import load_mission
-    from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
-    from insulator_rs.rig import simulator_rig
+    from insulator_rs.recording.writer import McapRecorder
     from insulator_rs.sim import faults as F
-    from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
-    from insulator_rs.sim.sensors import SimulatedSensors, kinematic_true_pose, simulated_px4_true_pose
+    from insulator_rs.sim.flight_assembly import assemble_flight, simulated_ports
+    from insulator_rs.sim.sensors import kinematic_true_pose, simulated_px4_true_pose
 
     wall0 = wallclock.perf_counter()
     mission = load_mission(setup.mission)
-    rig = mission.rig if mission.rig is not None else simulator_rig()
+    rig = mission.sensor_rig()
     seed = int(FLIGHT_ARGS["seed"])
     airframe_vehicle = kinematic_vehicle(mission, seed)
     mavlink = fault in MAVLINK_FAULTS
@@ -249,17 +248,18 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     timed = [F.TimedAction(at, fault, actions[fault]())] if fault in actions else []
     out.mkdir(parents=True, exist_ok=True)
     recorder = McapRecorder(out / "flight.mcap")
-    sim_sensors = SimulatedSensors(setup.tower.mesh, pose, rig, detect_scale=FLIGHT_ARGS["detect_scale"],
-                                   photo_scale=FLIGHT_ARGS["photo_scale"], seed=seed)
-    sensors = F.FaultySensors(sim_sensors, clock, lidar_silent_at=at if fault == "LiDAR silent" else None,
+    ports = simulated_ports(setup.tower.mesh, pose, rig, seed=seed, detect_scale=FLIGHT_ARGS["detect_scale"],
+                            photo_scale=FLIGHT_ARGS["photo_scale"])
+    sensors = F.FaultySensors(ports.sensors, clock, lidar_silent_at=at if fault == "LiDAR silent" else None,
                               camera_frozen_at=at if fault == "camera frozen" else None)
-    vehicle = F.FaultyVehicle(RecordingVehicle(base, recorder), clock, timed, watch=look)
-    detector: Any = GroundTruthDetector(sim_sensors, seed=seed)
+    detector: Any = ports.detector
     if fault == "detector error":
         detector = F.FailingDetector(detector, at, lambda: clock.elapsed(base.state().time))
     settings = FlightSettings(detect_period=FLIGHT_ARGS["detect_period"], quiet=True)
-    loop = FlightLoop(mission, vehicle, RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l), detector,
-                      out / "report", rig=rig, settings=settings, photo_camera=sim_sensors.photo_model)
+    # the faults round the vehicle stay out of the recording: it holds what the autopilot reported
+    loop = assemble_flight(mission, base, sensors, detector, out / "report", rig=rig, settings=settings,
+                           photo_camera=ports.photo_camera, recorder=recorder,
+                           outer_vehicle=lambda recorded: F.FaultyVehicle(recorded, clock, timed, watch=look)).loop
     loop_ref.append(loop)
     killed = False
     try:

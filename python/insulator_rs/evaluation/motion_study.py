@@ -22,23 +22,23 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from insulator_rs.evaluation.localization_study import (
-    DETECTIONS_PER_EVENT,
-    MIN_POINTS_PER_DETECTION,
-    TOWERS,
-    SensorRig,
-    StudyConfig,
-    _errors,
-    _event_poses,
-    _noisy,
-    write_study,
+from insulator_rs.evaluation.localization_study import TOWERS, StudyConfig, write_study
+from insulator_rs.evaluation.study_scenes import (
+    POSE_RATE_HZ,
+    StudyRig,
+    event_poses,
+    localization_errors,
+    noisy_pose,
 )
+from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION
 
 if TYPE_CHECKING:
     from insulator_rs.sim.detector_standin import DetectorStandin
     from insulator_rs.sim.towers import InsulatorTruth
 
-ODOMETRY_RATE = 20.0  # Hz: the pose stream the deskew interpolates
+# A detection event must hold at least this many culled points to count in this study's own
+# accumulation; the pipeline's own gate is MIN_POINTS_PER_BOX.
+MIN_POINTS_PER_DETECTION = 1
 DEFAULT_SPEEDS = (1.0, 3.0, 6.0)  # m/s along the line
 DEFAULT_YAW_RATES = (0.0, 30.0)  # deg/s
 DEFAULT_PITCH_RATES = (0.0, 30.0)  # deg/s (the command line's; the function's default is 0 only)
@@ -69,7 +69,7 @@ def _turning(trajectory: Callable[[float], np.ndarray], t_mid: float, yaw_rate: 
     return T
 
 
-def _event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float], np.ndarray],
+def _event(rig: StudyRig, target: InsulatorTruth, trajectory: Callable[[float], np.ndarray],
            times: Sequence[float], detector: DetectorStandin, rng: np.random.Generator, cfg: StudyConfig
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(raw points in B, deskewed points in B, odometry T_w_b) of the target's 3 detection events."""
@@ -78,16 +78,12 @@ def _event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float],
     raw, desk = [], []
     for t in times:
         T_true = trajectory(t)
-        box = rig.target_box(T_true, target.instance_id)
-        if box is None:
-            continue
-        det = detector.detect(box[None, :], rig.image_size, instance_ids=[target.instance_id])
-        mine = det.boxes[det.instance_ids == target.instance_id]
-        if len(mine) == 0:
+        mine = rig.detected_target(T_true, target.instance_id, detector)
+        if mine is None:
             continue
         frame = rig.lidar.scan(rig.mesh, trajectory, t - rig.lidar.frame_period, seed=int(rng.integers(2**31)))
-        knots = t - np.arange(4, -1, -1) / ODOMETRY_RATE  # the last knot exactly at the image time
-        odom = np.stack([_noisy(trajectory(k), rng, cfg) for k in knots])
+        knots = t - np.arange(4, -1, -1) / POSE_RATE_HZ  # the last knot exactly at the image time
+        odom = np.stack([noisy_pose(trajectory(k), rng, cfg) for k in knots])
         T_w_b = odom[-1]  # the pose at the image time, as the pipeline has it
         idx = ir.points_in_boxes(frame.points_l, rig.T_c_l, rig.camera_model, mine[:1, :4])[0]
         deskewed, didx = ir.deskew_points_in_boxes(frame.points_l, np.clip(frame.timestamps, knots[0], knots[-1]),
@@ -97,9 +93,9 @@ def _event(rig: SensorRig, target: InsulatorTruth, trajectory: Callable[[float],
             continue
         raw.append((frame.points_l[idx], T_w_b))
         desk.append((deskewed[didx[0]], T_w_b))
-        if len(raw) == DETECTIONS_PER_EVENT:
+        if len(raw) == EVENTS_PER_LOCALIZATION:
             break
-    if len(raw) < DETECTIONS_PER_EVENT:
+    if len(raw) < EVENTS_PER_LOCALIZATION:
         return None
     T_last = raw[-1][1]
     T_b_w = np.linalg.inv(T_last)
@@ -123,14 +119,14 @@ def run_motion_study(events: int, speeds: Sequence[float], yaw_rates_deg: Sequen
     results = []
     for speed, yaw_deg, pitch_deg in ((s, y, p) for s in speeds for y in yaw_rates_deg for p in pitch_rates_deg):
         cfg = replace(StudyConfig(), speed=speed, seed=seed)
-        rig = SensorRig(TOWERS[tower], cfg, seed)
+        rig = StudyRig(TOWERS[tower], cfg, seed)
         rng = np.random.default_rng(seed * 7919 + int(speed * 100) + int(yaw_deg) + 31 * int(pitch_deg))
         detector = DetectorStandin(jitter=cfg.box_jitter, seed=seed)
         done = attempts = 0
         while done < events and attempts < 20 * events + 20:
             attempts += 1
             target = rig.tower.insulators[int(rng.integers(len(rig.tower.insulators)))]
-            trajectory, times = _event_poses(rig.tower, target, standoff, rng, cfg)
+            trajectory, times = event_poses(rig.tower, target, standoff, rng, cfg)
             trajectory = _turning(trajectory, times[0], math.radians(yaw_deg), math.radians(pitch_deg))
             got = _event(rig, target, trajectory, times, detector, rng, cfg)
             if got is None:
@@ -145,7 +141,7 @@ def run_motion_study(events: int, speeds: Sequence[float], yaw_rates_deg: Sequen
                     continue
                 c = T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3]
                 d = T_w_b[:3, :3] @ np.asarray(est.direction)
-                errs.append(_errors(c, d, target)[0])
+                errs.append(localization_errors(c, d, target)[0])
             results.append(MotionResult(speed, yaw_deg, done, errs[0], errs[1], pitch_deg))
             done += 1
     return results

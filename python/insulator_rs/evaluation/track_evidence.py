@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs.mission.config import CONFIRMATIONS
+from insulator_rs.tracking.confirmation import CONFIRMATIONS, is_confirmed
 from insulator_rs.perception.pipeline import BIRTH_SCORE
 
 
@@ -82,7 +82,7 @@ def judge(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE,
     # `confirmations` localizations handed on
     at_birth = [t for t in false if t["localizations"] + t["held_before_birth"] > 0]
     born = [t for t in at_birth if t["best_score"] >= birth_score]
-    confirmed = [t for t in born if t["localizations"] >= confirmations]
+    confirmed = [t for t in born if is_confirmed(int(t["localizations"]), confirmations)]
     weakest = min(strings, key=lambda s: (s["localizations"], s["best_score"])) if strings else None
     out: dict[str, Any] = {
         "birth_score": birth_score, "confirmations": confirmations,
@@ -96,7 +96,7 @@ def judge(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE,
         "false_past_the_gates_best_score_max": max((t["best_score"] for t in at_birth), default=None),
         "false_born_localizations_max": max((t["localizations"] for t in born), default=None),
     }
-    strings_pass = bool(strings) and all(s["best_score"] >= birth_score and s["localizations"] >= confirmations
+    strings_pass = bool(strings) and all(s["best_score"] >= birth_score and is_confirmed(int(s["localizations"]), confirmations)
                                          for s in strings)
     out["verdict"] = {
         "every_false_track_stopped": not confirmed,

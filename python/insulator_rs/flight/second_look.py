@@ -53,6 +53,7 @@ from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.exploration import PATH_CLEARANCE
 from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION
+from insulator_rs.tracking.confirmation import localizations_missing
 from insulator_rs.tracking.registry import Insulator
 
 #: looks a flight at most
@@ -168,7 +169,7 @@ def look_events(confirmations: int, observations: int) -> int:
     its viewpoint: the localizations it still lacks (the registry confirms at ``confirmations``),
     the events a new track of the pipeline accumulates before its first, and the margin. The
     look ends sooner when the candidate is confirmed."""
-    return max(confirmations - observations, 1) + EVENTS_PER_LOCALIZATION - 1 + LOOK_MARGIN_EVENTS
+    return max(localizations_missing(observations, confirmations), 1) + EVENTS_PER_LOCALIZATION - 1 + LOOK_MARGIN_EVENTS
 
 
 def look_viewpoints(center: np.ndarray, line: LineFrame, volumes: SafetyVolumes, *,

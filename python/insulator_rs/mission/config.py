@@ -62,8 +62,9 @@ import yaml
 from insulator_rs.exceptions import ConfigError
 from insulator_rs import bounds
 from insulator_rs.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
-from insulator_rs.rig import SensorRig, load_rig, resolve_rig
+from insulator_rs.rig import SensorRig, load_rig, resolve_rig, simulator_rig
 from insulator_rs.textfile import read_config_text
+from insulator_rs.tracking.confirmation import CONFIRMATIONS, MIN_CONFIRMATIONS
 
 
 @dataclass(frozen=True)
@@ -84,10 +85,6 @@ class VehicleLimits:
         return np.array([self.a_max_horizontal, self.a_max_horizontal, self.a_max_vertical])
 
 
-# the registry's default confirmations (InspectionParams.confirmations; see the note there)
-CONFIRMATIONS = 4
-
-
 @dataclass(frozen=True)
 class InspectionParams:
     """Inspection parameters, metres unless stated."""
@@ -100,10 +97,7 @@ class InspectionParams:
     pass_spacing: float = 8.0
     crossing_clearance: float = 3.0
     insulator_length: float = 2.0
-    # A string in view is localized at every detection event (1 Hz) for tens of seconds: 33-250
-    # localizations per flight on towers A and B. The lattice members that pass every shape check
-    # and have a confident box gather 3 each, in a few frames of one pass: with 3 confirmations one
-    # was registered now and then. The small scene's short flight still confirms both strings at 4.
+    # the registry's confirmation count (why 4: tracking/confirmation.py)
     confirmations: int = CONFIRMATIONS
     # The fraction of the pack left at landing (flight/reserve.py returns in time to keep it).
     # 25 %: the share a LiPo keeps above its knee under load, and above the MAVLink client's own
@@ -133,6 +127,10 @@ class Mission:
     vehicle: VehicleLimits
     inspection: InspectionParams
     rig: SensorRig | None = None  # the airframe's sensors; None: the file names none
+
+    def sensor_rig(self) -> SensorRig:
+        """The rig this mission flies: the file's, or the shipped simulator rig when it names none."""
+        return self.rig if self.rig is not None else simulator_rig()
 
     def neighbours_enu(self) -> np.ndarray:
         """Neighbour tower bases in W (N, 3), m."""
@@ -319,7 +317,7 @@ def parse_mission(data: Any, source: str = "<mission>", base: Path | None = None
         insulator_length=r.number(insp_t, "inspection", "insulator_length",
                                   default=d.insulator_length, positive=True),
         confirmations=r.integer(insp_t, "inspection", "confirmations",
-                                default=d.confirmations, lo=1),
+                                default=d.confirmations, lo=MIN_CONFIRMATIONS),
         battery_reserve=r.number(insp_t, "inspection", "battery_reserve", default=d.battery_reserve),
         photo_retakes=r.integer(insp_t, "inspection", "photo_retakes", default=d.photo_retakes, lo=0),
     )

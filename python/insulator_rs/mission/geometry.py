@@ -11,7 +11,6 @@ from insulator_rs.mission.config import Mission
 from insulator_rs.planning.exploration import PathWaypoint, exploration_path
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.safety import SafetyVolumes, safety_volumes
-from insulator_rs.rig import simulator_rig
 
 
 @dataclass(frozen=True)
@@ -32,7 +31,7 @@ class MissionGeometry:
                                  margin=p.safety_margin)
         takeoff = mission.takeoff_enu()
         # the passes' spacing follows what the airframe's sensors see (the simulated one's by default)
-        rig = mission.rig if mission.rig is not None else simulator_rig()
+        rig = mission.sensor_rig()
         try:
             path = exploration_path(line, volumes, takeoff=takeoff, max_width=mission.max_width,
                                     max_height=mission.max_height, standoff=p.standoff,

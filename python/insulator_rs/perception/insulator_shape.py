@@ -36,14 +36,13 @@ from dataclasses import dataclass
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.photo_quality import STRING_DIAMETER
 
 # Length window, as fractions of the mission's insulator length.
 MIN_LENGTH_FRACTION = 0.3
 MAX_LENGTH_FRACTION = 1.5
 # PCA linearity (l1 - l2) / l1 of a string seen from 4-20 m: 0.95-0.998 in simulation.
 MIN_LINEARITY = 0.95
-# m: the shed diameter of common composite/glass strings (0.2-0.3 m); the scenes' are 0.22-0.24.
-STRING_DIAMETER = 0.25
 # RMS distance from the axis, as a fraction of the diameter: the visible half-surface of a
 # string gives 0.1-0.4 of it; 0.5 leaves room for noise and a fitting at the end.
 MAX_SPREAD_FRACTION = 0.5

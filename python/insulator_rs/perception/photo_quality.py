@@ -34,8 +34,8 @@ MAX_BLUR_PX = 1.0
 EDGE_MARGIN_PX = 2.0
 # s: exposure of an inspection photo in daylight (1/500 s, a typical shutter for a UAV gimbal camera).
 DEFAULT_EXPOSURE = 1.0 / 500.0
-# m: shed diameter when the mission does not give one (common strings: 0.2-0.3 m).
-DEFAULT_DIAMETER = 0.25
+# m: the shed diameter of common composite/glass strings (0.2-0.3 m); the scenes' are 0.22-0.24.
+STRING_DIAMETER = 0.25
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ def _check_positive(name: str, value: float) -> None:
 
 
 def photo_quality(camera: ir.CameraModel, T_c_w: np.ndarray, center: np.ndarray, axis: np.ndarray, *,
-                  length: float, diameter: float = DEFAULT_DIAMETER, speed: float = 0.0,
+                  length: float, diameter: float = STRING_DIAMETER, speed: float = 0.0,
                   exposure: float = DEFAULT_EXPOSURE) -> PhotoQuality:
     """The figures of a photo of the insulator at ``center`` along ``axis`` (W) by ``camera`` at
     ``T_c_w`` (W -> camera optical frame). Raises ValueError naming a bad argument; an insulator

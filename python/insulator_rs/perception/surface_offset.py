@@ -12,7 +12,7 @@ so across a string at range in lateral position). A point at lateral ``x`` then 
 ``sqrt(R^2 - x^2)`` in front of the axis: ``pi R / 4`` on average, and the lateral positions
 have a standard deviation of ``R / sqrt(3)``. Both come from the points themselves, so no shed
 size is assumed; the offset is capped at the largest radius a string has
-(:data:`~insulator_rs.perception.insulator_shape.STRING_DIAMETER` / 2). On the clutter study it
+(:data:`~insulator_rs.perception.photo_quality.STRING_DIAMETER` / 2). On the clutter study it
 brings the mean error from 0.056 to 0.040 m (the line-of-sight error from -0.043 to +0.015 m:
 a shed stack's returns mix rims and the thinner core, so the circle slightly over-reads).
 """
@@ -23,7 +23,8 @@ import math
 
 import numpy as np
 
-from insulator_rs.perception.insulator_shape import MIN_SHAPE_POINTS, STRING_DIAMETER, line_members
+from insulator_rs.perception.insulator_shape import MIN_SHAPE_POINTS, line_members
+from insulator_rs.perception.photo_quality import STRING_DIAMETER
 
 #: The line of sight must be at least this far (sine of the angle) off the axis for a depth
 #: to exist: a string seen end-on has no near surface across it.

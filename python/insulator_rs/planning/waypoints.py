@@ -18,7 +18,7 @@ import numpy as np
 import insulator_rs as ir
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.inspection_camera import InspectionCamera
-from insulator_rs.perception.photo_quality import DEFAULT_DIAMETER, MAX_GSD_MM
+from insulator_rs.perception.photo_quality import MAX_GSD_MM, STRING_DIAMETER
 from insulator_rs.planning.framing import frame_string
 from insulator_rs.planning.safety import SafetyVolumes
 
@@ -64,7 +64,7 @@ def viewing_distance(length: float, fov: float, inspection_distance: float) -> f
 
 
 def framing_distance(camera: ir.CameraModel, length: float, axis: np.ndarray,
-                     diameter: float = DEFAULT_DIAMETER) -> float:
+                     diameter: float = STRING_DIAMETER) -> float:
     """Distance (m) at which a string ``length`` x ``diameter`` m along ``axis`` (W), seen level
     and square-on by ``camera``, fills at most FILL_FRACTION of the image along each image axis:
     its horizontal extent against the horizontal field of view, its vertical extent against the

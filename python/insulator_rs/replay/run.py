@@ -32,8 +32,8 @@ from insulator_rs.flight.record import candidate_records, insulator_records, per
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
-from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW
+from insulator_rs.perception.stack import build_perception_stack
 from insulator_rs.poses import tilt_of, yaw_of
 from insulator_rs.ports.detector import BoxDetector, NetworkDetector, detector_name
 from insulator_rs.recording.reader import FlightBag
@@ -43,7 +43,6 @@ from insulator_rs.replay.sensors import ReplaySensors
 from insulator_rs.replay.vehicle import ReplayVehicle
 from insulator_rs.report.summary import ReplayDetails, RunSummary
 from insulator_rs.report.writer import ReportWriter
-from insulator_rs.rig import simulator_rig
 from insulator_rs.tracking.registry import InsulatorRegistry
 
 RERUN_FILE = "replay.rrd"
@@ -103,12 +102,10 @@ class ReplayRun:
         self.sensors = ReplaySensors(self.player, settings.camera_shift_s)
         # The rig's camera and T_b_c serve only the pipeline's known-pose form; frames carry their
         # own intrinsics and camera pose, scans the recording's T_b_l.
-        rig = mission.rig if mission.rig is not None else simulator_rig()
-        pipeline = PerceptionPipeline(rig.camera, bag.T_b_c, bag.T_b_l, method=settings.method,
-                                      insulator_length=mission.inspection.insulator_length,
-                                      pairing_window=settings.pairing_window, deskew=settings.deskew)
-        self.runner = PerceptionRunner(self.sensors, detector, pipeline, detect_period=settings.detect_period,
-                                       viewer=self.rerun)
+        _, self.runner = build_perception_stack(
+            mission.sensor_rig(), self.sensors, detector, T_b_c=bag.T_b_c, T_b_l=bag.T_b_l, method=settings.method,
+            insulator_length=mission.inspection.insulator_length, detect_period=settings.detect_period,
+            pairing_window=settings.pairing_window, deskew=settings.deskew, viewer=self.rerun)
         self.status = "running"
         self.error: str | None = None
         self.t0: float | None = None

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from insulator_rs.ports.detector import DETECT_CONF
+
 #: Id reported for a false-positive box (it matches no instance).
 FALSE_POSITIVE_ID = -1
 #: Smallest box side (px) the stand-in returns; a jittered box is widened to it.
@@ -112,7 +114,7 @@ class DetectorStandin:
         x1 = self.rng.uniform(0.0, 1.0, n_fp) * np.maximum(width - side[:, 0], 0.0)
         y1 = self.rng.uniform(0.0, 1.0, n_fp) * np.maximum(height - side[:, 1], 0.0)
         fp = self._clip(np.column_stack([x1, y1, x1 + side[:, 0], y1 + side[:, 1]]), width, height)
-        fp_scores = self.rng.uniform(0.25, 0.6, size=n_fp)
+        fp_scores = self.rng.uniform(DETECT_CONF, 0.6, size=n_fp)  # boxes the flight keeps
 
         out = np.vstack([np.column_stack([jittered, scores]), np.column_stack([fp, fp_scores])])
         out_ids = np.concatenate([kept_ids, np.full(n_fp, FALSE_POSITIVE_ID, np.int64)])

@@ -507,7 +507,6 @@ class SensorHead:
 def main(argv: list[str] | None = None) -> int:
     """Play a Mid-360 and a camera for a SITL flight until SIGTERM/SIGINT (module docstring)."""
     from insulator_rs.mission.config import load_mission
-    from insulator_rs.rig import simulator_rig
     from insulator_rs.sim.towers import load_tower
 
     parser = argparse.ArgumentParser(prog="python -m insulator_rs.sim.sensor_head", description=main.__doc__)
@@ -535,7 +534,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--lidar-latency: must be in [0, {MAX_LIDAR_LATENCY_S:g}] s, got {args.lidar_latency}")
     tower = load_tower(args.scene)
     mission = load_mission(args.mission)
-    rig = mission.rig if mission.rig is not None else simulator_rig()
+    rig = mission.sensor_rig()
     feed = Px4PoseFeed(args.px4, (mission.tower.lat, mission.tower.lon, mission.tower.alt)).start()
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -119,6 +119,10 @@ def reported_pose(vehicle: Vehicle) -> PoseSource:
     return pose
 
 
+#: the detection camera's resolution as a fraction of the rig camera's (the flight's 320 x 240)
+DETECT_SCALE = 0.25
+
+
 class SimulatedSensors:
     """Renders the camera and the Mid-360 of ``rig`` in ``mesh`` at ``pose()`` (module docstring).
 
@@ -129,7 +133,7 @@ class SimulatedSensors:
     driver that stamps arrivals stamps it (what ``insulator-rs calibrate time-offset`` finds).
     """
 
-    def __init__(self, mesh: Mesh, pose: PoseSource, rig: SensorRig, *, detect_scale: float = 0.25,
+    def __init__(self, mesh: Mesh, pose: PoseSource, rig: SensorRig, *, detect_scale: float = DETECT_SCALE,
                  photo_scale: float = 1.0, seed: int = 0, camera_latency_s: float = 0.0) -> None:
         for name, value in (("detect_scale", detect_scale), ("photo_scale", photo_scale)):
             if not (math.isfinite(value) and 0 < value <= 1):

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from insulator_rs.ports.detector import DETECT_CONF
 from insulator_rs.sim.dataset import (
     SPLITS,
     DatasetSummary,
@@ -194,6 +195,10 @@ def is_false_box(box: np.ndarray, truth_boxes: np.ndarray) -> bool:
     return bool(np.all(iou < MATCH_IOU) and np.all(inter / area < MATCH_INSIDE))
 
 
+#: the scores false boxes are counted at: the flight's detection threshold and a stricter one
+FALSE_BOX_THRESHOLDS = (DETECT_CONF, 0.5)
+
+
 @dataclass(frozen=True)
 class FalseBoxCount:
     """A detector's false boxes over a folder of steel views, at two score thresholds."""
@@ -215,7 +220,7 @@ class FalseBoxCount:
 
 
 def count_false_boxes(detect: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], folder: Path, *,
-                      thresholds: Sequence[float] = (0.25, 0.5), splits: Sequence[str] = SPLITS) -> FalseBoxCount:
+                      thresholds: Sequence[float] = FALSE_BOX_THRESHOLDS, splits: Sequence[str] = SPLITS) -> FalseBoxCount:
     """Run ``detect`` (BGR image -> boxes (M, 4), scores (M,)) over the steel views of ``folder``
     (written by :func:`write_steel_views`) and count the boxes that match no visible insulator.
 

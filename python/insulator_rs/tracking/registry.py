@@ -7,10 +7,8 @@ Each record knows its side of the tower, so the mission can defer insulators
 on the far side until the vehicle is there.
 
 A record is only *confirmed* (reported, inspected) once ``confirmations``
-localizations have fallen within its gate: a real insulator is localized on
-every detection event that sees it, while a box that once caught the lattice
-behind a far-side insulator gives a one-off localization on the steel. This is
-the M-of-N track confirmation of multi-target tracking with N unbounded.
+localizations have fallen within its gate (the rule and its default:
+:mod:`insulator_rs.tracking.confirmation`).
 """
 
 from __future__ import annotations
@@ -20,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from insulator_rs.geodesy import LineFrame
+from insulator_rs.tracking.confirmation import CONFIRMATIONS, check_confirmations, is_confirmed
 
 
 @dataclass
@@ -39,16 +38,15 @@ class Insulator:
 
 class InsulatorRegistry:
     """Insulators in W, deduplicated with a distance gate (m); a record is confirmed
-    after ``confirmations`` localizations (1: at once, as the paper does)."""
+    after ``confirmations`` localizations (1: at once, as the paper does; default: the
+    mission's, CONFIRMATIONS)."""
 
-    def __init__(self, line: LineFrame, gate: float, confirmations: int = 1) -> None:
+    def __init__(self, line: LineFrame, gate: float, confirmations: int = CONFIRMATIONS) -> None:
         if not gate > 0:
             raise ValueError(f"gate: must be > 0 m, got {gate}")
-        if confirmations < 1:
-            raise ValueError(f"confirmations: must be >= 1, got {confirmations}")
         self.line = line
         self.gate = gate
-        self.confirmations = confirmations
+        self.confirmations = check_confirmations(confirmations)
         self._records: list[Insulator] = []
 
     @property
@@ -101,7 +99,7 @@ class InsulatorRegistry:
         return ins, self._confirm(ins)
 
     def _confirm(self, ins: Insulator) -> bool:
-        if ins.confirmed or ins.observations < self.confirmations:
+        if ins.confirmed or not is_confirmed(ins.observations, self.confirmations):
             return False
         ins.confirmed = True
         ins.id = len(self.insulators)
