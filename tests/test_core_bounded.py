@@ -134,5 +134,5 @@ def test_bad_input_names_the_argument() -> None:
         ir.localize_bounded(np.zeros((0, 3)), box[None], T_B_C, CAM)
     est = ir.localize_bounded(cloud.points, box[None], T_B_C, CAM)
     # the one result class of every method, with the bounded method's image fields in its repr
-    assert isinstance(est, ir.Localization) and est.method == ir.LocalizationMethod.BOUNDED
+    assert isinstance(est, ir.Localization) and est.method == "bounded"
     assert repr(est).startswith('Localization(method="bounded", center=[') and "views_used=1" in repr(est)

@@ -77,7 +77,6 @@ def outcome(points: np.ndarray, method: LocalizationMethod, box: np.ndarray, **k
 
 def test_the_enum_is_the_cores_list() -> None:
     assert [m.value for m in LocalizationMethod] == ir.localize_methods()
-    assert ir.LocalizationMethod is LocalizationMethod
     assert LocalizationMethod.BOUNDED == "bounded" and str(LocalizationMethod.DBSCAN_RANSAC) == "dbscan+ransac"
     assert [m for m in LocalizationMethod if m.needs_boxes] == [LocalizationMethod.BOUNDED]
     assert DEFAULT_METHOD is LocalizationMethod.BOUNDED
