@@ -28,8 +28,9 @@ attempt: too few points in some event's box).
 The public API is measured on the same clouds: ``ir.localize_bounded`` on the accumulated points
 and boxes of the scene's fullest track, with the true length and none of the pipeline's gates
 (``api_outcome``, ``api_error``). The bounded method's own ambiguity rule (fusion_core's
-``ambiguity``: another, larger line in the box that fits the known length better) is what
-refuses a conductor in front of the string there, as in the flight.
+``ambiguity``: another, larger line in the box that fits the known length clearly better is taken,
+one that fits about as well refuses the box) is what keeps a conductor in front of the string from
+being reported there, as in the flight.
 
 ``python -m insulator_rs.evaluation.clutter_study --scenes 150 --out DIR`` writes
 ``clutter.csv`` and ``clutter_errors.png`` into DIR and prints the statistics.

@@ -15,9 +15,11 @@ a bag replay and the studies call, so that what is measured offline is what flie
    :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
    accumulates three.
 5. **Localize** the accumulated points, expressed in the current body frame B, with
-   ``ir.localize`` and the pipeline's method (:class:`~insulator_rs.localization.LocalizationMethod`;
-   the bounded one reads the track's boxes, and, given the insulator's length, refuses a box it
-   cannot tell apart: ``AmbiguousLocalizationError``, a conductor in front of the string); the
+   ``ir.localize`` and the pipeline's method
+   (:class:`~insulator_rs.perception.localization_method.LocalizationMethod`; the bounded one reads
+   the track's boxes and, given the insulator's length, takes the string behind a conductor fitted
+   in front of it, or refuses a box where the two fit about as well:
+   ``AmbiguousLocalizationError``); the
    result goes back to W and is checked against the box's size and, with a known insulator
    length, against the shape of an insulator string (``insulator_shape``: the false-find
    filter).
@@ -74,7 +76,7 @@ BIRTH_SCORE = 0.5
 # is as likely a lattice member or a conductor clamp as the insulator.
 MIN_LOCALIZATION_POINTS = 10
 # the not_insulator reason of a box the bounded method refused as ambiguous
-# (ir.AmbiguousLocalizationError: another, larger line in the box fits the known length better)
+# (ir.AmbiguousLocalizationError: another, larger line in the box fits the known length about as well)
 AMBIGUOUS = "ambiguous: a larger line elsewhere in the box"
 # s: LiDAR points stamped this close to a frame's exposure are "of the same instant": one
 # Mid-360 frame (100 ms) on either side, so a scan ending at the exposure pairs whole.
@@ -166,7 +168,7 @@ class PerceptionPipeline:
     ``camera``/``T_b_c``/``T_b_l`` are the rig's; :meth:`process` takes the intrinsics and
     camera pose of each frame and the extrinsics of each scan from the data themselves (a
     gimbal, a binned detection image), :meth:`event` uses these. ``method`` is a
-    :class:`~insulator_rs.localization.LocalizationMethod` (or its name); ``localize_params``
+    :class:`~insulator_rs.perception.localization_method.LocalizationMethod` (or its name); ``localize_params``
     are passed to ``ir.localize`` whatever the method (its defaults otherwise).
     """
 
