@@ -3,6 +3,8 @@
 //!
 //! * `FusionError::InvalidArgument` -> `ValueError("<argument>: <reason>")`.
 //! * `FusionError::NoInsulator` -> `insulator_rs.exceptions.LocalizationError`.
+//! * `FusionError::Ambiguous` -> `insulator_rs.exceptions.AmbiguousLocalizationError` (a
+//!   `LocalizationError`: the bounded method refused a box it cannot tell apart).
 //! * every `RaycastError` (scene_raycast) is an argument error naming the
 //!   argument -> `ValueError`.
 //! * livox_mid360's `PacketError` (a malformed datagram) and `ControlError` (a bad
@@ -27,6 +29,7 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::PyType;
 
 static LOCALIZATION_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static AMBIGUOUS_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static PACKET_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
 /// `insulator_rs.exceptions.<name>`, looked up once and kept in `cell`.
@@ -38,11 +41,14 @@ fn lookup<'py>(py: Python<'py>, cell: &'static PyOnceLock<Py<PyType>>, name: &st
 }
 
 /// Looks up the exception classes declared in `exceptions.py`; re-exports
-/// `LocalizationError` from the module (the same class object).
+/// `LocalizationError` and `AmbiguousLocalizationError` from the module (the same class
+/// objects).
 pub fn register(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     lookup(py, &PACKET_ERROR, "PacketError")?;
     let class = lookup(py, &LOCALIZATION_ERROR, "LocalizationError")?;
-    m.add("LocalizationError", class.clone_ref(py))
+    m.add("LocalizationError", class.clone_ref(py))?;
+    let class = lookup(py, &AMBIGUOUS_ERROR, "AmbiguousLocalizationError")?;
+    m.add("AmbiguousLocalizationError", class.clone_ref(py))
 }
 
 /// An exception of a class looked up by [`register`] (a `RuntimeError` if the module
@@ -64,6 +70,7 @@ impl CoreError for FusionError {
         match self {
             FusionError::InvalidArgument { .. } => PyValueError::new_err(self.to_string()),
             FusionError::NoInsulator(_) => raise(py, &LOCALIZATION_ERROR, self.to_string()),
+            FusionError::Ambiguous(_) => raise(py, &AMBIGUOUS_ERROR, self.to_string()),
         }
     }
 }

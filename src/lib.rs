@@ -5,7 +5,6 @@
 
 use pyo3::prelude::*;
 
-mod bounded;
 mod camera;
 mod culling;
 mod dbscan;
@@ -33,7 +32,6 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     ransac::register(py, m)?;
     pca::register(py, m)?;
     localize::register(py, m)?;
-    bounded::register(py, m)?;
     raycast::register(m)?;
     livox::register(m)?;
     resize::register(m)?;

@@ -1,4 +1,4 @@
-"""localize_bounded (the fifth method: LiDAR line, camera-bounded ends) against a numpy/OpenCV
+"""localize_bounded (the fifth method, ``ir.localize(..., "bounded", ...)``: LiDAR line, camera-bounded ends) against a numpy/OpenCV
 reference, its accuracy on partly seen strings, and its error contract.
 
 Reference: for the line the core returns (its centre and direction), the part of the line whose
@@ -133,4 +133,6 @@ def test_bad_input_names_the_argument() -> None:
     with pytest.raises(ir.LocalizationError):
         ir.localize_bounded(np.zeros((0, 3)), box[None], T_B_C, CAM)
     est = ir.localize_bounded(cloud.points, box[None], T_B_C, CAM)
-    assert est.method == "bounded" and "BoundedLocalization(" in repr(est)
+    # the one result class of every method, with the bounded method's image fields in its repr
+    assert isinstance(est, ir.Localization) and est.method == "bounded"
+    assert repr(est).startswith('Localization(method="bounded", center=[') and "views_used=1" in repr(est)

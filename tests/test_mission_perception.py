@@ -3,6 +3,7 @@
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
 from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION, PerceptionPipeline
 
 CAM = ir.CameraModel(300.0, 300.0, 159.5, 119.5, 320, 240)
@@ -80,15 +81,18 @@ def test_empty_inputs():
 
 def test_scale_check_rejects_a_localization_that_does_not_fit_its_box():
     """An insulator 2 m long at 8 m fits its box; told the strings are 5 m long, the same
-    localization looks 2.5 times too long for the box and is rejected."""
-    for length, expected in ((2.0, 1), (5.0, 0)):
-        rng = np.random.default_rng(2)
-        per = PerceptionPipeline(CAM, T_B_C, T_B_L, insulator_length=length)
-        T_w_b = np.eye(4)
-        ins = string_of_sheds(np.array([8.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 60, rng)
-        for _ in range(EVENTS_PER_LOCALIZATION):
-            out = per.event(box_of(ins, T_w_b), ins, T_w_b)
-        assert len(out) == expected and per.implausible == 1 - expected
+    localization looks 2.5 times too long for the box and is rejected: by the pipeline's scale
+    gate for a method of the cloud alone, by the bounded method itself (its boxes bound the line to
+    2 m, not 5: a failure) for the default."""
+    for method, counter in ((LocalizationMethod.DBSCAN_RANSAC, "implausible"), (DEFAULT_METHOD, "failures")):
+        for length, expected in ((2.0, 1), (5.0, 0)):
+            rng = np.random.default_rng(2)
+            per = PerceptionPipeline(CAM, T_B_C, T_B_L, method=method, insulator_length=length)
+            T_w_b = np.eye(4)
+            ins = string_of_sheds(np.array([8.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 60, rng)
+            for _ in range(EVENTS_PER_LOCALIZATION):
+                out = per.event(box_of(ins, T_w_b), ins, T_w_b)
+            assert len(out) == expected and getattr(per, counter) == 1 - expected, (method, length)
 
 
 def _moving_events(per, center, axis, rng, *, speed, yaw_swing):

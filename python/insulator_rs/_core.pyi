@@ -4,20 +4,19 @@ Checked against the built module by ``python -m mypy.stubtest insulator_rs._core
 Frames and units: see the docstrings; metres, pixels, radians.
 """
 
-from typing import Any, Final, Literal, final
+from typing import Any, Final, final, overload
 
 import numpy as np
 from numpy.typing import NDArray
 
+from insulator_rs.exceptions import AmbiguousLocalizationError as AmbiguousLocalizationError
 from insulator_rs.exceptions import LocalizationError as LocalizationError
 
 # A point cloud: (N, 3) float32 or float64, any strides.
 _Points = NDArray[np.float32] | NDArray[np.float64]
-# The methods of ``localize`` (fusion_core's ``Method``; any other string raises ValueError).
-_LocalizeMethod = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
 
 __all__ = [
-    "BoundedLocalization",
+    "AmbiguousLocalizationError",
     "CameraModel",
     "LineFit",
     "Localization",
@@ -26,6 +25,7 @@ __all__ = [
     "LivoxReceiver",
     "LocalizationError",
     "NEAR_LIMIT",
+    "SCALE_TOLERANCE",
     "NOISE",
     "Pca",
     "RaycastHits",
@@ -45,6 +45,7 @@ __all__ = [
     "livox_work_mode_request",
     "localize_bounded",
     "localize_defaults",
+    "localize_methods",
     "pca",
     "points_in_boxes",
     "project_points",
@@ -53,6 +54,7 @@ __all__ = [
 ]
 
 NEAR_LIMIT: Final[float]
+SCALE_TOLERANCE: Final[float]
 NOISE: Final[int]
 
 @final
@@ -115,7 +117,8 @@ class Pca:
 
 @final
 class Localization:
-    """Insulator centre and unit axis in the body frame B."""
+    """Insulator centre and unit axis in the body frame B, by any method (the image fields are
+    the bounded method's: 0, None and 0 for the paper's four)."""
 
     @property
     def center(self) -> NDArray[np.float64]: ...
@@ -128,7 +131,13 @@ class Localization:
     @property
     def n_nonfinite(self) -> int: ...
     @property
-    def method(self) -> _LocalizeMethod: ...
+    def method(self) -> str: ...
+    @property
+    def ends_from_image(self) -> int: ...
+    @property
+    def length(self) -> float | None: ...
+    @property
+    def views_used(self) -> int: ...
 
 def chain_transforms(T_c_b: Any, T_b_l: Any) -> NDArray[np.float64]: ...
 def project_points(
@@ -162,48 +171,15 @@ def ransac_line(
 ) -> LineFit: ...
 def pca(points: _Points) -> Pca: ...
 def resize_linear(image: NDArray[np.uint8], width: int, height: int) -> NDArray[np.uint8]: ...
+# ``method``: a name of ``insulator_rs.LocalizationMethod`` (a str enum; any other string
+# raises ValueError). ``boxes``, ``T_b_c``, ``cam`` and ``insulator_length`` only for "bounded".
 def localize(
     points_b: _Points,
-    method: _LocalizeMethod = "dbscan+ransac",
+    method: str = ...,
     *,
-    eps: float = ...,
-    min_points: int = ...,
-    tau: float = ...,
-    ransac_threshold: float = ...,
-    max_iterations: int = ...,
-    confidence: float = ...,
-    seed: int = ...,
-) -> Localization: ...
-def localize_defaults() -> dict[str, float | int]: ...
-@final
-class BoundedLocalization:
-    """Insulator centre and unit axis in B, the line from the LiDAR and the ends from the boxes."""
-
-    @property
-    def center(self) -> NDArray[np.float64]: ...
-    @property
-    def direction(self) -> NDArray[np.float64]: ...
-    @property
-    def n_points(self) -> int: ...
-    @property
-    def n_clusters(self) -> int: ...
-    @property
-    def n_nonfinite(self) -> int: ...
-    @property
-    def ends_from_image(self) -> int: ...
-    @property
-    def length(self) -> float | None: ...
-    @property
-    def views_used(self) -> int: ...
-    @property
-    def method(self) -> str: ...
-
-def localize_bounded(
-    points_b: _Points,
-    boxes: Any,
-    T_b_c: Any,
-    cam: CameraModel,
-    *,
+    boxes: Any = None,
+    T_b_c: Any = None,
+    cam: CameraModel | None = None,
     insulator_length: float | None = None,
     border_margin: float = ...,
     max_extent: float = ...,
@@ -214,7 +190,13 @@ def localize_bounded(
     max_iterations: int = ...,
     confidence: float = ...,
     seed: int = ...,
-) -> BoundedLocalization: ...
+) -> Localization: ...
+def localize_bounded(points_b: _Points, boxes: Any, T_b_c: Any, cam: CameraModel, **tuning: Any) -> Localization: ...
+@overload
+def localize_defaults(method: None = None) -> dict[str, float | int]: ...
+@overload
+def localize_defaults(method: str) -> dict[str, float | int | None]: ...
+def localize_methods() -> list[str]: ...
 
 # --- scene ray casting (src/raycast.rs, the simulator's LiDAR and camera) ---
 

@@ -1,7 +1,7 @@
 """Every exception the package raises, under one base class (one name per meaning).
 
 Every class is declared here, those the compiled core raises included: its bindings
-look ``LocalizationError`` and ``PacketError`` up in this module when ``_core`` is
+look ``LocalizationError``, ``AmbiguousLocalizationError`` and ``PacketError`` up in this module when ``_core`` is
 imported (besides ``ValueError``/``TypeError`` for bad arguments); the Python layers
 raise the others.
 """
@@ -97,6 +97,17 @@ class LocalizationError(InsulatorError):
 
     Raised by ``localize`` (the compiled core) when no cluster is found, fewer than two
     usable points remain, or the line fit fails. The message says which.
+    """
+
+
+class AmbiguousLocalizationError(LocalizationError):
+    """The bounded method refused a box it cannot tell apart (raised by ``localize`` with method
+    ``"bounded"`` and a known ``insulator_length``): another line in the box, on more points and
+    more than 0.3 m from the one fitted, fits the insulator's known length at the box's scale
+    better, but by less than the box's own noise (about 10 %), so which of the two is the
+    insulator cannot be told. (A rival that fits clearly better is returned instead: typically
+    the string behind a conductor fitted in front of it.) The message gives both lines' points
+    and scales.
     """
 
 

@@ -163,7 +163,7 @@ fn run(kernel: &str, setup_only: bool) -> bool {
                 if kernel == "pca_2k" {
                     black_box(pca(black_box(&pts)).unwrap());
                 } else {
-                    black_box(localize(black_box(&pts), Method::DbscanRansac, &LocalizeParams::default()).unwrap());
+                    black_box(localize(black_box(&pts), Method::DbscanRansac, &LocalizeParams::default(), None).unwrap());
                 }
             }
         }

@@ -1,5 +1,5 @@
-//! The fifth localization method, "bounded": the LiDAR gives the insulator's line, the
-//! camera gives its ends.
+//! The fifth localization method, [`Method::Bounded`](crate::Method::Bounded): the LiDAR
+//! gives the insulator's line, the camera gives its ends.
 //!
 //! The LiDAR sees only part of a string (a few returns per shed, sheds hidden behind
 //! each other, the far end beyond the Mid-360's field), so the paper's centres (median
@@ -16,7 +16,13 @@
 //! (the insulator may go on beyond the frame), nor does a line that leaves the camera's
 //! front half-space or runs on for `max_extent` m (seen end-on). With one bound left the
 //! centre is that end plus half the insulator's known length (if given); with none it
-//! is Algorithm 1's centre. [`BoundedLocalization::ends_from_image`] says which.
+//! is Algorithm 1's centre. [`Localization::ends_from_image`] says which.
+//!
+//! Given the insulator's length, the method also looks at the other lines in the box
+//! ([`crate::ambiguity`]): another, larger line that fits the length clearly better is taken
+//! instead of the fitted one (a conductor in front of the string), and a box where the two fit
+//! about as well is refused. With both ends bounded, a line whose bounded extent is not the
+//! known length (within [`SCALE_TOLERANCE`]) crosses the box: no insulator.
 //!
 //! Frames: points in B; each view's camera pose `t_b_c` (C -> B) in that same B.
 
@@ -25,9 +31,8 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use crate::camera::CameraModel;
 use crate::culling::PixelBox;
 use crate::error::{check_positive, invalid, FusionError, Result};
+use crate::ambiguity::{resolve, Verdict, SCALE_TOLERANCE};
 use crate::localize::{dbscan_ransac_line, InsulatorLine, Localization, LocalizeParams};
-use crate::pca::canonical_sign;
-use crate::points::{collect_finite, PointCloud};
 
 /// Pixels: a box edge this close to the image border is the frame's edge, not the insulator's.
 pub const DEFAULT_BORDER_MARGIN: f64 = 2.0;
@@ -35,6 +40,8 @@ pub const DEFAULT_BORDER_MARGIN: f64 = 2.0;
 /// nearly end-on exits the box far away, or never: no bound). Longer than the longest
 /// strings of transmission lines (400 kV: about 4 m).
 pub const DEFAULT_MAX_EXTENT: f64 = 6.0;
+/// The tuning of [`BoxEvidence`], by their Python keyword names (see `Method::parameters`).
+pub const BOX_PARAMETERS: [&str; 3] = ["insulator_length", "border_margin", "max_extent"];
 /// Metres: walking step along the line before the exit is refined by bisection. The box
 /// is convex and the projected line nearly straight, so a step only has to be shorter
 /// than the insulator (it cannot skip out and back in).
@@ -49,12 +56,16 @@ pub struct BoxView {
     pub t_b_c: Isometry3<f64>,
 }
 
-/// Tuning of the bounded method.
+/// What the bounded method reads besides the cloud: the detection events' boxes, the camera
+/// that took them, and the method's own tuning.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BoundedParams {
-    /// The line fit (Algorithm 1's DBSCAN/RANSAC/tau settings).
-    pub localize: LocalizeParams,
-    /// Known length of the insulator string (m), used when the image bounds only one end.
+pub struct BoxEvidence<'a> {
+    /// The detection events (at least one).
+    pub views: &'a [BoxView],
+    /// The camera model of every view.
+    pub camera: &'a CameraModel,
+    /// Known length of the insulator string (m): places the centre when the image bounds
+    /// only one end, and lets the method refuse an ambiguous box ([`crate::ambiguity`]).
     pub insulator_length: Option<f64>,
     /// See [`DEFAULT_BORDER_MARGIN`].
     pub border_margin: f64,
@@ -62,21 +73,27 @@ pub struct BoundedParams {
     pub max_extent: f64,
 }
 
-impl Default for BoundedParams {
-    fn default() -> Self {
+impl<'a> BoxEvidence<'a> {
+    /// The boxes of `views` in `camera`, without a known length, default tuning.
+    pub fn new(views: &'a [BoxView], camera: &'a CameraModel) -> Self {
         Self {
-            localize: LocalizeParams::default(),
+            views,
+            camera,
             insulator_length: None,
             border_margin: DEFAULT_BORDER_MARGIN,
             max_extent: DEFAULT_MAX_EXTENT,
         }
     }
-}
 
-impl BoundedParams {
     /// Validates every field, naming it as the Python keyword argument.
     pub fn validate(&self) -> Result<()> {
-        self.localize.validate()?;
+        self.camera.validate()?;
+        if self.views.is_empty() {
+            return Err(invalid("boxes", "need at least one detection box"));
+        }
+        for v in self.views {
+            v.pixel_box.validate("boxes")?;
+        }
         if let Some(l) = self.insulator_length {
             check_positive("insulator_length", l)?;
         }
@@ -85,20 +102,6 @@ impl BoundedParams {
         }
         check_positive("max_extent", self.max_extent)
     }
-}
-
-/// An insulator localized by the bounded method.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BoundedLocalization {
-    /// Centre, unit axis (canonical sign), points of S, clusters, skipped points (frame B).
-    pub localization: Localization,
-    /// How many ends of the insulator the boxes bounded: 2 (centre from the image), 1 (one
-    /// end plus half the known length; without a length, Algorithm 1's centre) or 0.
-    pub ends_from_image: usize,
-    /// Extent between the two image bounds (m) when both ends were bounded.
-    pub length: Option<f64>,
-    /// Views whose box the line passed through (the others were skipped).
-    pub views_used: usize,
 }
 
 /// Where the walk along the line left the box, on one side.
@@ -143,11 +146,11 @@ impl ViewLine<'_> {
     }
 
     /// Walks from `t0` (inside) in direction `sign` until the projection leaves the box.
-    fn exit(&self, t0: f64, sign: f64, params: &BoundedParams) -> Exit {
-        let steps = (params.max_extent / WALK_STEP).ceil() as usize;
+    fn exit(&self, t0: f64, sign: f64, evidence: &BoxEvidence<'_>) -> Exit {
+        let steps = (evidence.max_extent / WALK_STEP).ceil() as usize;
         let mut inside_t = t0;
         for k in 1..=steps {
-            let t = t0 + sign * (k as f64 * WALK_STEP).min(params.max_extent);
+            let t = t0 + sign * (k as f64 * WALK_STEP).min(evidence.max_extent);
             if self.inside(t) {
                 inside_t = t;
                 continue;
@@ -164,7 +167,7 @@ impl ViewLine<'_> {
             }
             // The crossing pixel: where the line meets the box edge (just inside it).
             return match self.pixel(lo) {
-                Some(uv) if self.pixel(hi).is_some() && !self.exits_through_border(uv, params.border_margin) => {
+                Some(uv) if self.pixel(hi).is_some() && !self.exits_through_border(uv, evidence.border_margin) => {
                     Exit::Bound(0.5 * (lo + hi))
                 }
                 _ => Exit::Open, // behind the camera, or the frame's edge
@@ -185,52 +188,40 @@ fn median(v: &mut [f64]) -> Option<f64> {
 
 /// The bounds (lower, upper) of the line parameter each view's box gives, as the line
 /// `(a, d)` in B; `None` for a view whose box the line does not pass through at `t0`.
-fn view_bounds(line: &InsulatorLine, t0: f64, view: &BoxView, cam: &CameraModel, params: &BoundedParams) -> Option<(Exit, Exit)> {
+fn view_bounds(line: &InsulatorLine, t0: f64, view: &BoxView, evidence: &BoxEvidence<'_>) -> Option<(Exit, Exit)> {
     let t_c_b = view.t_b_c.inverse();
     let a = t_c_b * Point3::from(line.point);
     let d = t_c_b.rotation * Vector3::from(line.direction);
-    let vl = ViewLine { a: a.coords, d, cam, pixel_box: view.pixel_box };
+    let vl = ViewLine { a: a.coords, d, cam: evidence.camera, pixel_box: view.pixel_box };
     if !vl.inside(t0) {
         return None;
     }
-    Some((vl.exit(t0, -1.0, params), vl.exit(t0, 1.0, params)))
+    Some((vl.exit(t0, -1.0, evidence), vl.exit(t0, 1.0, evidence)))
 }
 
-/// Localizes the insulator in a B-frame cloud with its line from the LiDAR and its ends
-/// from the detection boxes of `views` (see the module docs).
-///
-/// Errors: `InvalidArgument` for bad parameters, an empty `views`, a bad box or camera;
-/// `NoInsulator` when Algorithm 1 finds no line.
-pub fn localize_bounded<P: PointCloud + ?Sized>(
-    points: &P,
-    views: &[BoxView],
-    cam: &CameraModel,
-    params: &BoundedParams,
-) -> Result<BoundedLocalization> {
-    params.validate()?;
-    cam.validate()?;
-    if views.is_empty() {
-        return Err(invalid("boxes", "need at least one detection box"));
-    }
-    for v in views {
-        v.pixel_box.validate("boxes")?;
-    }
-    let finite = collect_finite(points);
-    if finite.coords.len() < 2 {
-        return Err(FusionError::NoInsulator(format!(
-            "{} finite points, need at least 2",
-            finite.coords.len()
-        )));
-    }
-    let line = dbscan_ransac_line(&finite.coords, &params.localize)?;
+/// Where the boxes put the insulator on a line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LineBounds {
+    /// The centre, as the line parameter `t` (point `a + t d`).
+    pub t_center: f64,
+    /// Ends bounded by the image (see [`Localization::ends_from_image`]).
+    pub ends_from_image: usize,
+    /// Extent (m) between the two image bounds, when both ends were bounded.
+    pub length: Option<f64>,
+    /// Views whose box the line passed through.
+    pub views_used: usize,
+}
+
+/// The insulator's centre on `line` from the boxes: the middle of the median bounds, or one
+/// bound plus half the known length, or (no bound) the median projection of the line's points.
+pub(crate) fn bound_line(line: &InsulatorLine, evidence: &BoxEvidence<'_>) -> Result<LineBounds> {
     let mut t = line.sorted_projections();
     let t_med = median(&mut t).ok_or_else(|| FusionError::NoInsulator("no points on the line".into()))?;
-
     let mut lower = Vec::new();
     let mut upper = Vec::new();
     let mut views_used = 0;
-    for view in views {
-        if let Some((lo, hi)) = view_bounds(&line, t_med, view, cam, params) {
+    for view in evidence.views {
+        if let Some((lo, hi)) = view_bounds(line, t_med, view, evidence) {
             views_used += 1;
             if let Exit::Bound(t) = lo {
                 lower.push(t);
@@ -241,7 +232,7 @@ pub fn localize_bounded<P: PointCloud + ?Sized>(
         }
     }
     let (lo, hi) = (median(&mut lower), median(&mut upper));
-    let half = params.insulator_length.map(|l| 0.5 * l);
+    let half = evidence.insulator_length.map(|l| 0.5 * l);
     let (t_center, ends_from_image, length) = match (lo, hi, half) {
         (Some(lo), Some(hi), _) => (0.5 * (lo + hi), 2, Some(hi - lo)),
         (Some(lo), None, Some(h)) => (lo + h, 1, None),
@@ -249,81 +240,52 @@ pub fn localize_bounded<P: PointCloud + ?Sized>(
         (Some(_), None, None) | (None, Some(_), None) => (t_med, 1, None),
         (None, None, _) => (t_med, 0, None),
     };
-    let (a, d) = (line.point, line.direction);
-    let center = [a[0] + t_center * d[0], a[1] + t_center * d[1], a[2] + t_center * d[2]];
-    Ok(BoundedLocalization {
-        localization: Localization {
-            center,
-            direction: canonical_sign(d),
-            n_points: line.members.len(),
-            n_clusters: line.n_clusters,
-            n_nonfinite: finite.n_nonfinite,
-        },
-        ends_from_image,
-        length,
-        views_used,
+    Ok(LineBounds { t_center, ends_from_image, length, views_used })
+}
+
+/// The bounded method on the finite points of a B-frame cloud (see the module docs);
+/// `localize` has validated `params` and `evidence`.
+pub(crate) fn by_bounded(coords: &[[f64; 3]], params: &LocalizeParams, evidence: &BoxEvidence<'_>) -> Result<Localization> {
+    let mut line = dbscan_ransac_line(coords, params)?;
+    let mut bounds = bound_line(&line, evidence)?;
+    if let Some(length) = evidence.insulator_length {
+        // Another line in the box may be the insulator (a conductor fitted in front of it).
+        if let Verdict::Rival(other, other_bounds) =
+            resolve(coords, params, evidence, &line, line.at(bounds.t_center), length)?
+        {
+            // the clusters of the first DBSCAN stay the cloud's count
+            line = InsulatorLine { n_clusters: line.n_clusters, ..other };
+            bounds = other_bounds;
+        }
+        // Bounded at both ends, the insulator's line spans the known length (the box holds the
+        // whole string); a line the box cuts far shorter or longer crosses it: another object.
+        if let Some(extent) = bounds.length {
+            if !(1.0 / SCALE_TOLERANCE..=SCALE_TOLERANCE).contains(&(extent / length)) {
+                return Err(FusionError::NoInsulator(format!(
+                    "the boxes bound the line to {extent:.2} m, not the insulator's {length:.2} m (within a factor \
+                     {SCALE_TOLERANCE}): another object crossing the box"
+                )));
+            }
+        }
+    }
+    Ok(Localization {
+        ends_from_image: bounds.ends_from_image,
+        length: bounds.length,
+        views_used: bounds.views_used,
+        ..Localization::from_cloud(line.at(bounds.t_center), line.direction, line.members.len(), line.n_clusters)
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transform::rigid_from_matrix;
-    use nalgebra::Matrix4;
+    use crate::test_scenes::{dist, ends, forward_camera, pinhole, seen_part, segment_box};
     use proptest::prelude::*;
 
-    /// The camera looking along B's x axis, level (C's z = B's x, C's x = -B's y, C's y = -B's z).
-    fn forward_camera() -> Isometry3<f64> {
-        let m = Matrix4::new(0.0, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0);
-        rigid_from_matrix(&m, "T_b_c").unwrap()
-    }
-
-    fn pinhole() -> CameraModel {
-        CameraModel::new(700.0, 700.0, 639.5, 479.5, 1280, 960, [0.0; 5]).unwrap()
-    }
-
-    /// Pixel of a B-frame point through the camera at `t_b_c`.
-    fn project(cam: &CameraModel, t_b_c: &Isometry3<f64>, p: [f64; 3]) -> [f64; 2] {
-        let c = t_b_c.inverse() * Point3::from(p);
-        cam.project_camera_point(&c.coords).unwrap()
-    }
-
-    /// Box of a segment's projection, from a dense sampling (exact for a pinhole at the ends).
-    fn segment_box(cam: &CameraModel, t_b_c: &Isometry3<f64>, a: [f64; 3], b: [f64; 3]) -> PixelBox {
-        let mut bx = PixelBox { x1: f64::INFINITY, y1: f64::INFINITY, x2: f64::NEG_INFINITY, y2: f64::NEG_INFINITY };
-        for k in 0..=4000 {
-            let s = f64::from(k) / 4000.0;
-            let p = [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])];
-            let uv = project(cam, t_b_c, p);
-            bx.x1 = bx.x1.min(uv[0]);
-            bx.y1 = bx.y1.min(uv[1]);
-            bx.x2 = bx.x2.max(uv[0]);
-            bx.y2 = bx.y2.max(uv[1]);
-        }
-        // The half-open box must contain the ends: widen by a hair past the last sample.
-        PixelBox { x1: bx.x1 - 1e-9, y1: bx.y1 - 1e-9, x2: bx.x2 + 1e-9, y2: bx.y2 + 1e-9 }
-    }
-
-    /// A "string" from `c - L/2 u` to `c + L/2 u`, of which the LiDAR saw the part between
-    /// fractions `f0` and `f1` of its length (points every 2 cm, two rows 3 cm apart so
-    /// RANSAC's inliers and the line are well defined).
-    fn seen_part(c: [f64; 3], u: [f64; 3], len: f64, f0: f64, f1: f64) -> Vec<[f64; 3]> {
-        let n = ((f1 - f0) * len / 0.02).ceil() as usize + 1;
-        let mut pts = Vec::new();
-        for k in 0..n {
-            let s = (f0 + (f1 - f0) * k as f64 / (n - 1) as f64 - 0.5) * len;
-            pts.push([c[0] + s * u[0], c[1] + s * u[1], c[2] + s * u[2]]);
-        }
-        pts
-    }
-
-    fn ends(c: [f64; 3], u: [f64; 3], len: f64) -> ([f64; 3], [f64; 3]) {
-        let h = 0.5 * len;
-        ([c[0] - h * u[0], c[1] - h * u[1], c[2] - h * u[2]], [c[0] + h * u[0], c[1] + h * u[1], c[2] + h * u[2]])
-    }
-
-    fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    /// The bounded method through the one entry point, default line fit.
+    fn bounded(pts: &[[f64; 3]], views: &[BoxView], cam: &CameraModel, length: Option<f64>) -> Result<Localization> {
+        let evidence = BoxEvidence { insulator_length: length, ..BoxEvidence::new(views, cam) };
+        crate::localize(pts, crate::Method::Bounded, &LocalizeParams::default(), Some(&evidence))
     }
 
     #[test]
@@ -336,10 +298,10 @@ mod tests {
         let (e0, e1) = ends(c, u, len);
         let views = [BoxView { pixel_box: segment_box(&cam, &t_b_c, e0, e1), t_b_c }];
         let pts = seen_part(c, u, len, 0.0, 0.4);
-        let alg1 = crate::localize(&pts, crate::Method::DbscanRansac, &LocalizeParams::default()).unwrap();
+        let alg1 = crate::localize(&pts, crate::Method::DbscanRansac, &LocalizeParams::default(), None).unwrap();
         assert!(dist(alg1.center, c) > 0.6, "{:?}", alg1.center);
-        let b = localize_bounded(&pts, &views, &cam, &BoundedParams::default()).unwrap();
-        assert!(dist(b.localization.center, c) < 1e-4, "{:?}", b.localization.center);
+        let b = bounded(&pts, &views, &cam, None).unwrap();
+        assert!(dist(b.center, c) < 1e-4, "{:?}", b.center);
         assert_eq!(b.ends_from_image, 2);
         assert_eq!(b.views_used, 1);
         assert!((b.length.unwrap() - len).abs() < 1e-4);
@@ -354,9 +316,9 @@ mod tests {
         let (e0, e1) = ends(c, u, len);
         let views = [BoxView { pixel_box: segment_box(&cam, &t_b_c, e0, e1), t_b_c }];
         let pts = seen_part(c, u, len, 0.5, 0.9);
-        let b = localize_bounded(&pts, &views, &cam, &BoundedParams::default()).unwrap();
+        let b = bounded(&pts, &views, &cam, None).unwrap();
         // The box comes from 4000 samples of the 2 m segment: 0.5 mm between samples.
-        assert!(dist(b.localization.center, c) < 1e-3, "{:?}", b.localization.center);
+        assert!(dist(b.center, c) < 1e-3, "{:?}", b.center);
         assert_eq!(b.ends_from_image, 2);
     }
 
@@ -375,13 +337,12 @@ mod tests {
         bx.y2 += 10.0;
         let views = [BoxView { pixel_box: bx, t_b_c }];
         let pts = seen_part(c, u, len, 0.0, 0.3);
-        let without = localize_bounded(&pts, &views, &cam, &BoundedParams::default()).unwrap();
+        let without = bounded(&pts, &views, &cam, None).unwrap();
         assert_eq!(without.ends_from_image, 1);
         assert_eq!(without.length, None);
-        let with = BoundedParams { insulator_length: Some(len), ..BoundedParams::default() };
-        let b = localize_bounded(&pts, &views, &cam, &with).unwrap();
+        let b = bounded(&pts, &views, &cam, Some(len)).unwrap();
         assert_eq!(b.ends_from_image, 1);
-        assert!(dist(b.localization.center, c) < 1e-4, "{:?}", b.localization.center);
+        assert!(dist(b.center, c) < 1e-4, "{:?}", b.center);
     }
 
     #[test]
@@ -400,9 +361,29 @@ mod tests {
         let t_b_c = forward_camera();
         views.push(BoxView { pixel_box: PixelBox::new(10.0, 10.0, 60.0, 40.0).unwrap(), t_b_c });
         let pts = seen_part(c, u, len, 0.2, 0.55);
-        let b = localize_bounded(&pts, &views, &cam, &BoundedParams::default()).unwrap();
+        let b = bounded(&pts, &views, &cam, None).unwrap();
         assert_eq!(b.views_used, 2);
-        assert!(dist(b.localization.center, c) < 1e-4, "{:?}", b.localization.center);
+        assert!(dist(b.center, c) < 1e-4, "{:?}", b.center);
+    }
+
+    #[test]
+    fn a_line_crossing_the_box_is_not_the_insulator() {
+        // A vertical line through a horizontal string's box (2 m string, 10 px of rim): the box
+        // bounds it to about 0.3 m. Without the known length it is returned; with it, refused.
+        let cam = pinhole();
+        let t_b_c = forward_camera();
+        let (e0, e1) = ends([9.0, 0.0, 0.0], [0.0, 1.0, 0.0], 2.0);
+        let mut bx = segment_box(&cam, &t_b_c, e0, e1);
+        bx.y1 -= 10.0;
+        bx.y2 += 10.0;
+        let views = [BoxView { pixel_box: bx, t_b_c }];
+        let pts = seen_part([9.0, 0.3, 0.0], [0.0, 0.0, 1.0], 1.0, 0.0, 1.0);
+        let b = bounded(&pts, &views, &cam, None).unwrap();
+        assert!((b.length.unwrap() - 20.0 * 9.0 / 700.0).abs() < 0.01, "{:?}", b.length);
+        match bounded(&pts, &views, &cam, Some(2.0)) {
+            Err(FusionError::NoInsulator(msg)) => assert!(msg.contains("another object crossing"), "{msg}"),
+            other => panic!("expected NoInsulator, got {other:?}"),
+        }
     }
 
     #[test]
@@ -412,7 +393,7 @@ mod tests {
         let t_b_c = forward_camera();
         let pts: Vec<[f64; 3]> = (0..60).map(|k| [8.0 + f64::from(k) * 0.02, 0.0, 0.0]).collect();
         let views = [BoxView { pixel_box: PixelBox::new(600.0, 440.0, 680.0, 520.0).unwrap(), t_b_c }];
-        let b = localize_bounded(&pts, &views, &cam, &BoundedParams::default()).unwrap();
+        let b = bounded(&pts, &views, &cam, None).unwrap();
         assert!(b.ends_from_image < 2, "{b:?}");
     }
 
@@ -421,22 +402,27 @@ mod tests {
         let cam = pinhole();
         let t_b_c = forward_camera();
         let pts = seen_part([9.0, 0.0, 0.0], [0.0, 1.0, 0.0], 1.0, 0.0, 1.0);
-        let view = BoxView { pixel_box: PixelBox::new(0.0, 0.0, 10.0, 10.0).unwrap(), t_b_c };
-        let name = |r: Result<BoundedLocalization>| match r {
+        let views = [BoxView { pixel_box: PixelBox::new(0.0, 0.0, 10.0, 10.0).unwrap(), t_b_c }];
+        let name = |r: Result<Localization>| match r {
             Err(crate::FusionError::InvalidArgument { name, .. }) => name,
             other => panic!("expected InvalidArgument, got {other:?}"),
         };
-        let p = BoundedParams::default();
-        assert_eq!(name(localize_bounded(&pts, &[], &cam, &p)), "boxes");
-        let flat = BoxView { pixel_box: PixelBox { x1: 5.0, y1: 0.0, x2: 5.0, y2: 1.0 }, t_b_c };
-        assert_eq!(name(localize_bounded(&pts, &[flat], &cam, &p)), "boxes");
-        let bad = |q: BoundedParams| name(localize_bounded(&pts, &[view], &cam, &q));
-        assert_eq!(bad(BoundedParams { insulator_length: Some(0.0), ..p }), "insulator_length");
-        assert_eq!(bad(BoundedParams { border_margin: f64::NAN, ..p }), "border_margin");
-        assert_eq!(bad(BoundedParams { max_extent: -1.0, ..p }), "max_extent");
-        assert_eq!(bad(BoundedParams { localize: LocalizeParams { tau: 0.0, ..p.localize }, ..p }), "tau");
+        let p = LocalizeParams::default();
+        let run = |e: BoxEvidence<'_>, q: &LocalizeParams| crate::localize(&pts, crate::Method::Bounded, q, Some(&e));
+        let ev = BoxEvidence::new(&views, &cam);
+        assert_eq!(name(run(BoxEvidence::new(&[], &cam), &p)), "boxes");
+        let flat = [BoxView { pixel_box: PixelBox { x1: 5.0, y1: 0.0, x2: 5.0, y2: 1.0 }, t_b_c }];
+        assert_eq!(name(run(BoxEvidence::new(&flat, &cam), &p)), "boxes");
+        assert_eq!(name(run(BoxEvidence { insulator_length: Some(0.0), ..ev }, &p)), "insulator_length");
+        assert_eq!(name(run(BoxEvidence { border_margin: f64::NAN, ..ev }, &p)), "border_margin");
+        assert_eq!(name(run(BoxEvidence { max_extent: -1.0, ..ev }, &p)), "max_extent");
+        assert_eq!(name(run(ev, &LocalizeParams { tau: 0.0, ..p })), "tau");
+        // the bounded method without boxes, a paper method with them: refused, never ignored
+        assert_eq!(name(crate::localize(&pts, crate::Method::Bounded, &p, None)), "boxes");
+        assert_eq!(name(crate::localize(&pts, crate::Method::DbscanRansac, &p, Some(&ev))), "boxes");
         let empty: Vec<[f64; 3]> = vec![[f64::NAN, 0.0, 0.0]];
-        assert!(matches!(localize_bounded(&empty, &[view], &cam, &p), Err(crate::FusionError::NoInsulator(_))));
+        let r = crate::localize(&empty, crate::Method::Bounded, &p, Some(&ev));
+        assert!(matches!(r, Err(crate::FusionError::NoInsulator(_))));
     }
 
     proptest! {
@@ -463,9 +449,9 @@ mod tests {
             let f1 = (f0 + span).min(1.0);
             let pts = seen_part(c, u, len, f0, f1);
             prop_assume!(pts.len() >= 10);
-            let b = localize_bounded(&pts, &[BoxView { pixel_box: bx, t_b_c }], &cam, &BoundedParams::default()).unwrap();
+            let b = bounded(&pts, &[BoxView { pixel_box: bx, t_b_c }], &cam, None).unwrap();
             prop_assert_eq!(b.ends_from_image, 2);
-            prop_assert!(dist(b.localization.center, c) < 1e-3, "centre {:?} vs {:?}", b.localization.center, c);
+            prop_assert!(dist(b.center, c) < 1e-3, "centre {:?} vs {:?}", b.center, c);
             prop_assert!((b.length.unwrap_or(f64::NAN) - len).abs() < 2e-3);
         }
     }

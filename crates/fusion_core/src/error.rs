@@ -10,6 +10,11 @@ pub enum FusionError {
     /// The cloud holds nothing that could be localized as an insulator.
     #[error("no insulator: {0}")]
     NoInsulator(String),
+    /// The bounded method cannot tell which line in the box is the insulator: another,
+    /// larger line fits the insulator's known length better than the one fitted
+    /// (`crate::ambiguity`). Refused rather than guessed.
+    #[error("ambiguous: {0}")]
+    Ambiguous(String),
 }
 
 /// Result alias used throughout fusion_core.

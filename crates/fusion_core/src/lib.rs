@@ -4,6 +4,7 @@
 //! coordinates into frame a. Units: metres, radians, pixels.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+pub mod ambiguity;
 pub mod bounded;
 pub mod camera;
 pub mod culling;
@@ -14,8 +15,11 @@ pub mod points;
 pub mod projection;
 pub mod resize;
 pub mod transform;
+#[cfg(test)]
+mod test_scenes;
 
-pub use bounded::{localize_bounded, BoundedLocalization, BoundedParams, BoxView};
+pub use ambiguity::SCALE_TOLERANCE;
+pub use bounded::{BoxEvidence, BoxView};
 pub use camera::{CameraModel, NEAR_LIMIT};
 pub use culling::{points_in_boxes, points_in_boxes_scalar, PixelBox};
 pub use dbscan::{dbscan, NOISE};

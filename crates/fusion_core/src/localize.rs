@@ -11,6 +11,7 @@
 
 use std::str::FromStr;
 
+use crate::bounded::BoxEvidence;
 use crate::dbscan::{dbscan_finite, NOISE};
 use crate::error::{check_positive, invalid, FusionError, Result};
 use crate::pca::{canonical_sign, pca_of};
@@ -53,7 +54,8 @@ pub const DEFAULT_MAX_ITERATIONS: usize = 1000;
 /// RANSAC confidence of having drawn one all-inlier pair.
 pub const DEFAULT_CONFIDENCE: f64 = 0.99;
 
-/// One of the paper's four localization methods.
+/// A localization method: the paper's four, on the cloud alone, and the bounded fifth, whose
+/// line is the LiDAR's and whose ends are the camera's (it needs the detection boxes).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Method {
     /// Nearest DBSCAN cluster: centroid and PCA axis.
@@ -64,11 +66,19 @@ pub enum Method {
     DbscanRansac,
     /// Paper Algorithm 2.
     DbscanPca,
+    /// Algorithm 1's line, its ends from the detection boxes ([`crate::bounded`]).
+    Bounded,
 }
 
+/// Parameters of the line fit, by their Python keyword names.
+const DBSCAN_PARAMETERS: [&str; 2] = ["eps", "min_points"];
+const RANSAC_PARAMETERS: [&str; 4] = ["ransac_threshold", "max_iterations", "confidence", "seed"];
+
 impl Method {
-    /// All methods, in the paper's order.
-    pub const ALL: [Method; 4] = [Method::Dbscan, Method::Ransac, Method::DbscanRansac, Method::DbscanPca];
+    /// All methods: the paper's four in its order, then the bounded one.
+    pub const ALL: [Method; 5] = [Method::Dbscan, Method::Ransac, Method::DbscanRansac, Method::DbscanPca, Method::Bounded];
+    /// The paper's four: the methods that read the cloud alone (no detection boxes).
+    pub const PAPER: [Method; 4] = [Method::Dbscan, Method::Ransac, Method::DbscanRansac, Method::DbscanPca];
 
     /// The method's name as Python passes it.
     pub fn as_str(&self) -> &'static str {
@@ -77,7 +87,40 @@ impl Method {
             Method::Ransac => "ransac",
             Method::DbscanRansac => "dbscan+ransac",
             Method::DbscanPca => "dbscan+pca",
+            Method::Bounded => "bounded",
         }
+    }
+
+    /// Whether the method reads detection boxes ([`BoxEvidence`]).
+    pub fn needs_boxes(&self) -> bool {
+        matches!(self, Method::Bounded)
+    }
+
+    /// The tuning parameters the method reads, by their Python keyword names (the fields of
+    /// [`LocalizeParams`] and, for the bounded method, of [`BoxEvidence`]). A parameter not
+    /// listed has no effect on the method's result; every listed one can change it (tested).
+    pub fn parameters(&self) -> Vec<&'static str> {
+        let mut names: Vec<&'static str> = Vec::new();
+        match self {
+            Method::Dbscan => names.extend(DBSCAN_PARAMETERS),
+            Method::Ransac => {
+                names.push("tau");
+                names.extend(RANSAC_PARAMETERS);
+            }
+            Method::DbscanRansac | Method::Bounded => {
+                names.extend(DBSCAN_PARAMETERS);
+                names.push("tau");
+                names.extend(RANSAC_PARAMETERS);
+            }
+            Method::DbscanPca => {
+                names.extend(DBSCAN_PARAMETERS);
+                names.push("tau");
+            }
+        }
+        if self.needs_boxes() {
+            names.extend(crate::bounded::BOX_PARAMETERS);
+        }
+        names
     }
 }
 
@@ -91,7 +134,8 @@ impl FromStr for Method {
     type Err = FusionError;
     fn from_str(s: &str) -> Result<Self> {
         Method::ALL.into_iter().find(|m| m.as_str() == s).ok_or_else(|| {
-            invalid("method", format!("unknown method {s:?}; expected one of \"dbscan\", \"ransac\", \"dbscan+ransac\", \"dbscan+pca\""))
+            let names: Vec<String> = Method::ALL.iter().map(|m| format!("{:?}", m.as_str())).collect();
+            invalid("method", format!("unknown method {s:?}; expected one of {}", names.join(", ")))
         })
     }
 }
@@ -137,9 +181,11 @@ impl LocalizeParams {
     }
 }
 
-/// A localized insulator.
+/// A localized insulator, whichever method found it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Localization {
+    /// The method that found it.
+    pub method: Method,
     /// Insulator centre (m, frame B).
     pub center: [f64; 3],
     /// Unit axis, sign canonical (largest-|component| positive).
@@ -150,25 +196,74 @@ pub struct Localization {
     pub n_clusters: usize,
     /// Input points skipped because a coordinate was NaN or infinite.
     pub n_nonfinite: usize,
+    /// The bounded method: how many ends of the insulator the boxes bounded, 2 (centre from
+    /// the image), 1 (one end plus half the known length; without a length, Algorithm 1's
+    /// centre) or 0. Always 0 for the paper's four.
+    pub ends_from_image: usize,
+    /// The bounded method: extent (m) between the two image bounds when both ends were bounded.
+    pub length: Option<f64>,
+    /// The bounded method: views whose box the line passed through (0 for the paper's four).
+    pub views_used: usize,
 }
 
-/// Localizes the insulator in a B-frame cloud with the given method.
+impl Localization {
+    /// A result of the cloud alone (the image fields empty; `method` and `n_nonfinite` are
+    /// filled in by [`localize`]).
+    pub(crate) fn from_cloud(center: [f64; 3], direction: [f64; 3], n_points: usize, n_clusters: usize) -> Self {
+        Self {
+            method: Method::DbscanRansac,
+            center,
+            direction,
+            n_points,
+            n_clusters,
+            n_nonfinite: 0,
+            ends_from_image: 0,
+            length: None,
+            views_used: 0,
+        }
+    }
+}
+
+/// Localizes the insulator in a B-frame cloud with the given method; `boxes` are the
+/// detection boxes the bounded method reads (and only it: the paper's four refuse them, so a
+/// caller never believes they were used).
 ///
-/// Errors: `InvalidArgument` for bad parameters; `NoInsulator` when nothing usable
-/// remains (no cluster, fewer than 2 points, RANSAC finds no line).
-pub fn localize<P: PointCloud + ?Sized>(points: &P, method: Method, params: &LocalizeParams) -> Result<Localization> {
+/// Errors: `InvalidArgument` for bad parameters, for boxes missing (bounded) or given
+/// (the paper's four); `NoInsulator` when nothing usable remains (no cluster, fewer than 2
+/// points, RANSAC finds no line); `Ambiguous` when the bounded method, given the
+/// insulator's length, finds another line in the box that it cannot tell from the one fitted
+/// ([`crate::ambiguity`]).
+pub fn localize<P: PointCloud + ?Sized>(
+    points: &P,
+    method: Method,
+    params: &LocalizeParams,
+    boxes: Option<&BoxEvidence<'_>>,
+) -> Result<Localization> {
     params.validate()?;
+    let boxes = match (method.needs_boxes(), boxes) {
+        (true, None) => return Err(invalid("boxes", format!("the {method} method needs the detection boxes"))),
+        (false, Some(_)) => {
+            return Err(invalid("boxes", format!("the {method} method reads the cloud alone, not detection boxes")))
+        }
+        (_, b) => b,
+    };
+    if let Some(b) = boxes {
+        b.validate()?;
+    }
     let finite = collect_finite(points);
     let coords = &finite.coords;
     if coords.len() < 2 {
         return Err(FusionError::NoInsulator(format!("{} finite points, need at least 2", coords.len())));
     }
-    let mut loc = match method {
-        Method::Dbscan => by_dbscan(coords, params),
-        Method::Ransac => by_ransac(coords, params),
-        Method::DbscanRansac => by_dbscan_ransac(coords, params),
-        Method::DbscanPca => by_dbscan_pca(coords, params),
+    let mut loc = match (method, boxes) {
+        (Method::Dbscan, _) => by_dbscan(coords, params),
+        (Method::Ransac, _) => by_ransac(coords, params),
+        (Method::DbscanRansac, _) => by_dbscan_ransac(coords, params),
+        (Method::DbscanPca, _) => by_dbscan_pca(coords, params),
+        (Method::Bounded, Some(b)) => crate::bounded::by_bounded(coords, params, b),
+        (Method::Bounded, None) => Err(invalid("boxes", "the bounded method needs the detection boxes")),
     }?;
+    loc.method = method;
     loc.n_nonfinite = finite.n_nonfinite;
     loc.direction = canonical_sign(loc.direction);
     Ok(loc)
@@ -221,7 +316,7 @@ fn nearest_cluster(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<(Vec<
 }
 
 /// Indices (from `candidates`) of the points within `tau` of the line (a, d).
-fn within_tau(coords: &[[f64; 3]], candidates: &[usize], a: &[f64; 3], d: &[f64; 3], tau: f64) -> Vec<usize> {
+pub(crate) fn within_tau(coords: &[[f64; 3]], candidates: &[usize], a: &[f64; 3], d: &[f64; 3], tau: f64) -> Vec<usize> {
     candidates.iter().copied().filter(|&k| line_distance(&coords[k], a, d) <= tau).collect()
 }
 
@@ -254,7 +349,7 @@ fn no_line(e: FusionError) -> FusionError {
 fn by_dbscan(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Localization> {
     let (nearest, n_clusters) = nearest_cluster(coords, params)?;
     let pca = pca_of(nearest.iter().map(|&k| coords[k])).map_err(no_line)?;
-    Ok(Localization { center: pca.mean, direction: pca.axis(), n_points: nearest.len(), n_clusters, n_nonfinite: 0 })
+    Ok(Localization::from_cloud(pca.mean, pca.axis(), nearest.len(), n_clusters))
 }
 
 /// Method 2: RANSAC line on the whole cloud, median projection of points within tau.
@@ -263,11 +358,12 @@ fn by_ransac(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Localizatio
     let all: Vec<usize> = (0..coords.len()).collect();
     let s = within_tau(coords, &all, &fit.point, &fit.direction, params.tau);
     let center = median_projection(coords, &s, &fit.point, &fit.direction)?;
-    Ok(Localization { center, direction: fit.direction, n_points: s.len(), n_clusters: 1, n_nonfinite: 0 })
+    Ok(Localization::from_cloud(center, fit.direction, s.len(), 1))
 }
 
 /// The line of Algorithm 1 (nearest cluster -> RANSAC line) and the points S that belong
 /// to the insulator (the RANSAC inliers within tau of it).
+#[derive(Debug)]
 pub(crate) struct InsulatorLine {
     /// A point of the line (the inliers' centroid) and its unit direction.
     pub point: [f64; 3],
@@ -279,6 +375,12 @@ pub(crate) struct InsulatorLine {
 }
 
 impl InsulatorLine {
+    /// The point of the line at parameter `t` (`a + t d`).
+    pub(crate) fn at(&self, t: f64) -> [f64; 3] {
+        let (a, d) = (&self.point, &self.direction);
+        [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]]
+    }
+
     /// Scalar projections `t = d . (p - a)` of the points of S, ascending.
     pub(crate) fn sorted_projections(&self) -> Vec<f64> {
         let (a, d) = (&self.point, &self.direction);
@@ -308,13 +410,7 @@ fn by_dbscan_ransac(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Loca
     let line = dbscan_ransac_line(coords, params)?;
     let all: Vec<usize> = (0..line.members.len()).collect();
     let center = median_projection(&line.members, &all, &line.point, &line.direction)?;
-    Ok(Localization {
-        center,
-        direction: line.direction,
-        n_points: line.members.len(),
-        n_clusters: line.n_clusters,
-        n_nonfinite: 0,
-    })
+    Ok(Localization::from_cloud(center, line.direction, line.members.len(), line.n_clusters))
 }
 
 /// Method 4 (Algorithm 2): PCA line of the nearest cluster; S = its points within tau;
@@ -341,10 +437,10 @@ fn by_dbscan_pca(coords: &[[f64; 3]], params: &LocalizeParams) -> Result<Localiz
         let (c2, v2) = (t_pca.mean, t_pca.axis());
         let s2 = within_tau(coords, &nearest, &c2, &v2, params.tau);
         let center = median_projection(coords, &s2, &c2, &v2)?;
-        return Ok(Localization { center, direction: v2, n_points: s2.len(), n_clusters, n_nonfinite: 0 });
+        return Ok(Localization::from_cloud(center, v2, s2.len(), n_clusters));
     }
     debug_assert!(sc_labels.iter().all(|&l| l == NOISE || l == 0));
-    Ok(Localization { center: c, direction: v, n_points: nearest.len(), n_clusters, n_nonfinite: 0 })
+    Ok(Localization::from_cloud(c, v, nearest.len(), n_clusters))
 }
 
 #[cfg(test)]
@@ -379,7 +475,7 @@ mod tests {
     fn params_are_validated_by_name() {
         let pts = vec![[1.0, 0.0, 0.0], [1.1, 0.0, 0.0]];
         let base = LocalizeParams::default();
-        let name = |p: LocalizeParams| match localize(&pts, Method::Dbscan, &p) {
+        let name = |p: LocalizeParams| match localize(&pts, Method::Dbscan, &p, None) {
             Err(FusionError::InvalidArgument { name, .. }) => name,
             _ => "ok",
         };
@@ -396,11 +492,11 @@ mod tests {
         // Two straight "insulators": one at 5 m (index-later), one at 9 m (index-first).
         let mut pts: Vec<[f64; 3]> = (0..40).map(|k| [9.0, 0.0, f64::from(k) * 0.05]).collect();
         pts.extend((0..40).map(|k| [5.0, 0.0, f64::from(k) * 0.05]));
-        for m in Method::ALL {
+        for m in Method::PAPER {
             if m == Method::Ransac {
                 continue; // RANSAC alone has no notion of nearest
             }
-            let loc = localize(&pts, m, &LocalizeParams::default()).unwrap();
+            let loc = localize(&pts, m, &LocalizeParams::default(), None).unwrap();
             assert!((loc.center[0] - 5.0).abs() < 1e-9, "{m}: {:?}", loc.center);
             assert!((loc.center[2] - 0.975).abs() < 1e-9, "{m}: {:?}", loc.center);
             assert_eq!(loc.direction, [0.0, 0.0, 1.0]);
@@ -415,7 +511,7 @@ mod tests {
         let mut pts: Vec<[f64; 3]> = (0..60).map(|k| [5.0, 0.0, f64::from(k) * 0.03]).collect();
         pts.extend((1..40).map(|k| [5.0, f64::from(k) * 0.05, 1.77 + f64::from(k) * 0.05]));
         let p = LocalizeParams::default();
-        let loc = localize(&pts, Method::DbscanPca, &p).unwrap();
+        let loc = localize(&pts, Method::DbscanPca, &p, None).unwrap();
         assert!(loc.direction[2] > 0.99, "axis {:?}", loc.direction);
         assert!((loc.center[0] - 5.0).abs() < 0.05 && loc.center[1].abs() < 0.1, "{:?}", loc.center);
     }

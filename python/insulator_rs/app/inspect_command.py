@@ -45,7 +45,7 @@ from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.planning.minsnap import TIME_ALLOCATIONS
-from insulator_rs.perception.pipeline import METHODS
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
 from insulator_rs.mission.state_machine import POLICIES
 from insulator_rs.report import check_out_folder, parse_out_folder
 from insulator_rs.sim.flight_assembly import assemble_flight, simulated_ports
@@ -150,8 +150,8 @@ After a simulated flight, score.json compares the report with the scene's ground
     p.add_argument("--overwrite", action="store_true",
                    help="replace the report in --out: the new run is written beside it and swapped in "
                         "when it ends, so the old report stays whole until then")
-    p.add_argument("--method", default="bounded",
-                   choices=METHODS,
+    p.add_argument("--method", type=LocalizationMethod, default=DEFAULT_METHOD,
+                   choices=list(LocalizationMethod),
                    help="localization: the paper's four, or bounded (the LiDAR line, its ends from the boxes)")
     p.add_argument("--policy", default="immediate", choices=POLICIES,
                    help="buffering: visit at once (paper) or insert where cheapest")

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from insulator_rs.exceptions import BagError, ConfigError
-from insulator_rs.perception.pipeline import BOUNDED, METHODS
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
 from insulator_rs.recording.types import Topics
 from insulator_rs.replay.batch import DEFAULT_DETECTOR, ReplayOptions, find_flights, replay_one
 from insulator_rs.report.jsonfile import write_json
@@ -54,7 +54,7 @@ Topic and frame names default to livox_ros_driver2's, a ROS camera driver's and 
                         "recording names, if any)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR,
                    help=f"shipped model name or ONNX file (default {DEFAULT_DETECTOR})")
-    p.add_argument("--method", default=BOUNDED, choices=METHODS,
+    p.add_argument("--method", type=LocalizationMethod, default=DEFAULT_METHOD, choices=list(LocalizationMethod),
                    help="localization method (default %(default)s, as inspect)")
     p.add_argument("--no-deskew", action="store_true", help="do not motion-compensate the LiDAR scans")
     p.add_argument("--detect-period", type=float, default=0.0,

@@ -30,9 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from insulator_rs import bounds
-from insulator_rs.evaluation.localization_study import METHODS, TOWERS, StudyConfig, cell_inputs, draw_events, write_study
+from insulator_rs.evaluation.localization_study import TOWERS, StudyConfig, cell_inputs, draw_events, write_study
 from insulator_rs.evaluation.study_scenes import (MAX_IMAGES_PER_EVENT, POSE_RATE_HZ, StudyRig, localization_errors,
                                                   localize_event)
+from insulator_rs.perception.localization_method import LocalizationMethod
 from insulator_rs.report.folder import parse_out_folder
 from insulator_rs.poses import interpolate_poses, level_pose, tilt_of
 from insulator_rs.ports.sensors import PoseStamped
@@ -221,7 +222,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--towers", nargs="+", choices=sorted(TOWERS), default=["A"], help="towers to fly")
     parser.add_argument("--standoffs", nargs="+", type=float, default=[8.0], help="m (default 8)")
     parser.add_argument("--events", type=int, default=8, help="events per cell (default 8)")
-    parser.add_argument("--methods", nargs="+", choices=METHODS, default=["bounded", "dbscan+ransac"],
+    parser.add_argument("--methods", nargs="+", type=LocalizationMethod, choices=list(LocalizationMethod),
+                        default=[LocalizationMethod.BOUNDED, LocalizationMethod.DBSCAN_RANSAC],
                         help="localization methods to compare")
     parser.add_argument("--winds", nargs="+", type=bounds.option("--wind"), default=[0.0, 5.0, 10.0],
                         help="mean winds, m/s (default 0 5 10)")

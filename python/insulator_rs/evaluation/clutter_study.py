@@ -22,8 +22,15 @@ length>)``, so its plausibility and shape gates apply.
 
 Per scene the outcome is ``localized`` (error = distance between the estimated and true
 centres), ``refused`` (the pipeline attempted a localization and refused it: a failure, an
-implausible size or not an insulator; the counter is recorded) or ``none`` (no attempt: too few
-points in some event's box).
+implausible size, not an insulator, or ambiguous; the counter is recorded) or ``none`` (no
+attempt: too few points in some event's box).
+
+The public API is measured on the same clouds: ``ir.localize_bounded`` on the accumulated points
+and boxes of the scene's fullest track, with the true length and none of the pipeline's gates
+(``api_outcome``, ``api_error``). The bounded method's own ambiguity rule (fusion_core's
+``ambiguity``: another, larger line in the box that fits the known length clearly better is taken,
+one that fits about as well refuses the box) is what keeps a conductor in front of the string from
+being reported there, as in the flight.
 
 ``python -m insulator_rs.evaluation.clutter_study --scenes 150 --out DIR`` writes
 ``clutter.csv`` and ``clutter_errors.png`` into DIR and prints the statistics.
@@ -102,7 +109,7 @@ class SceneRecord:
     nearest_clutter: float
     outcome: str  # "localized", "refused" or "none"
     reason: str  # refused: "failure", "implausible", "not_insulator" (":ambiguous": another, larger line
-    # in the box, PerceptionPipeline._ambiguous); none: "few_points", "no_attempt"
+    # in the box, ir.AmbiguousLocalizationError); none: "few_points", "no_attempt"
     error: float
     error_axial: float
     error_depth: float  # signed, along the line of sight from the vehicle (+: beyond the true centre)
@@ -112,6 +119,8 @@ class SceneRecord:
     purity: float  # share of the accumulated points on the true string's envelope
     localizations: int
     tracks: int  # tracks the pipeline started (more than one: the box's anchor jumped between objects)
+    api_outcome: str  # ir.localize_bounded alone on the fullest track: "localized", "ambiguous", "failure", "none"
+    api_error: float  # m, its centre's distance to the true centre (NaN unless localized)
 
 
 def _segment_distance(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray) -> float:
@@ -310,10 +319,56 @@ def run_scene(index: int, seed: int, rig: SensorRig | None = None, lidar: Mid360
         outcome = "refused" if reason else "none"
         if outcome == "none":
             reason = "few_points" if c.few_points else "no_attempt"
+    api_outcome, api_error = public_api_outcome(pipe, rig, truth)
     rec = SceneRecord(index, scene.style, truth.length, standoff, scene.members, scene.conductors, scene.plate,
                       scene.nearest_clutter, outcome, reason, err, axial, depth, ang, n_pts, len(acc), purity,
-                      len(found), c.tracks)
+                      len(found), c.tracks, api_outcome, api_error)
     return rec, scene, pipe
+
+
+@dataclass(frozen=True)
+class TrackInputs:
+    """What the bounded method reads for one track: its accumulated points in the body frame B of
+    its latest event, its boxes (K, 4) px with the camera poses ``T_b_c`` (K, 4, 4) in that B, the
+    camera, and ``T_w_b`` (that B in W)."""
+
+    points_b: np.ndarray
+    boxes: np.ndarray
+    T_b_c: np.ndarray
+    camera: ir.CameraModel
+    T_w_b: np.ndarray
+
+
+def fullest_track_inputs(pipe: PerceptionPipeline, rig: SensorRig) -> TrackInputs | None:
+    """The inputs of the pipeline's track that gathered all EVENTS with the most points (None
+    without one)."""
+    full = [t for t in pipe.tracks if len(t.events) == EVENTS]
+    if not full:
+        return None
+    track = max(full, key=lambda t: sum(len(e) for e in t.events))
+    T_w_b = track.views[-1][1] @ np.linalg.inv(rig.T_b_c)  # the rig camera's pose in W at the latest event
+    T_b_w = np.linalg.inv(T_w_b)
+    acc_w = np.vstack(list(track.events))
+    return TrackInputs(acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3], np.array([b for b, _, _ in track.views]),
+                       np.array([T_b_w @ T_w_c for _, T_w_c, _ in track.views]), track.views[-1][2], T_w_b)
+
+
+def public_api_outcome(pipe: PerceptionPipeline, rig: SensorRig, truth: InsulatorTruth) -> tuple[str, float]:
+    """``ir.localize_bounded`` on the fullest track's inputs (:func:`fullest_track_inputs`) given the
+    true length: its outcome and centre error (m) against ``truth``. None of the pipeline's gates
+    applies."""
+    inputs = fullest_track_inputs(pipe, rig)
+    if inputs is None:
+        return "none", math.nan
+    try:
+        est = ir.localize_bounded(inputs.points_b, inputs.boxes, inputs.T_b_c, inputs.camera,
+                                  insulator_length=truth.length)
+    except ir.AmbiguousLocalizationError:
+        return "ambiguous", math.nan
+    except ir.LocalizationError:
+        return "failure", math.nan
+    center = inputs.T_w_b[:3, :3] @ np.asarray(est.center) + inputs.T_w_b[:3, 3]
+    return "localized", float(np.linalg.norm(center - truth.center))
 
 
 def run_clutter_study(n_scenes: int = 150, seed: int = 0,
@@ -328,6 +383,25 @@ def run_clutter_study(n_scenes: int = 150, seed: int = 0,
         if progress is not None:
             progress(i + 1, n_scenes)
     return out
+
+
+def summarize_public_api(records: Sequence[SceneRecord]) -> dict[str, float]:
+    """p99/max (m) of ``ir.localize_bounded``'s errors alone and its refusals, as a share of the
+    scenes it was called on (those with a full track)."""
+    e = np.array([r.api_error for r in records if r.api_outcome == "localized"], dtype=np.float64)
+    called = sum(r.api_outcome != "none" for r in records)
+    refused = sum(r.api_outcome in ("ambiguous", "failure") for r in records)
+    return {"called": called, "localized": int(len(e)), "refused": refused,
+            "ambiguous": sum(r.api_outcome == "ambiguous" for r in records),
+            "refused_share": refused / called if called else math.nan,
+            "p99": float(np.quantile(e, 0.99)) if len(e) else math.nan,
+            "max": float(e.max()) if len(e) else math.nan}
+
+
+def format_public_api(s: dict[str, float]) -> str:
+    return (f"ir.localize_bounded alone on {int(s['called'])} scenes: {int(s['localized'])} localized, "
+            f"{int(s['refused'])} refused ({100 * s['refused_share']:.1f} %, {int(s['ambiguous'])} ambiguous); "
+            f"centre error [m] p99 {s['p99']:.3f}, max {s['max']:.3f}")
 
 
 def summarize(records: Sequence[SceneRecord]) -> dict[str, float]:
@@ -388,6 +462,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     elapsed = time.monotonic() - start
     write_outputs(records, args.out)
     print(format_summary(summarize(records)) + f"; {elapsed:.0f} s")
+    print(format_public_api(summarize_public_api(records)))
     for r in sorted((r for r in records if r.outcome == "localized"), key=lambda r: -r.error)[:args.worst]:
         print(f"  scene {r.scene}: error {r.error:.3f} m (axial {r.error_axial:.3f}, {r.angle_deg:.1f} deg), "
               f"style {r.style}, L {r.length:.2f}, w {r.standoff:.1f}, members {r.members}, "

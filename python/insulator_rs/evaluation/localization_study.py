@@ -50,6 +50,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from insulator_rs import bounds
+from insulator_rs.perception.localization_method import LocalizationMethod
 from insulator_rs.mission.config import load_mission
 from insulator_rs.evaluation.study_scenes import StudyRig, event_poses, localization_errors, localize_event
 from insulator_rs.report.folder import parse_out_folder
@@ -58,25 +59,26 @@ if TYPE_CHECKING:
     from insulator_rs.sim.detector_standin import DetectorStandin
     from insulator_rs.sim.towers import InsulatorTruth, Tower
 
-METHODS: tuple[str, ...] = ("ransac", "dbscan+ransac", "dbscan", "dbscan+pca", "bounded")
-METHOD_LABELS = {"ransac": "RANSAC", "dbscan+ransac": "DBSCAN + RANSAC", "dbscan": "DBSCAN",
-                 "dbscan+pca": "DBSCAN + PCA", "bounded": "Bounded (cam.)"}
+_M = LocalizationMethod  # short, for the tables below
+# the tables' order: the paper's rows (RANSAC first), then the bounded method
+METHODS: tuple[LocalizationMethod, ...] = (_M.RANSAC, _M.DBSCAN_RANSAC, _M.DBSCAN, _M.DBSCAN_PCA,
+                                               _M.BOUNDED)
 TOWERS: dict[str, str] = {"A": "tower_a", "B": "tower_b"}
 MISSIONS_DIR = Path(__file__).resolve().parents[1] / "missions"
 # The paper's cells: tower A at 8, 9, 10 m, tower B at 8, 9 m.
 DEFAULT_STANDOFFS: dict[str, tuple[float, ...]] = {"A": (8.0, 9.0, 10.0), "B": (8.0, 9.0)}
 # Paper Tables I and II: mean ± std of the centre error (m), 150 measurements per cell.
-PAPER: dict[tuple[str, float], dict[str, tuple[float, float]]] = {
-    ("A", 8.0): {"ransac": (0.40, 0.20), "dbscan+ransac": (0.35, 0.17), "dbscan": (0.74, 0.57),
-                 "dbscan+pca": (0.79, 0.65)},
-    ("A", 9.0): {"ransac": (0.40, 0.24), "dbscan+ransac": (0.37, 0.23), "dbscan": (0.66, 0.47),
-                 "dbscan+pca": (0.60, 0.57)},
-    ("A", 10.0): {"ransac": (0.43, 0.30), "dbscan+ransac": (0.38, 0.22), "dbscan": (0.50, 0.33),
-                  "dbscan+pca": (0.40, 0.35)},
-    ("B", 8.0): {"ransac": (0.39, 0.24), "dbscan+ransac": (0.34, 0.20), "dbscan": (0.32, 0.21),
-                 "dbscan+pca": (0.33, 0.21)},
-    ("B", 9.0): {"ransac": (0.43, 0.21), "dbscan+ransac": (0.36, 0.23), "dbscan": (0.41, 0.25),
-                 "dbscan+pca": (0.41, 0.26)},
+PAPER: dict[tuple[str, float], dict[LocalizationMethod, tuple[float, float]]] = {
+    ("A", 8.0): {_M.RANSAC: (0.40, 0.20), _M.DBSCAN_RANSAC: (0.35, 0.17), _M.DBSCAN: (0.74, 0.57),
+                 _M.DBSCAN_PCA: (0.79, 0.65)},
+    ("A", 9.0): {_M.RANSAC: (0.40, 0.24), _M.DBSCAN_RANSAC: (0.37, 0.23), _M.DBSCAN: (0.66, 0.47),
+                 _M.DBSCAN_PCA: (0.60, 0.57)},
+    ("A", 10.0): {_M.RANSAC: (0.43, 0.30), _M.DBSCAN_RANSAC: (0.38, 0.22), _M.DBSCAN: (0.50, 0.33),
+                  _M.DBSCAN_PCA: (0.40, 0.35)},
+    ("B", 8.0): {_M.RANSAC: (0.39, 0.24), _M.DBSCAN_RANSAC: (0.34, 0.20), _M.DBSCAN: (0.32, 0.21),
+                 _M.DBSCAN_PCA: (0.33, 0.21)},
+    ("B", 9.0): {_M.RANSAC: (0.43, 0.21), _M.DBSCAN_RANSAC: (0.36, 0.23), _M.DBSCAN: (0.41, 0.25),
+                 _M.DBSCAN_PCA: (0.41, 0.26)},
 }
 
 
@@ -87,7 +89,7 @@ class StudyConfig:
     towers: tuple[str, ...] = ("A", "B")
     standoffs: dict[str, tuple[float, ...]] = field(default_factory=lambda: dict(DEFAULT_STANDOFFS))
     events: int = 150
-    methods: tuple[str, ...] = METHODS
+    methods: tuple[LocalizationMethod, ...] = METHODS
     seed: int = 0
     speed: float = 1.0
     event_interval: float = 0.2
@@ -234,7 +236,7 @@ def summarize(results: Sequence[EventResult]) -> list[CellSummary]:
         h = stat("error_horizontal")
         v = stat("error_vertical")
         a = stat("angle_deg")
-        paper = PAPER.get((tower, standoff), {}).get(method, (math.nan, math.nan))
+        paper = PAPER.get((tower, standoff), {}).get(LocalizationMethod.parse(method), (math.nan, math.nan))
         out.append(CellSummary(
             tower=tower, standoff=standoff, method=method, n=len(ok), failures=len(rows) - len(ok),
             mean=e[0], std=e[1],
@@ -259,7 +261,7 @@ def format_table(summary: Sequence[CellSummary]) -> str:
         header = f"{'method':<16}" + "".join(f"| w = {w:g} m{'':<44}" for w in standoffs)
         lines.append(header)
         for m in methods:
-            row = f"{METHOD_LABELS.get(m, m):<16}"
+            row = f"{LocalizationMethod.parse(m).label:<16}"
             for w in standoffs:
                 c = next(s for s in cells if s.standoff == w and s.method == m)
                 paper = f"({c.paper_mean:.2f} ± {c.paper_std:.2f})" if math.isfinite(c.paper_mean) else ""
@@ -313,7 +315,7 @@ def plot_errors(results: Sequence[EventResult], path: Path) -> None:
                 data.append(errs if errs else [math.nan])
                 x = wi + (mi - (len(methods) - 1) / 2) * width
                 pos.append(x)
-                paper.append(PAPER.get((tower, w), {}).get(m, (math.nan, math.nan))[0])
+                paper.append(PAPER.get((tower, w), {}).get(LocalizationMethod.parse(m), (math.nan, math.nan))[0])
             bp = ax.boxplot(data, positions=pos, widths=width * 0.85, patch_artist=True,
                             showfliers=True, flierprops={"markersize": 2})
             for patch in bp["boxes"]:
@@ -322,7 +324,7 @@ def plot_errors(results: Sequence[EventResult], path: Path) -> None:
             ax.plot(pos, paper, linestyle="none", marker="_", markersize=14, color="black",
                     label="paper mean" if mi == 0 else None)
             ax.plot([], [], color=colors[mi % len(colors)], linewidth=8, alpha=0.6,
-                    label=METHOD_LABELS.get(m, m))
+                    label=LocalizationMethod.parse(m).label)
         ax.set_xticks(range(len(standoffs)), [f"w = {w:g} m" for w in standoffs])
         # Log scale: the boxes (a few dm) and the gross failures (metres, another object
         # taken for the insulator) both stay readable.
@@ -398,8 +400,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "A: 8 9 10, B: 8 9)")
     parser.add_argument("--events", type=_positive_int, default=150,
                         help="localization events per cell (default 150, as the paper)")
-    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
-                        help="localization methods to run (default: all)")
+    parser.add_argument("--methods", nargs="+", type=LocalizationMethod, choices=list(LocalizationMethod),
+                        default=list(METHODS), help="localization methods to run (default: all)")
     parser.add_argument("--seed", type=bounds.option("--seed"), default=0,
                         help="random seed of the study (integer, 0 to 2^32-1)")
     parser.add_argument("--box-jitter", type=float, default=StudyConfig.box_jitter,

@@ -30,6 +30,7 @@ from insulator_rs.evaluation.study_scenes import (
     localization_errors,
     noisy_pose,
 )
+from insulator_rs.perception.localization_method import LocalizationMethod
 from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION
 
 if TYPE_CHECKING:
@@ -111,7 +112,7 @@ def _event(rig: StudyRig, target: InsulatorTruth, trajectory: Callable[[float], 
 
 
 def run_motion_study(events: int, speeds: Sequence[float], yaw_rates_deg: Sequence[float], *, tower: str = "A",
-                     standoff: float = 8.0, method: str = "dbscan+ransac", seed: int = 0,
+                     standoff: float = 8.0, method: LocalizationMethod = LocalizationMethod.DBSCAN_RANSAC, seed: int = 0,
                      pitch_rates_deg: Sequence[float] = (0.0,)) -> list[MotionResult]:
     import insulator_rs as ir
     from insulator_rs.sim.detector_standin import DetectorStandin
@@ -135,7 +136,7 @@ def run_motion_study(events: int, speeds: Sequence[float], yaw_rates_deg: Sequen
             errs = []
             for pts in (raw_b, desk_b):
                 try:
-                    est = ir.localize(pts, method=method, seed=done)  # type: ignore[arg-type]
+                    est = ir.localize(pts, method=method, seed=done)
                 except ir.LocalizationError:
                     errs.append(math.nan)
                     continue

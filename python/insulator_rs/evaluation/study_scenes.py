@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from insulator_rs.perception.localization_method import LocalizationMethod
 from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
 from insulator_rs.perception.stack import rig_pipeline
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
@@ -50,7 +51,7 @@ class EventConfig(Protocol):
     @property
     def odom_yaw_noise_deg(self) -> float: ...
     @property
-    def methods(self) -> Sequence[str]: ...
+    def methods(self) -> Sequence[LocalizationMethod]: ...
     @property
     def localize_params(self) -> dict[str, Any]: ...
 

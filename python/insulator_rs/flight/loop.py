@@ -62,7 +62,8 @@ from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, Policy, State
 from insulator_rs.perception.photo_check import PhotoCheck, check_photo, expected_view
 from insulator_rs.perception.pairing import PAIRING_WAIT
-from insulator_rs.perception.pipeline import BOUNDED, LocalizedInsulator, PerceptionPipeline
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
+from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.planning.abort import AbortCase, AbortRoute, leg_trajectory, plan_abort_route, plan_stop
 from insulator_rs.planning.energy import RouteDemand, route_demand
@@ -112,7 +113,7 @@ class FlightSettings:
     """How the loop flies: localization ``method``, buffering ``policy``, s between detection
     events, the flight-time limit (s), the min-snap ``time_allocation``, progress output."""
 
-    method: str = BOUNDED  # the product's default (inspect --method): tests fly what users fly
+    method: LocalizationMethod = DEFAULT_METHOD  # the product's default (inspect --method): tests fly what users fly
     policy: Policy = Policy.IMMEDIATE
     detect_period: float = 1.0
     max_flight_time: float = 1800.0

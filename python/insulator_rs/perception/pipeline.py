@@ -23,11 +23,14 @@ a bag replay and the studies call, so that what is measured offline is what flie
    :data:`EVENTS_PER_LOCALIZATION` detection events of one insulator, as the paper
    accumulates three.
 5. **Localize** the accumulated points, expressed in the current body frame B, with
-   ``ir.localize`` (or ``ir.localize_bounded``, method ``"bounded"``); the result goes back to
-   W and is checked against the box's size and, with a known insulator length, against the
-   shape of an insulator string (``insulator_shape``: the false-find filter); a bounded
-   localization is refused when the box holds another, larger line that fits it better
-   (:meth:`PerceptionPipeline._ambiguous`: a conductor in front of the string).
+   ``ir.localize`` and the pipeline's method
+   (:class:`~insulator_rs.perception.localization_method.LocalizationMethod`; the bounded one reads
+   the track's boxes and, given the insulator's length, takes the string behind a conductor fitted
+   in front of it, or refuses a box where the two fit about as well:
+   ``AmbiguousLocalizationError``); the
+   result goes back to W and is checked against the box's size and, with a known insulator
+   length, against the shape of an insulator string (``insulator_shape``: the false-find
+   filter).
 6. **Birth**: a track's localizations are handed on only once one of its boxes was a confident
    one (score >= :data:`BIRTH_SCORE`); until then its low-score boxes only gather evidence.
    This is ByteTrack's rule (Zhang et al., ECCV 2022: high-score detections start tracks,
@@ -47,21 +50,17 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Literal, cast
+from typing import Any
 
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
 from insulator_rs.perception.insulator_shape import box_aspect_ratio, check_insulator_shape, cluster_shape, line_members
 from insulator_rs.perception.surface_offset import surface_to_axis
 from insulator_rs.poses import PoseHistory
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped
 
-Method = Literal["dbscan", "ransac", "dbscan+ransac", "dbscan+pca"]
-# The fifth method (ir.localize_bounded): the LiDAR line, its ends from the events' boxes.
-BOUNDED = "bounded"
-#: every localization method the pipeline offers: the paper's four and the box-bounded fifth
-METHODS: tuple[str, ...] = ("dbscan", "ransac", "dbscan+ransac", "dbscan+pca", BOUNDED)
 EVENTS_PER_LOCALIZATION = 3
 # m: a box whose anchor lies this close to a track's belongs to it. Anchors are in W, so
 # they do not move with the vehicle; the gate is below the spacing of neighbouring
@@ -73,9 +72,8 @@ ANCHOR_NEAR_FRACTION = 0.3
 # Fewer culled points than this and a box is not an event (nothing to localize).
 MIN_POINTS_PER_BOX = 3
 # The localized insulator, projected into the image of the latest event, must span the
-# detection box to within this factor: a far-side insulator seen through the lattice
-# gets localized on the nearer lattice, and then looks too long for its box.
-SCALE_TOLERANCE = 1.5
+# detection box to within this factor (the core's, which its ambiguity rule reads too).
+SCALE_TOLERANCE = ir.SCALE_TOLERANCE
 # A track's localizations count only once one of its boxes scored at least this (see the module
 # docstring, step 6; ByteTrack's high-score threshold). With the shipped insulator-sim network at
 # 320 px every true string's track on towers A and B has a box of 0.6-0.9, the tracks on tower
@@ -85,15 +83,8 @@ BIRTH_SCORE = 0.5
 # A localization resting on fewer points than this is discarded: a handful of returns
 # is as likely a lattice member or a conductor clamp as the insulator.
 MIN_LOCALIZATION_POINTS = 10
-# m: another line in the box (see PerceptionPipeline._ambiguous) whose centre lies farther than this
-# from the localized one's, on more points, fitting the box's scale better and passing the same
-# gates, makes the localization ambiguous: refused (counted under not_insulator, reason AMBIGUOUS).
-# The clutter study (evaluation/clutter_study.py) found every gross error (0.7-1.6 m) to be a
-# conductor 0.7-1.6 m in front of the string, along it in the box, fitted instead of it; the goal
-# there is no error above 0.3 m.
-AMBIGUITY_SEPARATION = 0.3
-# the other lines looked at, nearest first (each peeled off before the next is fitted)
-AMBIGUITY_MAX_LINES = 4
+# the not_insulator reason of a box the bounded method refused as ambiguous
+# (ir.AmbiguousLocalizationError: another, larger line in the box fits the known length about as well)
 AMBIGUOUS = "ambiguous: a larger line elsewhere in the box"
 # s: LiDAR points stamped this close to a frame's exposure are "of the same instant": one
 # Mid-360 frame (100 ms) on either side, so a scan ending at the exposure pairs whole.
@@ -184,23 +175,21 @@ class PerceptionPipeline:
 
     ``camera``/``T_b_c``/``T_b_l`` are the rig's; :meth:`process` takes the intrinsics and
     camera pose of each frame and the extrinsics of each scan from the data themselves (a
-    gimbal, a binned detection image), :meth:`event` uses these. ``localize_params`` are
-    passed to ``ir.localize`` (its defaults otherwise).
+    gimbal, a binned detection image), :meth:`event` uses these. ``method`` is a
+    :class:`~insulator_rs.perception.localization_method.LocalizationMethod` (or its name); ``localize_params``
+    are passed to ``ir.localize`` whatever the method (its defaults otherwise).
     """
 
     def __init__(self, camera: ir.CameraModel, T_b_c: np.ndarray, T_b_l: np.ndarray, *,
-                 method: str = BOUNDED, insulator_length: float | None = None,
+                 method: LocalizationMethod | str = DEFAULT_METHOD, insulator_length: float | None = None,
                  pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None,
                  deskew: bool = True) -> None:
-        if method not in METHODS:
-            raise ValueError(f"method: must be dbscan, ransac, dbscan+ransac, dbscan+pca or {BOUNDED}, "
-                             f"got {method!r}")
+        self.method = LocalizationMethod.parse(method)
         if not (np.isfinite(pairing_window) and pairing_window > 0):
             raise ValueError(f"pairing_window: must be a finite number > 0, got {pairing_window!r}")
         self.camera = camera
         self.T_b_c = np.asarray(T_b_c, dtype=np.float64)
         self.T_b_l = np.asarray(T_b_l, dtype=np.float64)
-        self.method = method
         self.insulator_length = insulator_length
         self.pairing_window = float(pairing_window)
         self.localize_params = dict(localize_params or {})  # ir.localize tuning overrides (eps, tau...)
@@ -410,6 +399,11 @@ class PerceptionPipeline:
             acc_b = acc_w @ T_b_w[:3, :3].T + T_b_w[:3, 3]
             try:
                 est = self._localize(acc_b, track, T_b_w)
+            except ir.AmbiguousLocalizationError:
+                self.counters.not_insulator += 1
+                self.not_insulator[AMBIGUOUS] = self.not_insulator.get(AMBIGUOUS, 0) + 1
+                track.evidence.refused += 1
+                continue
             except ir.LocalizationError:
                 self.counters.failures += 1
                 track.evidence.refused += 1
@@ -428,11 +422,6 @@ class PerceptionPipeline:
                 self.counters.not_insulator += 1
                 track.evidence.refused += 1
                 continue
-            if self._ambiguous(acc_b, est, track, T_b_w, T_w_b, box, T_c_w, camera):
-                self.counters.not_insulator += 1
-                self.not_insulator[AMBIGUOUS] = self.not_insulator.get(AMBIGUOUS, 0) + 1
-                track.evidence.refused += 1
-                continue
             track.anchor = center
             if track.best_score < BIRTH_SCORE:
                 self.counters.unconfirmed += 1
@@ -446,15 +435,17 @@ class PerceptionPipeline:
             out.append(LocalizedInsulator(center, axis / np.linalg.norm(axis), int(est.n_points), float(time)))
         return out
 
-    def _localize(self, acc_b: np.ndarray, track: Track, T_b_w: np.ndarray) -> ir.Localization | ir.BoundedLocalization:
-        """The configured method on the accumulated cloud (B of the latest event)."""
-        if self.method != BOUNDED:
-            return ir.localize(acc_b, method=cast(Method, self.method), **self.localize_params)
-        boxes = np.array([b for b, _, _ in track.views])
-        T_b_c = np.array([T_b_w @ T_w_c for _, T_w_c, _ in track.views])
-        return ir.localize_bounded(acc_b, boxes, T_b_c, track.views[-1][2], insulator_length=self.insulator_length)
+    def _localize(self, acc_b: np.ndarray, track: Track, T_b_w: np.ndarray) -> ir.Localization:
+        """The configured method on the accumulated cloud (B of the latest event), with the
+        track's boxes where the method reads them, and the tuning overrides whatever the method."""
+        image: dict[str, Any] = {}
+        if self.method.needs_boxes:
+            image = {"boxes": np.array([b for b, _, _ in track.views]),
+                     "T_b_c": np.array([T_b_w @ T_w_c for _, T_w_c, _ in track.views]),
+                     "cam": track.views[-1][2], "insulator_length": self.insulator_length}
+        return ir.localize(acc_b, self.method, **image, **self.localize_params)
 
-    def _looks_like_insulator(self, acc_b: np.ndarray, est: ir.Localization | ir.BoundedLocalization,
+    def _looks_like_insulator(self, acc_b: np.ndarray, est: ir.Localization,
                               center: np.ndarray, axis: np.ndarray, box: np.ndarray, T_c_w: np.ndarray,
                               camera: ir.CameraModel, track: Track) -> bool:
         """The false-find filter (insulator_shape): the points on the line and the box must look like
@@ -471,61 +462,6 @@ class PerceptionPipeline:
             key = reason.split(" (")[0]
             self.not_insulator[key] = self.not_insulator.get(key, 0) + 1
         return verdict.ok
-
-    def _ambiguous(self, acc_b: np.ndarray, est: ir.Localization | ir.BoundedLocalization, track: Track,
-                   T_b_w: np.ndarray, T_w_b: np.ndarray, box: np.ndarray, T_c_w: np.ndarray,
-                   camera: ir.CameraModel) -> bool:
-        """Whether the box holds another line, more than AMBIGUITY_SEPARATION from the one
-        localized, that rests on more points, fits the box's scale better (the known length
-        projected at its centre against the box) and passes the same size and shape gates (relief
-        aside): then which of the two is the insulator cannot be told, and the localization is
-        refused.
-
-        The line fit takes the *nearest* cluster in the box (the insulator is in front of the
-        steel and conductors seen through its box). A conductor or a member in front of the
-        string, running along it inside the box, breaks that premise: it is then fitted, bounded
-        by the box, and passes every gate of a first localization (its relief, the shape cue that
-        tells a wire from a string, is judged only over MIN_RELIEF_SAMPLES localizations). The
-        string behind it is still in the box, and is the larger line. The other lines are fitted
-        as the localization was (the same method on the points farther than tau from the lines
-        found so far, nearest first, at most AMBIGUITY_MAX_LINES), so a second wire in front is
-        peeled off before the string is reached. Only for the bounded method with a known
-        insulator length (the gates need it)."""
-        if self.insulator_length is None or self.method != BOUNDED:
-            return False
-        tau = float(ir.localize_defaults()["tau"])
-        mine = self._scale_ratio(T_w_b[:3, :3] @ np.asarray(est.center) + T_w_b[:3, 3],
-                                 T_w_b[:3, :3] @ np.asarray(est.direction), box, T_c_w, camera)
-        if mine is None:
-            return False
-        rest = _off_line(acc_b, est, tau)
-        # the other lines, nearest first as the fit takes them: a second wire in front of the
-        # string is peeled off before the string is reached
-        for _ in range(AMBIGUITY_MAX_LINES):
-            if len(rest) <= max(MIN_LOCALIZATION_POINTS, est.n_points):
-                return False
-            try:
-                other = self._localize(rest, track, T_b_w)
-            except ir.LocalizationError:
-                return False
-            if (other.n_points > est.n_points
-                    and np.linalg.norm(np.asarray(other.center) - np.asarray(est.center)) > AMBIGUITY_SEPARATION):
-                center = T_w_b[:3, :3] @ np.asarray(other.center) + T_w_b[:3, 3]
-                axis = T_w_b[:3, :3] @ np.asarray(other.direction)
-                theirs = self._scale_ratio(center, axis, box, T_c_w, camera)
-                # it must fit the box's scale better than the localized line (and plausibly): a
-                # string in front of the lattice keeps its localization, the lattice behind it
-                # projecting smaller than the box
-                if (theirs is not None and 1.0 / SCALE_TOLERANCE <= theirs <= SCALE_TOLERANCE
-                        and abs(np.log(theirs)) < abs(np.log(mine))):
-                    shape = cluster_shape(line_members(rest, np.asarray(other.center),
-                                                       np.asarray(other.direction)))
-                    aspect = box_aspect_ratio(center, axis, box, T_c_w, camera, length=self.insulator_length)
-                    if check_insulator_shape(shape, insulator_length=self.insulator_length, aspect_ratio=aspect,
-                                             relief_history=[]).ok:
-                        return True
-            rest = _off_line(rest, other, tau)
-        return False
 
     def _scale_plausible(self, center: np.ndarray, axis: np.ndarray, box: np.ndarray,
                          T_c_w: np.ndarray, camera: ir.CameraModel) -> bool:
@@ -560,14 +496,6 @@ class PerceptionPipeline:
         self.tracks.append(track)
         self.counters.tracks += 1
         return track
-
-
-def _off_line(points: np.ndarray, est: ir.Localization | ir.BoundedLocalization, tau: float) -> np.ndarray:
-    """The points farther than ``tau`` from the localization's line (same frame)."""
-    u = np.asarray(est.direction, dtype=np.float64)
-    u = u / np.linalg.norm(u)
-    v = points - np.asarray(est.center, dtype=np.float64)
-    return points[np.linalg.norm(v - np.outer(v @ u, u), axis=1) > tau]
 
 
 def _as_boxes(boxes: np.ndarray) -> np.ndarray:

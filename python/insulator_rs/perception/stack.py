@@ -16,7 +16,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from insulator_rs.exceptions import SensorError
-from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW, PerceptionPipeline
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
+from insulator_rs.perception.pipeline import PAIRING_WINDOW, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner, RunnerViewer
 from insulator_rs.ports.detector import BoxDetector
 from insulator_rs.ports.sensors import Sensors
@@ -30,7 +31,7 @@ class PerceptionStack(NamedTuple):
     runner: PerceptionRunner
 
 
-def rig_pipeline(rig: SensorRig, *, insulator_length: float | None, method: str = BOUNDED,
+def rig_pipeline(rig: SensorRig, *, insulator_length: float | None, method: LocalizationMethod = DEFAULT_METHOD,
                  T_b_c: np.ndarray | None = None, T_b_l: np.ndarray | None = None,
                  pairing_window: float = PAIRING_WINDOW, localize_params: dict[str, Any] | None = None,
                  deskew: bool = True) -> PerceptionPipeline:
@@ -43,7 +44,7 @@ def rig_pipeline(rig: SensorRig, *, insulator_length: float | None, method: str 
 
 
 def build_perception_stack(rig: SensorRig, sensors: Sensors, detector: BoxDetector, *,
-                           insulator_length: float | None, detect_period: float, method: str = BOUNDED,
+                           insulator_length: float | None, detect_period: float, method: LocalizationMethod = DEFAULT_METHOD,
                            T_b_c: np.ndarray | None = None, T_b_l: np.ndarray | None = None,
                            pairing_window: float = PAIRING_WINDOW, deskew: bool = True,
                            on_sensor_error: Callable[[SensorError], None] | None = None,

@@ -12,7 +12,7 @@ from typing import Any
 from insulator_rs.exceptions import BagError, ConfigError, ModelError
 from insulator_rs.mission.config import Mission
 from insulator_rs.models import SIMULATOR_MODEL
-from insulator_rs.perception.pipeline import BOUNDED
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
 from insulator_rs.ports.detector import DETECT_CONF, BoxDetector, open_network_detector
 from insulator_rs.recording.metadata import FlightMetadata
 from insulator_rs.recording.types import Topics
@@ -29,7 +29,7 @@ class ReplayOptions:
 
     topics: Topics = field(default_factory=Topics)
     detector: str = DEFAULT_DETECTOR
-    method: str = BOUNDED  # the flight's default (inspect --method)
+    method: LocalizationMethod = DEFAULT_METHOD  # the flight's default (inspect --method)
     deskew: bool = True
     detect_period: float = 0.0
     mission: str | None = None

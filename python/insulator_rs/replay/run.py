@@ -32,7 +32,8 @@ from insulator_rs.flight.record import candidate_records, insulator_records, per
 from insulator_rs.geodesy import GeoPoint
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.perception.pipeline import BOUNDED, PAIRING_WINDOW
+from insulator_rs.perception.localization_method import DEFAULT_METHOD, LocalizationMethod
+from insulator_rs.perception.pipeline import PAIRING_WINDOW
 from insulator_rs.perception.stack import build_perception_stack
 from insulator_rs.poses import tilt_of, yaw_of
 from insulator_rs.ports.detector import BoxDetector, NetworkDetector, detector_name
@@ -59,7 +60,7 @@ class ReplaySettings:
     ahead of the loop (lookahead.py; off: all in the loop, frame by frame, as before);
     ``network_threads``: network runs at once while reading ahead (None: one a core)."""
 
-    method: str = BOUNDED  # the flight's default
+    method: LocalizationMethod = DEFAULT_METHOD  # the flight's default
     deskew: bool = True
     detect_period: float = 0.0
     pairing_window: float = PAIRING_WINDOW
