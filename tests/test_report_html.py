@@ -24,6 +24,7 @@ from chromium_cdp import Chromium, find_chromium
 from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ReportError
 from insulator_rs.geodesy import GeoPoint
+from insulator_rs.perception.photo_verdict import PhotoVerdict, Reason
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.html import HTML_NAME, write_report_html
 from insulator_rs.report.summary import FlightDetails, InsulatorRecord, PerceptionRecord, RunSummary
@@ -42,6 +43,13 @@ def _photo(k: int) -> np.ndarray:
 def _quality(gsd: float, fit: bool) -> dict:
     return {"gsd_mm_px": gsd, "frame_share": 0.05, "span_share": 0.7 if fit else 0.2, "whole_in_frame": True,
             "motion_blur_px": 0.1, "sharp": True, "fit_for_inspection": fit}
+
+
+def _check(verdict: PhotoVerdict) -> dict:
+    """A photo's check record as the flight writes it (PhotoCheck.as_dict): the verdict and figures."""
+    return {"verdict": verdict.to_json(), "fit": verdict.fit, "reasons": verdict.unfit_reasons,
+            "span_share": 0.7 if verdict.fit else 0.2, "min_span": 0.6, "offset": [0.01, -0.02],
+            "sharpness": 900.0, "error": None}
 
 
 def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
@@ -65,7 +73,9 @@ def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
                                             (2, path[170], -2.2, _quality(8.7, False)))):
         rec = w.save_photo(f"insulator_{ins:02d}_{k + 1}.jpg", _photo(k), time_utc=clock.at(2.0 * k),
                            position_enu=pos, yaw_enu=yaw, gimbal_pitch=-0.1)
-        photos.append({**rec, "insulator_id": ins, "position": pos, "yaw": yaw, "quality": q})
+        verdict = PhotoVerdict.passed() if q["fit_for_inspection"] else PhotoVerdict.unfit([Reason.TOO_SMALL])
+        photos.append({**rec, "insulator_id": ins, "position": pos, "yaw": yaw, "quality": q,
+                       "check": _check(verdict), "attempt": 1})
         insulators[ins - 1]["photos"].append(rec["file"])
     skipped = [{"insulator_id": 3, "position": [-6.0, 1.9, 14.0],
                 "reason": "no safe route to the waypoint (enters the tower's safety volume)"}]
@@ -101,7 +111,8 @@ def test_close_writes_a_self_contained_page(tmp_path):
     assert "no safe route to the waypoint" in text  # skipped, with the reason
     assert "10 min 12.4 s" in text and "Insulator inspection — test_tower" in text  # flight time, mission
     # which insulators have no fit photo, and why
-    assert "2 photos, none fit; the finest: GSD 8.6 mm/px &gt; 2" in text
+    assert "2 photos, none fit: too small (2x); the finest GSD 8.6 mm/px" in text
+    assert ": ;" not in text and "none fit: ;" not in text  # never an empty reason
     assert "not inspected; skipped: no safe route" in text
 
 
@@ -200,3 +211,48 @@ def test_page_of_a_report_with_nothing_found(tmp_path):
     text = (tmp_path / "r" / HTML_NAME).read_text()
     assert "aborted: heartbeat lost" in text and 'class="status aborted"' in text
     assert json.loads((tmp_path / "r" / "summary.json").read_text())["status"].startswith("aborted")
+
+
+def test_a_replay_says_it_carries_no_photos(tmp_path):
+    """A replay re-runs perception on a recording and takes no photos: its page says so, and its
+    insulators are found ones (grey), not red "no photo" ones with no word why."""
+    out, insulators, _ = make_report(tmp_path)
+    s = json.loads((out / "summary.json").read_text())
+    s.update(run="replay", photos=[], photo_checks=None, inspections_skipped=[])
+    for ins in s["insulators"]:
+        ins["inspected"], ins["photos"] = False, []
+    (out / "summary.json").write_text(json.dumps(s))
+    write_report_html(out)
+    text = (out / HTML_NAME).read_text(encoding="utf-8")
+    assert 'id="replay-note"' in text and "A replay carries no photos of its own" in text
+    assert text.count("found (a replay takes no photos)") == len(insulators)
+    assert "found in a replay, which takes no photos" in text and ">no photo<" not in text
+    assert 'fill="#d62728"' not in text  # no insulator marker red
+
+
+def test_the_sensors_row_names_the_sensor_not_a_private_class():
+    from insulator_rs.ports.sensors import sensors_name
+
+    class _ClockedWrapper:
+        pass
+
+    class Named:
+        name = "live: Livox Mid-360, camera rtsp://cam"
+
+    assert sensors_name(_ClockedWrapper()) == "ClockedWrapper"
+    assert sensors_name(Named()) == "live: Livox Mid-360, camera rtsp://cam"
+
+
+def test_the_page_comes_from_autoescaped_templates_that_ship_in_the_package(tmp_path):
+    """A designer edits templates/, not Python: the page's templates are package files, and a
+    value from summary.json is escaped (autoescaping on), never markup."""
+    from importlib import resources
+
+    names = {p.name for p in resources.files("insulator_rs.report").joinpath("templates").iterdir()}
+    assert {"report.html.j2", "photo.html.j2", "map.svg.j2", "report.css"} <= names
+    out, _, _ = make_report(tmp_path)
+    s = json.loads((out / "summary.json").read_text())
+    s["status"] = "aborted: <b>heartbeat</b> lost"
+    (out / "summary.json").write_text(json.dumps(s))
+    text = write_report_html(out).path.read_text(encoding="utf-8")
+    assert "aborted: &lt;b&gt;heartbeat&lt;/b&gt; lost" in text and "<b>heartbeat" not in text

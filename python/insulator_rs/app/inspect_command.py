@@ -384,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
                 loop.finish_report()
                 raise
             # the flight is over (landed, aborted or interrupted): the recording is whole now, not
-            # after the scoring below (it renders every photo: minutes on tower A, on a busy box)
+            # after the scoring below
             if recorder is not None:
                 recorder.close()
             # now ground truth may be read
@@ -392,7 +392,7 @@ def run(args: argparse.Namespace) -> int:
                 score = None
                 summary = loop.finish_report()
             else:
-                score = score_flight(loop.summary().as_dict(), tower)
+                score = score_flight(loop.summary().as_dict(), tower, progress=print)
                 summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
                 write_score(args.out, score)
     finally:

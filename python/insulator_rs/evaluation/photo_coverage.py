@@ -10,12 +10,18 @@ of the camera, inside the frame) is measured:
 
 * ``span_share``: the pixel length of that part over the frame's long side;
 * ``gsd_mm``: depth / focal length at its farthest point (mm/px);
-* ``visible``: the interval of the string (0 = one end, 1 = the other) it covers.
+* ``visible``: the interval of the string (0 = one end, 1 = the other) it covers;
+* ``whole_in_frame``: the whole string is in the picture: every axis point and the rims of its
+  end sheds (:data:`RIM_POINTS` points a ring, at the string's ``radius``) lie in front of the
+  camera and inside the frame.
+
+The same figures answer the scorer (:mod:`~insulator_rs.evaluation.scoring`) whether the string a
+photo was taken for is in it at all (``visible``) and whole: one projection, no render.
 
 A photo *qualifies* for a string when ``span_share >= MIN_SPAN_SHARE`` (60 %) and ``gsd_mm <=
 MAX_GSD_MM`` (2 mm/px). A string is *covered* when the qualifying photos' intervals together
 cover at least :data:`COVERED_FRACTION` of it. Occlusion by the tower is not checked here (the
-scorer's re-render says whether the insulator is visible at all).
+projection says where the string is in the frame, not whether steel hides part of it).
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ MIN_SPAN_SHARE = 0.60
 MAX_GSD_MM = 2.0
 COVERED_FRACTION = 0.99
 SAMPLES = 201
+#: Points on each end shed's rim: the string's outline in the image (its box) to a few pixels.
+RIM_POINTS = 16
 
 
 def _camera(rec: Mapping[str, Any]) -> ir.CameraModel:
@@ -53,25 +61,60 @@ def photo_pose(photo: Mapping[str, Any]) -> np.ndarray:
     return _yaw_pose(photo["position"], float(photo["yaw"])) @ np.asarray(photo["T_b_c"], dtype=np.float64)
 
 
+def _rims(center: np.ndarray, u: np.ndarray, length: float, radius: float) -> np.ndarray:
+    """(2 * RIM_POINTS, 3) points on the rims of the two end sheds (W)."""
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    a = np.linspace(0.0, 2 * np.pi, RIM_POINTS, endpoint=False)[:, None]
+    ring = radius * (np.cos(a) * e1 + np.sin(a) * e2)
+    return np.vstack([center - 0.5 * length * u + ring, center + 0.5 * length * u + ring])
+
+
 def string_in_photo(camera: ir.CameraModel, T_w_c: np.ndarray, center: np.ndarray, axis: np.ndarray,
-                    length: float) -> dict[str, Any]:
-    """The figures of one string in one photo (see the module docstring)."""
+                    length: float, *, radius: float = 0.0) -> dict[str, Any]:
+    """The figures of one string (``length`` m along ``axis`` about ``center``, W; sheds of
+    ``radius`` m, 0: its axis alone) in one photo by ``camera`` at ``T_w_c`` (module docstring)."""
+    if not (np.isfinite(length) and length > 0):
+        raise ValueError(f"length: must be finite and > 0, got {length}")
+    if not (np.isfinite(radius) and radius >= 0):
+        raise ValueError(f"radius: must be finite and >= 0, got {radius}")
     u = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    c = np.asarray(center, dtype=np.float64)
     t = np.linspace(0.0, 1.0, SAMPLES)
-    pts = np.asarray(center, dtype=np.float64) + (t[:, None] - 0.5) * length * u
+    pts = c + (t[:, None] - 0.5) * length * u
+    if radius > 0:
+        pts = np.vstack([pts, _rims(c, u, length, radius)])
     T_c_w = np.linalg.inv(T_w_c)
     depth = pts @ T_c_w[:3, :3].T[:, 2] + T_c_w[2, 3]
     uv, valid = ir.project_points(pts, T_c_w, camera)
     w, h = float(camera.width), float(camera.height)
-    inside = valid & (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    inside_all = valid & (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    whole = bool(inside_all.all())
+    inside, uv, depth = inside_all[:SAMPLES], uv[:SAMPLES], depth[:SAMPLES]
     if not inside.any():
-        return {"visible": None, "visible_fraction": 0.0, "span_share": 0.0, "gsd_mm": None}
+        return {"visible": None, "visible_fraction": 0.0, "span_share": 0.0, "gsd_mm": None,
+                "whole_in_frame": False}
     idx = np.flatnonzero(inside)
     a, b = int(idx[0]), int(idx[-1])  # a straight string in a pinhole image: one interval
     span_px = float(np.linalg.norm(uv[b] - uv[a]))
     f = 0.5 * (camera.fx + camera.fy)
     return {"visible": [float(t[a]), float(t[b])], "visible_fraction": float(t[b] - t[a]),
-            "span_share": span_px / max(w, h), "gsd_mm": 1000.0 * float(depth[inside].max()) / f}
+            "span_share": span_px / max(w, h), "gsd_mm": 1000.0 * float(depth[inside].max()) / f,
+            "whole_in_frame": whole}
+
+
+def string_in_photo_record(photo: Mapping[str, Any], insulator: Any,
+                           default_camera: Mapping[str, Any] | None = None) -> dict[str, Any] | None:
+    """:func:`string_in_photo` of the true ``insulator`` (``center``, ``axis``, ``length`` and
+    ``radius`` when it has one, as :class:`~insulator_rs.sim.towers.InsulatorTruth`) in a
+    summary's ``photo`` record, through the photo's own pose and intrinsics (its ``camera``, else
+    ``default_camera``: the summary's ``photo_camera``); None when neither gives intrinsics."""
+    cam_rec = photo.get("camera") or default_camera
+    if cam_rec is None:
+        return None
+    return string_in_photo(_camera(cam_rec), photo_pose(photo), insulator.center, insulator.axis,
+                           float(insulator.length), radius=float(getattr(insulator, "radius", 0.0)))
 
 
 def _union_length(intervals: list[list[float]]) -> float:
@@ -96,10 +139,9 @@ def photo_coverage(summary: Mapping[str, Any], insulators: Iterable[Any]) -> dic
     for ins in insulators:
         per_photo, good = [], []
         for p in photos:
-            cam_rec = p.get("camera") or default_cam
-            if cam_rec is None:
+            fig = string_in_photo_record(p, ins, default_cam)
+            if fig is None:
                 continue
-            fig = string_in_photo(_camera(cam_rec), photo_pose(p), ins.center, ins.axis, float(ins.length))
             fig["qualifies"] = bool(fig["gsd_mm"] is not None and fig["span_share"] >= MIN_SPAN_SHARE
                                     and fig["gsd_mm"] <= MAX_GSD_MM)
             if fig["visible"] is not None:
