@@ -109,7 +109,8 @@ def test_whole_in_frame_and_visible_match_cv2_project_points():
     """Reference: cv2.projectPoints of the same string (its axis and its end sheds' rims), on 300
     random camera poses about a tilted string with a distorted lens; the answers must be equal
     (both measure the same points: no tolerance), with both outcomes of each well represented."""
-    from insulator_rs.evaluation.photo_coverage import RIM_POINTS, SAMPLES
+    from insulator_rs.evaluation.photo_coverage import SAMPLES
+    from insulator_rs.perception.photo_quality import RIM_POINTS
 
     rng = np.random.default_rng(7)
     cam = {**SIM, "dist": [-0.08, 0.02, 0.0005, -0.0004, 0.0]}

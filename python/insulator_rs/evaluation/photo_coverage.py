@@ -12,7 +12,7 @@ of the camera, inside the frame) is measured:
 * ``gsd_mm``: depth / focal length at its farthest point (mm/px);
 * ``visible``: the interval of the string (0 = one end, 1 = the other) it covers;
 * ``whole_in_frame``: the whole string is in the picture: every axis point and the rims of its
-  end sheds (:data:`RIM_POINTS` points a ring, at the string's ``radius``) lie in front of the
+  end sheds (``RIM_POINTS`` points a ring, at the string's ``radius``) lie in front of the
   camera and inside the frame.
 
 The same figures answer the scorer (:mod:`~insulator_rs.evaluation.scoring`) whether the string a
@@ -32,13 +32,12 @@ from typing import Any
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.photo_quality import end_rims
 
 MIN_SPAN_SHARE = 0.60
 MAX_GSD_MM = 2.0
 COVERED_FRACTION = 0.99
 SAMPLES = 201
-#: Points on each end shed's rim: the string's outline in the image (its box) to a few pixels.
-RIM_POINTS = 16
 
 
 def _camera(rec: Mapping[str, Any]) -> ir.CameraModel:
@@ -61,16 +60,6 @@ def photo_pose(photo: Mapping[str, Any]) -> np.ndarray:
     return _yaw_pose(photo["position"], float(photo["yaw"])) @ np.asarray(photo["T_b_c"], dtype=np.float64)
 
 
-def _rims(center: np.ndarray, u: np.ndarray, length: float, radius: float) -> np.ndarray:
-    """(2 * RIM_POINTS, 3) points on the rims of the two end sheds (W)."""
-    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(u, e1)
-    a = np.linspace(0.0, 2 * np.pi, RIM_POINTS, endpoint=False)[:, None]
-    ring = radius * (np.cos(a) * e1 + np.sin(a) * e2)
-    return np.vstack([center - 0.5 * length * u + ring, center + 0.5 * length * u + ring])
-
-
 def string_in_photo(camera: ir.CameraModel, T_w_c: np.ndarray, center: np.ndarray, axis: np.ndarray,
                     length: float, *, radius: float = 0.0) -> dict[str, Any]:
     """The figures of one string (``length`` m along ``axis`` about ``center``, W; sheds of
@@ -84,7 +73,7 @@ def string_in_photo(camera: ir.CameraModel, T_w_c: np.ndarray, center: np.ndarra
     t = np.linspace(0.0, 1.0, SAMPLES)
     pts = c + (t[:, None] - 0.5) * length * u
     if radius > 0:
-        pts = np.vstack([pts, _rims(c, u, length, radius)])
+        pts = np.vstack([pts, end_rims(c, u, length, radius)])
     T_c_w = np.linalg.inv(T_w_c)
     depth = pts @ T_c_w[:3, :3].T[:, 2] + T_c_w[2, 3]
     uv, valid = ir.project_points(pts, T_c_w, camera)

@@ -38,6 +38,23 @@ DEFAULT_EXPOSURE = 1.0 / 500.0
 DEFAULT_DIAMETER = 0.25
 
 
+#: Points on each end shed's rim: the string's outline in an image (its box) to a few pixels.
+RIM_POINTS = 16
+
+
+def end_rims(center: np.ndarray, unit_axis: np.ndarray, length: float, radius: float) -> np.ndarray:
+    """(2 * RIM_POINTS, 3) points on the rims (``radius`` m) of a string's two end sheds (W), the
+    string ``length`` m along ``unit_axis`` about ``center``: the first end's ring, then the other's."""
+    u = np.asarray(unit_axis, dtype=np.float64)
+    c = np.asarray(center, dtype=np.float64)
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    a = np.linspace(0.0, 2 * np.pi, RIM_POINTS, endpoint=False)[:, None]
+    ring = radius * (np.cos(a) * e1 + np.sin(a) * e2)
+    return np.vstack([c - 0.5 * length * u + ring, c + 0.5 * length * u + ring])
+
+
 @dataclass(frozen=True)
 class PhotoQuality:
     """The figures of one inspection photo (see the module docstring)."""
@@ -78,14 +95,9 @@ def photo_quality(camera: ir.CameraModel, T_c_w: np.ndarray, center: np.ndarray,
     if not (np.all(np.isfinite(c)) and np.all(np.isfinite(u))) or np.linalg.norm(u) < 1e-9:
         raise ValueError("center/axis: must be finite and the axis non-zero")
     u = u / np.linalg.norm(u)
-    # The string as its two end rims (16 points each) and its axis: enough for its box.
-    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(u, e1)
-    a = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)[:, None]
-    ring = 0.5 * diameter * (np.cos(a) * e1 + np.sin(a) * e2)
+    # The string as its two end rims and its axis: enough for its box.
     ends = [c - 0.5 * length * u, c + 0.5 * length * u]
-    pts = np.vstack([ends[0] + ring, ends[1] + ring, np.stack(ends)])
+    pts = np.vstack([end_rims(c, u, length, 0.5 * diameter), np.stack(ends)])
     p_c = pts @ T[:3, :3].T + T[:3, 3]
     f = 0.5 * (camera.fx + camera.fy)
     depth = float(np.max(p_c[-2:, 2]))
