@@ -12,8 +12,10 @@ of the camera, inside the frame) is measured:
 * ``gsd_mm``: depth / focal length at its farthest point (mm/px);
 * ``visible``: the interval of the string (0 = one end, 1 = the other) it covers;
 * ``whole_in_frame``: the whole string is in the picture: every axis point and the rims of its
-  end sheds (``RIM_POINTS`` points a ring, at the string's ``radius``) lie in front of the
-  camera and inside the frame.
+  end sheds lie in front of the camera and inside the frame. The rims are drawn at the string's
+  ``radius`` (its largest shed's) at its very ends: the envelope of the string, a little larger
+  than the real end sheds (they sit a shed's thickness inside the ends), so a string whose end
+  grazes the border within a few pixels counts as cut: the conservative answer.
 
 The same figures answer the scorer (:mod:`~insulator_rs.evaluation.scoring`) whether the string a
 photo was taken for is in it at all (``visible``) and whole: one projection, no render.

@@ -152,3 +152,10 @@ def verdict_of_record(photo: Mapping[str, Any]) -> PhotoVerdict | None:
     if not reasons:
         raise ValueError(f"photo {photo.get('file')!r}: check: unfit without a reason")
     return PhotoVerdict.unfit(reasons, check.get("error"))
+
+
+def fit_tally(photos: Iterable[Mapping[str, Any]]) -> tuple[int, set[Any]]:
+    """(how many of ``photos``, summary.json records, are fit, the ``insulator_id`` of each
+    insulator with at least one fit photo), read off their verdicts."""
+    fit = [p for p in photos if (v := verdict_of_record(p)) is not None and v.fit]
+    return len(fit), {p.get("insulator_id") for p in fit}

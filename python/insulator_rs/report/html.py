@@ -45,7 +45,7 @@ import jinja2
 import numpy as np
 
 from insulator_rs.exceptions import ReportError
-from insulator_rs.perception.photo_verdict import PhotoVerdict, verdict_of_record
+from insulator_rs.perception.photo_verdict import PhotoVerdict, fit_tally, verdict_of_record
 from insulator_rs.report.folder import write_atomic
 
 HTML_NAME = "report.html"
@@ -314,8 +314,8 @@ _VERDICT_STYLE = {
 }
 
 
-def _insulator_state(photos: Sequence[PhotoVerdict | None], replay: bool) -> str:
-    if any(v is not None and v.fit for v in photos):
+def _insulator_state(has_fit_photo: bool, photos: int, replay: bool) -> str:
+    if has_fit_photo:
         return "fit"
     if photos:
         return "unfit"
@@ -405,6 +405,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     report = HtmlReport(folder / HTML_NAME, len(insulators), len(photos))
     replay = s.get("run") == "replay"
     verdicts = {id(p): _verdict(p) for p in photos}
+    fit_photos, with_fit = fit_tally(photos)
 
     # each insulator's state, read off its photos' verdicts: a fit photo, photos but none fit, none
     by_ins: dict[Any, list[dict[str, Any]]] = {}
@@ -412,7 +413,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
         by_ins.setdefault(ph.get("insulator_id"), []).append(ph)
     for ins in insulators:
         ins["_photos"] = by_ins.get(ins["id"], [])
-        ins["state"] = _insulator_state([verdicts[id(p)] for p in ins["_photos"]], replay)
+        ins["state"] = _insulator_state(ins["id"] in with_fit, len(ins["_photos"]), replay)
 
     # the map from the GeoJSON: points in the order the writer puts them, matched by kind
     pts = {k: _local(np.vstack([f["coords"] for f in features if f["kind"] == k and f["type"] == "Point"]), base)
@@ -451,7 +452,6 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     skipped = [it if isinstance(it, dict) else {"reason": str(it)} for it in s.get("inspections_skipped") or []]
     checks_v = s.get("photo_checks")
     checks: dict[str, Any] = checks_v if isinstance(checks_v, dict) else {}
-    fit_photos = sum(1 for v in verdicts.values() if v is not None and v.fit)
     cards = [("found", len(insulators), "insulators found"),
              ("inspected", sum(1 for i in insulators if i.get("inspected")), "insulators inspected"),
              ("with-fit-photo", sum(1 for i in insulators if i["state"] == "fit"), "insulators with a fit photo"),
