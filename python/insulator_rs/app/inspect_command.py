@@ -394,7 +394,7 @@ def run(args: argparse.Namespace) -> int:
                 score = None
                 summary = loop.finish_report()
             else:
-                score = score_flight(loop.summary().as_dict(), tower, progress=print)
+                score = score_flight(loop.summary().as_dict(), tower, progress=None if args.quiet else print)
                 summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
                 write_score(args.out, score)
     finally:
