@@ -43,7 +43,7 @@ def _photo(k: int) -> np.ndarray:
 
 def _quality(gsd: float, fit: bool) -> dict:
     return {"gsd_mm_px": gsd, "frame_share": 0.05, "span_share": 0.7 if fit else 0.2, "whole_in_frame": True,
-            "motion_blur_px": 0.1, "sharp": True, "fit_for_inspection": fit}
+            "motion_blur_px": 0.1, "blur_within_limit": True}
 
 
 def _check(verdict: PhotoVerdict) -> dict:
@@ -69,12 +69,12 @@ def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
                   {"id": 3, "center": np.array([-2.5, 1.9, 14.0]), "axis": np.array([0.0, 0.0, 1.0]),
                    "observations": 4, "side": -1, "confirmed": True, "inspected": False, "photos": []}]
     photos = []
-    for k, (ins, pos, yaw, q) in enumerate(((1, path[40], 0.3, _quality(1.8, True)),
-                                            (2, path[160], -2.0, _quality(8.6, False)),
-                                            (2, path[170], -2.2, _quality(8.7, False)))):
+    for k, (ins, pos, yaw, q, fit) in enumerate(((1, path[40], 0.3, _quality(1.8, True), True),
+                                                 (2, path[160], -2.0, _quality(8.6, False), False),
+                                                 (2, path[170], -2.2, _quality(8.7, False), False))):
         rec = w.save_photo(f"insulator_{ins:02d}_{k + 1}.jpg", _photo(k), time_utc=clock.at(2.0 * k),
                            position_enu=pos, yaw_enu=yaw, gimbal_pitch=-0.1)
-        verdict = PhotoVerdict.passed() if q["fit_for_inspection"] else PhotoVerdict.unfit([Reason.TOO_SMALL])
+        verdict = PhotoVerdict.passed() if fit else PhotoVerdict.unfit([Reason.TOO_SMALL])
         photos.append({**rec, "insulator_id": ins, "position": pos, "yaw": yaw, "quality": q,
                        "check": _check(verdict), "attempt": 1})
         insulators[ins - 1]["photos"].append(rec["file"])
