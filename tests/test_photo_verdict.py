@@ -99,6 +99,7 @@ def test_log_summary_report_and_score_agree_on_every_photo(tmp_path, capsys):
     args = [a for a in ARGS if a != "--quiet"]
     assert main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *args]) == 0
     log = capsys.readouterr().out
+    assert re.search(r"^scoring: \d+ photos: the true string projected", log, flags=re.M)  # progress, no render
     said = dict(re.findall(r"photo (images/\S+\.jpg): .*; checked on the photo: (.+)$", log, flags=re.M))
     summary = json.loads((out / "summary.json").read_text())
     score = json.loads((out / "score.json").read_text())
