@@ -21,7 +21,8 @@ import pytest
 
 import insulator_rs as ir
 from insulator_rs.flight.gimbal import aim_at
-from insulator_rs.perception.photo_check import (MAX_OFFSET, MIN_SHARPNESS, Unfit, check_boxes, check_photo,
+from insulator_rs.perception.photo_verdict import Reason
+from insulator_rs.perception.photo_check import (MAX_OFFSET, MIN_SHARPNESS, check_boxes, check_photo,
                                                  expected_view, sharpness)
 from insulator_rs.planning.framing import MIN_FILL
 from insulator_rs.poses import pose_from_yaw
@@ -74,13 +75,13 @@ def reference_reasons(box: np.ndarray, width: int, height: int) -> set[str]:
     the border; off centre and too small from the part inside the frame."""
     out = set()
     if box[0] < 0 or box[1] < 0 or box[2] > width - 1 or box[3] > height - 1:
-        out.add(Unfit.CUT.value)
+        out.add(Reason.CUT.value)
     b = np.clip(box, 0, [width, height, width, height])
     if (abs(0.5 * (b[0] + b[2]) - 0.5 * width) > MAX_OFFSET * width
             or abs(0.5 * (b[1] + b[3]) - 0.5 * height) > MAX_OFFSET * height):
-        out.add(Unfit.OFF_CENTRE.value)
+        out.add(Reason.OFF_CENTRE.value)
     if max(b[2] - b[0], b[3] - b[1]) / max(width, height) < MIN_FILL:
-        out.add(Unfit.TOO_SMALL.value)
+        out.add(Reason.TOO_SMALL.value)
     return out
 
 
@@ -92,9 +93,9 @@ def view_of(frame, T_w_c, truth, *, length=None):
 @pytest.mark.parametrize("aim_offset, expect", [
     ((0.0, 0.0, 0.0), set()),                        # aimed at the centre: fit
     # aimed 0.6 m above: the string's foot leaves the frame, what is left is off centre and short
-    ((0.0, 0.0, 0.6), {Unfit.CUT.value, Unfit.OFF_CENTRE.value, Unfit.TOO_SMALL.value}),
-    ((0.0, 0.0, -0.6), {Unfit.CUT.value, Unfit.OFF_CENTRE.value, Unfit.TOO_SMALL.value}),  # below: its top
-    ((0.0, 0.6, 0.0), {Unfit.OFF_CENTRE.value}),     # aimed 0.6 m sideways: whole but far off centre
+    ((0.0, 0.0, 0.6), {Reason.CUT.value, Reason.OFF_CENTRE.value, Reason.TOO_SMALL.value}),
+    ((0.0, 0.0, -0.6), {Reason.CUT.value, Reason.OFF_CENTRE.value, Reason.TOO_SMALL.value}),  # below: its top
+    ((0.0, 0.6, 0.0), {Reason.OFF_CENTRE.value}),     # aimed 0.6 m sideways: whole but far off centre
 ])
 def test_the_check_agrees_with_the_projected_ground_truth(shot, aim_offset, expect):
     _, truth, _, _, sensors = shot
@@ -122,7 +123,7 @@ def test_a_string_framed_smaller_than_planned_is_too_small(shot):
     ref = reference_box(truth, T_w_c, frame.camera)
     assert (ref[3] - ref[1]) / 800 < MIN_FILL
     check = check_photo(GroundTruthDetector(sensors), frame.image, view_of(frame, T_w_c, truth, length=2.6))
-    assert check.reasons == [Unfit.TOO_SMALL.value] and check.span_share < check.min_span == MIN_FILL
+    assert check.reasons == [Reason.TOO_SMALL.value] and check.span_share < check.min_span == MIN_FILL
 
 
 def test_a_blurred_photo_is_judged_blurred(shot):
@@ -135,7 +136,7 @@ def test_a_blurred_photo_is_judged_blurred(shot):
         blurred = cv2.GaussianBlur(frame.image, (0, 0), sigma)
         check = check_boxes(blurred, np.array([sharp.box]), view)
         print(f"sharpness: sharp {sharp.sharpness:.0f}, GaussianBlur sigma {sigma}: {check.sharpness:.0f}")
-        assert check.reasons == [Unfit.BLURRED.value] and check.sharpness < MIN_SHARPNESS < sharp.sharpness
+        assert check.reasons == [Reason.NOT_SHARP.value] and check.sharpness < MIN_SHARPNESS < sharp.sharpness
     assert sharpness(np.full((50, 50), 128, np.uint8)) == 0.0
 
 
@@ -148,11 +149,11 @@ def test_a_detector_failure_is_the_checks_error_not_the_flights(shot):
         raise RuntimeError("onnxruntime: CUDA out of memory")
 
     check = check_photo(broken, frame.image, view)
-    assert not check.fit and check.reasons == [Unfit.DETECTOR_ERROR.value] and "CUDA" in check.error
+    assert not check.fit and check.reasons == [Reason.DETECTOR_ERROR.value] and "CUDA" in check.error
     bad = check_photo(lambda image: np.zeros((3,)), frame.image, view)
-    assert bad.reasons == [Unfit.DETECTOR_ERROR.value] and "shape" in bad.error
+    assert bad.reasons == [Reason.DETECTOR_ERROR.value] and "shape" in bad.error
     none = check_photo(lambda image: np.zeros((0, 5)), frame.image, view)
-    assert none.reasons == [Unfit.NOT_DETECTED.value] and none.box is None
+    assert none.reasons == [Reason.NOT_DETECTED.value] and none.box is None
 
 
 def test_the_string_in_pieces_is_one_insulator_and_the_nearest_box_is_taken(shot):
@@ -220,9 +221,9 @@ def test_an_unfit_photo_is_retaken_a_bounded_number_of_times(tmp_path, monkeypat
     truths = load_tower(scene).insulators
     truth = min(truths, key=lambda t: float(np.linalg.norm(t.center - aims[0])))
     ref = reference_box(truth, np.array(first["T_w_c"]), K_cam)
-    assert Unfit.CUT.value in reference_reasons(ref, K_cam.width, K_cam.height)
+    assert Reason.CUT.value in reference_reasons(ref, K_cam.width, K_cam.height)
     assert [p["attempt"] for p in one] == [1, 2, 1]
-    assert Unfit.CUT.value in first["check"]["reasons"] and not first["check"]["fit"]
+    assert Reason.CUT.value in first["check"]["reasons"] and not first["check"]["fit"]
     assert one[1]["check"]["fit"] and one[2]["check"]["fit"]
     # insulator 2: two shots, each 1 + 2 attempts (the mission's default photo_retakes), all errors
     assert [p["attempt"] for p in two] == [1, 2, 3, 1, 2, 3]
@@ -230,7 +231,7 @@ def test_an_unfit_photo_is_retaken_a_bounded_number_of_times(tmp_path, monkeypat
     pc = s["photo_checks"]
     assert pc["photos"] == len(photos) == 9 and pc["fit"] == 2 and pc["retakes"] == 5
     assert pc["insulators_without_fit_photo"] == [
-        {"insulator_id": 2, "photos": 6, "reasons": {Unfit.DETECTOR_ERROR.value: 6},
+        {"insulator_id": 2, "photos": 6, "reasons": {Reason.DETECTOR_ERROR.value: 6},
          "errors": ["RuntimeError: detector crashed"]}]
     page = (out / "report.html").read_text()
     assert "detector failed (6x)" in page and "RuntimeError: detector crashed" in page

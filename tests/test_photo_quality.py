@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import insulator_rs as ir
-from insulator_rs.perception.photo_quality import gsd_distance, photo_quality
+from insulator_rs.perception.photo_quality import MAX_GSD_MM, gsd_distance, photo_quality
 from insulator_rs.planning.waypoints import FILL_FRACTION, framing_distance
 
 # 1000 px focal length, 1280 x 960, principal point at the centre.
@@ -26,12 +26,12 @@ def test_square_on_string_by_hand():
     q = photo_quality(CAM, T_C_W, np.array([4.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), length=2.0,
                       diameter=0.2, speed=0.5, exposure=1 / 500)
     assert q.gsd_mm_px == pytest.approx(4.0, rel=1e-9)
-    assert q.whole_in_frame and q.sharp
+    assert q.whole_in_frame and q.blur_within_limit
     width = 2 * 1000 / 3.9
     assert q.span_share == pytest.approx(width / 1280, rel=1e-9)
     assert q.frame_share == pytest.approx(width * 50 / (1280 * 960), rel=0.02)
     assert q.motion_blur_px == pytest.approx(0.25, rel=1e-9)
-    assert not q.fit_for_inspection  # 4 mm/px > 2 mm/px
+    assert q.gsd_mm_px > MAX_GSD_MM  # 4 mm/px: coarser than a defect inspection needs
 
 
 def test_fit_blurred_cut_and_behind():
@@ -40,10 +40,10 @@ def test_fit_blurred_cut_and_behind():
     Behind the camera: infinite GSD, not whole."""
     c, u = np.array([1.8, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
     q = photo_quality(CAM, T_C_W, c, u, length=2.0, diameter=0.2)
-    assert q.gsd_mm_px == pytest.approx(1.8) and q.whole_in_frame and q.fit_for_inspection
+    assert q.gsd_mm_px == pytest.approx(1.8) and q.gsd_mm_px <= MAX_GSD_MM and q.whole_in_frame
     assert not photo_quality(CAM, T_C_W, np.array([1.2, 0.0, 0.0]), u, length=2.0).whole_in_frame
     blurred = photo_quality(CAM, T_C_W, c, u, length=2.0, speed=3.0, exposure=0.01)
-    assert blurred.motion_blur_px == pytest.approx(3.0 * 0.01 / 0.0018) and not blurred.sharp
+    assert blurred.motion_blur_px == pytest.approx(3.0 * 0.01 / 0.0018) and not blurred.blur_within_limit
     behind = photo_quality(CAM, T_C_W, np.array([-4.0, 0.0, 0.0]), u, length=2.0)
     assert math.isinf(behind.gsd_mm_px) and not behind.whole_in_frame
 

@@ -9,6 +9,7 @@ map has a marker per insulator and per photo; a screenshot is taken.
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 import os
@@ -24,6 +25,7 @@ from helpers.chromium_cdp import Chromium, find_chromium
 from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ReportError
 from insulator_rs.geodesy import GeoPoint
+from insulator_rs.perception.photo_verdict import PhotoVerdict, Reason
 from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.html import HTML_NAME, write_report_html
 from insulator_rs.report.summary import FlightDetails, InsulatorRecord, PerceptionRecord, RunSummary
@@ -41,7 +43,14 @@ def _photo(k: int) -> np.ndarray:
 
 def _quality(gsd: float, fit: bool) -> dict:
     return {"gsd_mm_px": gsd, "frame_share": 0.05, "span_share": 0.7 if fit else 0.2, "whole_in_frame": True,
-            "motion_blur_px": 0.1, "sharp": True, "fit_for_inspection": fit}
+            "motion_blur_px": 0.1, "blur_within_limit": True}
+
+
+def _check(verdict: PhotoVerdict) -> dict:
+    """A photo's check record as the flight writes it (PhotoCheck.as_dict): the verdict and figures."""
+    return {"verdict": verdict.to_json(), "fit": verdict.fit, "reasons": verdict.unfit_reasons,
+            "span_share": 0.7 if verdict.fit else 0.2, "min_span": 0.6, "offset": [0.01, -0.02],
+            "sharpness": 900.0, "error": None}
 
 
 def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
@@ -60,12 +69,14 @@ def make_report(tmp_path: Path) -> tuple[Path, list[dict], list[dict]]:
                   {"id": 3, "center": np.array([-2.5, 1.9, 14.0]), "axis": np.array([0.0, 0.0, 1.0]),
                    "observations": 4, "side": -1, "confirmed": True, "inspected": False, "photos": []}]
     photos = []
-    for k, (ins, pos, yaw, q) in enumerate(((1, path[40], 0.3, _quality(1.8, True)),
-                                            (2, path[160], -2.0, _quality(8.6, False)),
-                                            (2, path[170], -2.2, _quality(8.7, False)))):
+    for k, (ins, pos, yaw, q, fit) in enumerate(((1, path[40], 0.3, _quality(1.8, True), True),
+                                                 (2, path[160], -2.0, _quality(8.6, False), False),
+                                                 (2, path[170], -2.2, _quality(8.7, False), False))):
         rec = w.save_photo(f"insulator_{ins:02d}_{k + 1}.jpg", _photo(k), time_utc=clock.at(2.0 * k),
                            position_enu=pos, yaw_enu=yaw, gimbal_pitch=-0.1)
-        photos.append({**rec, "insulator_id": ins, "position": pos, "yaw": yaw, "quality": q})
+        verdict = PhotoVerdict.passed() if fit else PhotoVerdict.unfit([Reason.TOO_SMALL])
+        photos.append({**rec, "insulator_id": ins, "position": pos, "yaw": yaw, "quality": q,
+                       "check": _check(verdict), "attempt": 1})
         insulators[ins - 1]["photos"].append(rec["file"])
     skipped = [{"insulator_id": 3, "position": [-6.0, 1.9, 14.0],
                 "reason": "no safe route to the waypoint (enters the tower's safety volume)"}]
@@ -101,7 +112,8 @@ def test_close_writes_a_self_contained_page(tmp_path):
     assert "no safe route to the waypoint" in text  # skipped, with the reason
     assert "10 min 12.4 s" in text and "Insulator inspection — test_tower" in text  # flight time, mission
     # which insulators have no fit photo, and why
-    assert "2 photos, none fit; the finest: GSD 8.6 mm/px &gt; 2" in text
+    assert "2 photos, none fit: too small (2x); the finest GSD 8.6 mm/px" in text
+    assert ": ;" not in text and "none fit: ;" not in text  # never an empty reason
     assert "not inspected; skipped: no safe route" in text
 
 
@@ -200,3 +212,66 @@ def test_page_of_a_report_with_nothing_found(tmp_path):
     text = (tmp_path / "r" / HTML_NAME).read_text()
     assert "aborted: heartbeat lost" in text and 'class="status aborted"' in text
     assert json.loads((tmp_path / "r" / "summary.json").read_text())["status"].startswith("aborted")
+
+
+def test_a_replay_says_it_carries_no_photos(tmp_path):
+    """A replay re-runs perception on a recording and takes no photos: its page says so, and its
+    insulators are found ones (grey), not red "no photo" ones with no word why."""
+    out, insulators, _ = make_report(tmp_path)
+    s = json.loads((out / "summary.json").read_text())
+    s.update(run="replay", photos=[], photo_checks=None, inspections_skipped=[])
+    for ins in s["insulators"]:
+        ins["inspected"], ins["photos"] = False, []
+    (out / "summary.json").write_text(json.dumps(s))
+    write_report_html(out)
+    text = (out / HTML_NAME).read_text(encoding="utf-8")
+    assert 'id="replay-note"' in text and "A replay carries no photos of its own" in text
+    assert text.count("found (a replay takes no photos)") == len(insulators)
+    assert "found in a replay, which takes no photos" in text and ">no photo<" not in text
+    assert 'fill="#d62728"' not in text  # no insulator marker red
+
+
+def test_the_sensors_row_names_the_sensor_not_a_private_class():
+    from insulator_rs.ports.sensors import sensors_name
+
+    class _ClockedWrapper:
+        pass
+
+    class Named:
+        name = "live: Livox Mid-360, camera rtsp://cam"
+
+    assert sensors_name(_ClockedWrapper()) == "ClockedWrapper"
+    assert sensors_name(Named()) == "live: Livox Mid-360, camera rtsp://cam"
+
+
+def test_the_page_comes_from_autoescaped_templates_that_ship_in_the_package(tmp_path):
+    """A designer edits templates/, not Python: the page's templates are package files, and a
+    value from summary.json is escaped (autoescaping on), never markup."""
+    from importlib import resources
+
+    names = {p.name for p in resources.files("insulator_rs.report").joinpath("templates").iterdir()}
+    assert {"report.html.j2", "photo.html.j2", "map.svg.j2", "report.css"} <= names
+    out, _, _ = make_report(tmp_path)
+    s = json.loads((out / "summary.json").read_text())
+    s["status"] = "aborted: <b>heartbeat</b> lost"
+    (out / "summary.json").write_text(json.dumps(s))
+    text = write_report_html(out).path.read_text(encoding="utf-8")
+    assert "aborted: &lt;b&gt;heartbeat&lt;/b&gt; lost" in text and "<b>heartbeat" not in text
+
+
+def test_a_big_photo_is_thumbnailed_from_a_reduced_decode(tmp_path):
+    """A photo several times the thumbnail's width is decoded at 1/2..1/8 (JPEG's own reduced
+    decode); the page still gives its full size (from the JPEG header, EXIF before it), and the
+    thumbnail matches a full decode scaled down by cv2 (mean difference under 3 counts)."""
+    from insulator_rs.report.html import THUMB_WIDTH, _thumbnail
+
+    w = ReportWriter(tmp_path / "r", origin=ORIGIN)
+    big = cv2.resize(_photo(0), (2600, 1950), interpolation=cv2.INTER_CUBIC)
+    rec = w.save_photo("big.jpg", big, time_utc=datetime(2026, 6, 1, 10, 0, tzinfo=timezone.utc),
+                       position_enu=np.zeros(3), yaw_enu=0.0, gimbal_pitch=0.0)
+    path = tmp_path / "r" / rec["file"]
+    thumb, size, problem = _thumbnail(path)
+    assert problem is None and size == (2600, 1950)
+    got = cv2.imdecode(np.frombuffer(base64.b64decode(thumb.split(",", 1)[1]), np.uint8), cv2.IMREAD_COLOR)
+    ref = cv2.resize(cv2.imread(str(path)), (THUMB_WIDTH, 240), interpolation=cv2.INTER_AREA)
+    assert got.shape == ref.shape and float(np.abs(got.astype(float) - ref).mean()) < 3.0

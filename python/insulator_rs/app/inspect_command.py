@@ -36,6 +36,7 @@ import numpy as np
 
 from insulator_rs.app import live_options as cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
+from insulator_rs.perception.photo_verdict import fit_tally
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
 from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
 from insulator_rs.flight.loop import FlightSettings
@@ -262,16 +263,17 @@ def _with_limits(mission: Mission, v_max: float | None, a_max: float | None) -> 
 
 
 def _final_line(summary: dict[str, Any], score: dict[str, Any] | None, out: Path) -> str:
+    fit_photos, with_fit = fit_tally(summary["photos"])
+    photos = (f"{summary['insulators_inspected']} inspected, {len(with_fit)} with a fit photo, "
+              f"{len(summary['photos'])} photos ({fit_photos} fit)")
     if score is None:  # a live flight
         return (f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
-                f"{summary['insulators_found']} insulators found, {summary['insulators_inspected']} inspected, "
-                f"{len(summary['photos'])} photos; report in {out}")
+                f"{summary['insulators_found']} insulators found, {photos}; report in {out}")
     mean = score["mean_error_m"]
     return (f"{summary['status']}: flight {summary['flight_time_s']:.1f} s, "
             f"{summary['insulators_found']} insulators found ({score['insulators_matched']} of "
-            f"{score['insulators_in_scene']} matched), {summary['insulators_inspected']} inspected, "
-            f"{len(summary['photos'])} photos, mean error {mean if mean is None else round(mean, 3)} m "
-            f"(scored after the flight); report in {out}")
+            f"{score['insulators_in_scene']} matched), {photos}, mean error "
+            f"{mean if mean is None else round(mean, 3)} m (scored after the flight); report in {out}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -382,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
                 loop.finish_report()
                 raise
             # the flight is over (landed, aborted or interrupted): the recording is whole now, not
-            # after the scoring below (it renders every photo: minutes on tower A, on a busy box)
+            # after the scoring below
             if recorder is not None:
                 recorder.close()
             # now ground truth may be read
@@ -390,7 +392,7 @@ def run(args: argparse.Namespace) -> int:
                 score = None
                 summary = loop.finish_report()
             else:
-                score = score_flight(loop.summary().as_dict(), tower)
+                score = score_flight(loop.summary().as_dict(), tower, progress=None if args.quiet else print)
                 summary = loop.finish_report(reference=np.array([t.center for t in tower.insulators]).reshape(-1, 3))
                 write_score(args.out, score)
     finally:

@@ -136,7 +136,7 @@ def _score(out: Path, scene: str | None) -> dict[str, Any] | None:
     except (ConfigError, ValueError, OSError) as exc:
         print(f"insulator-rs replay: note: {out} cannot be scored against scene {scene!r}: {exc}", file=sys.stderr)
         return None
-    score = score_flight(summary, tower, photos=False)
+    score = score_flight(summary, tower)
     write_score(Path(out), score)
     return score
 

@@ -58,6 +58,13 @@ class LiveSensors:
         self.camera = camera
         self._handed_until = -np.inf  # vehicle time: the end of the newest scan handed over
 
+    @property
+    def name(self) -> str:
+        """The drivers in words (the report's sensors row): ``live: Livox Mid-360, camera <source>``."""
+        parts = ([] if self.lidar is None else ["Livox Mid-360"]) + \
+                ([] if self.camera is None else [f"camera {self.camera.source}"])
+        return "live: " + ", ".join(parts)
+
     def detection_frame(self, now: float) -> CameraFrame | None:
         return None if self.camera is None else self.camera.latest(now)
 

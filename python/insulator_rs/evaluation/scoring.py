@@ -6,9 +6,13 @@ Ground truth enters here and nowhere in the flight: the flight writes ``summary.
 * each localized insulator is matched to the nearest true one: centre error (m) and axis
   error (deg); a true insulator counts as found when a localization lies within
   :data:`MATCH_DISTANCE` of it;
-* each photo is re-rendered from the scene at the pose the flight recorded for it (the
-  vehicle's estimate, camera aimed as recorded) to tell whether the insulator it was taken
-  for is in the picture, and whole.
+* each photo's true insulator (the one nearest the insulator it was taken for) is projected
+  through the photo's own camera pose and intrinsics as the flight recorded them
+  (:func:`~insulator_rs.evaluation.photo_coverage.string_in_photo_record`, the projection the
+  coverage figures use too): is it in the picture, and whole? No render: a 12 MP photo costs
+  a few hundred projected points, not a ray-cast image;
+* each photo's verdict is read from the summary (the one the flight decided,
+  :class:`~insulator_rs.perception.photo_verdict.PhotoVerdict`), never decided again here.
 
 The result is ``score.json`` beside the summary.
 """
@@ -16,18 +20,17 @@ The result is ``score.json`` beside the summary.
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from insulator_rs.evaluation.photo_coverage import photo_coverage
-
-from insulator_rs._core import CameraModel
-from insulator_rs.poses import pose_from_yaw
+from insulator_rs.evaluation.photo_coverage import photo_coverage, string_in_photo_record
+from insulator_rs.perception.photo_verdict import verdict_of_record
 from insulator_rs.report.jsonfile import write_json
 from insulator_rs.report.summary import RunSummary
-from insulator_rs.sim.camera_render import Camera
 from insulator_rs.sim.towers import InsulatorTruth, Tower
 
 # m: a localized insulator this close to a true one counts as having found it.
@@ -43,20 +46,6 @@ def _nearest(truth: list[InsulatorTruth], center: np.ndarray) -> tuple[Insulator
 def _axis_error_deg(a: np.ndarray, b: np.ndarray) -> float:
     c = abs(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)))
     return math.degrees(math.acos(min(1.0, c)))
-
-
-def _photo_visibility(tower: Tower, camera: CameraModel, photo: dict[str, Any], gt_id: int) -> tuple[bool, bool]:
-    """(visible, whole in frame) of true insulator ``gt_id`` in the photo, re-rendered."""
-    if "T_w_c" in photo:  # the camera's pose as the flight had it (full attitude, gimbal)
-        frame = Camera(camera, np.eye(4)).render(tower.mesh, np.asarray(photo["T_w_c"], dtype=np.float64))
-    else:  # a summary from before the camera pose was recorded: a level body then
-        cam = Camera(camera, np.asarray(photo["T_b_c"], dtype=np.float64))
-        frame = cam.render(tower.mesh, pose_from_yaw(np.asarray(photo["position"]), float(photo["yaw"])))
-    box = frame.boxes.get(gt_id)
-    if box is None:
-        return False, False
-    whole = box[0] > 0 and box[1] > 0 and box[2] < camera.width and box[3] < camera.height
-    return True, bool(whole)
 
 
 def score_tracks(tracks: list[dict[str, Any]], truth: list[InsulatorTruth]) -> list[dict[str, Any]]:
@@ -75,9 +64,16 @@ def score_tracks(tracks: list[dict[str, Any]], truth: list[InsulatorTruth]) -> l
     return rows
 
 
-def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: bool = True) -> dict[str, Any]:
+def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *,
+                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Score a flight summary (as written to ``summary.json``) against ``tower``'s truth.
-    ``photos``: also re-render each photo for its visibility (costs a render per photo)."""
+    ``progress``: told a line as each stage ends (the insulators, the photos, the coverage)."""
+    t0 = time.perf_counter()
+
+    def say(text: str) -> None:
+        if progress is not None:
+            progress(f"scoring: {text} ({time.perf_counter() - t0:.1f} s)")
+
     if isinstance(summary, RunSummary):
         summary = summary.as_dict()
     truth = list(tower.insulators)
@@ -98,22 +94,27 @@ def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: 
     inspected = {r["gt_instance_id"] for r in rows
                  if r["error_m"] is not None and r["error_m"] < MATCH_DISTANCE and r.get("inspected")}
     errors = [r["error_m"] for r in rows if r["error_m"] is not None]
+    say(f"{len(found)} insulators matched to {len(truth)} true ones")
     photo_rows = []
-    cam_rec = summary.get("photo_camera")
-    camera = None if cam_rec is None else CameraModel(
-        cam_rec["fx"], cam_rec["fy"], cam_rec["cx"], cam_rec["cy"], cam_rec["width"], cam_rec["height"],
-        dist=cam_rec["dist"])
+    default_camera = summary.get("photo_camera")
+    by_id = {t.instance_id: t for t in truth}
     for p in summary.get("photos", []):
         photographed = centers.get(int(p["insulator_id"]))
+        verdict = verdict_of_record(p)
         row: dict[str, Any] = {"file": p["file"], "insulator_id": p["insulator_id"], "gt_instance_id": None,
-                               "insulator_visible": None, "insulator_whole_in_frame": None}
+                               "insulator_visible": None, "insulator_whole_in_frame": None,
+                               "verdict": None if verdict is None else verdict.to_json()}
         if photographed is not None and truth:
             gt, _ = _nearest(truth, photographed)
             row["gt_instance_id"] = gt.instance_id
-            if photos and camera is not None:
-                row["insulator_visible"], row["insulator_whole_in_frame"] = _photo_visibility(
-                    tower, camera, p, gt.instance_id)
+            fig = string_in_photo_record(p, by_id[gt.instance_id], default_camera)
+            if fig is not None:
+                row["insulator_visible"] = fig["visible"] is not None
+                row["insulator_whole_in_frame"] = fig["whole_in_frame"]
         photo_rows.append(row)
+    say(f"{len(photo_rows)} photos: the true string projected through each one's pose")
+    coverage = photo_coverage(summary, truth)
+    say(f"coverage: {coverage['insulators_covered']} of {coverage['insulators_in_scene']} strings covered")
     return {
         "scene": tower.spec.name,
         "match_distance_m": MATCH_DISTANCE,
@@ -126,7 +127,7 @@ def score_flight(summary: RunSummary | dict[str, Any], tower: Tower, *, photos: 
         "photos": photo_rows,
         "tracks": score_tracks(summary.get("tracks", []), truth),
         # every string covered by photos at >= 60 % of the long side and <= 2 mm/px? (from the truth)
-        "photo_coverage": photo_coverage(summary, truth),
+        "photo_coverage": coverage,
         "ground_truth": [{"instance_id": t.instance_id, "center": t.center.tolist(), "axis": t.axis.tolist(),
                           "side": t.side} for t in truth],
     }

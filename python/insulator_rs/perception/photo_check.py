@@ -17,7 +17,7 @@ detector is run on the photo once and, from its boxes, the insulator's box is me
 * **off centre**: the box's centre is more than :data:`MAX_OFFSET` of the frame's width (height)
   from the image centre, judged on an axis whose both sides are closed (on an open axis the box
   ends at the border by design);
-* **blurred**: the variance of the Laplacian (``cv2.Laplacian``, 3x3, on the grey image inside
+* **not sharp**: the variance of the Laplacian (``cv2.Laplacian``, 3x3, on the grey image inside
   the box, shrunk to at most :data:`ANALYSIS_PX`) is below :data:`MIN_SHARPNESS` (see there for
   the figures it was set on).
 
@@ -25,6 +25,10 @@ A string the detector sees in pieces (the shipped ``insulator-sim`` network, tra
 detection camera's far views, boxes the sheds of a close-up one by one) is one insulator: the
 box nearest the target is merged with every box that meets the projected string's box widened
 by :data:`MAX_OFFSET` of the frame (the corridor where the plan puts it).
+
+The verdict is a :class:`~insulator_rs.perception.photo_verdict.PhotoVerdict` (each reason
+above a :class:`~insulator_rs.perception.photo_verdict.Reason`): the one the flight writes into
+``summary.json`` and every reader takes from there.
 
 A detector that raises is recorded as the check's ``error`` and the photo is unfit (retaken);
 it never ends the flight. The detector runs once per call (``detect_s`` says what it cost).
@@ -36,13 +40,13 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
-from enum import Enum
 from typing import Any
 
 import cv2
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.photo_verdict import PhotoVerdict, Reason
 
 #: Share of the frame's width (height) the box centre may stray from the image centre. The
 #: shot aims at the localized centre: a 5 cm error of the centre moves the string ~90 px of
@@ -59,7 +63,7 @@ OPEN_MARGIN = 0.01
 #: detector's box and the localized length err by a few per cent).
 PLANNED_SHARE = 0.90
 #: Variance of the 3x3 Laplacian (8-bit counts^2) of the box's crop (at ANALYSIS_PX) below which
-#: a photo is blurred. Measured on the simulator's renders of the zoomed string: sharp, 1250-2200
+#: a photo is not sharp. Measured on the simulator's renders of the zoomed string: sharp, 1250-2200
 #: at the tests' 0.2 photo scale (the string ~550 px long; small scene) and 416 at the full 12 MP
 #: (tower B, the crop shrunk to 1000 px); the full-resolution photo after cv2.GaussianBlur sigma
 #: 2.5 px (1.4 mm on the string) 47, sigma 5 px 8; the 0.2-scale ones after sigma 1.5-3 px stay
@@ -72,17 +76,6 @@ MIN_SHARPNESS = 150.0
 #: scale render's ~550 px), and 1000 px along a 2 m string is the 2 mm/px an inspection needs,
 #: so a blur that spoils that detail still shows. Also bounds the cost on a 12 MP photo.
 ANALYSIS_PX = 1000
-
-
-class Unfit(str, Enum):
-    """Why a photo is unfit (the check's ``reasons``)."""
-
-    NOT_DETECTED = "no insulator detected"
-    CUT = "cut by the border"
-    TOO_SMALL = "too small"
-    OFF_CENTRE = "off centre"
-    BLURRED = "blurred"
-    DETECTOR_ERROR = "detector failed"
 
 
 @dataclass(frozen=True)
@@ -140,15 +133,14 @@ def expected_view(camera: ir.CameraModel, T_c_w: np.ndarray, target: np.ndarray,
 
 @dataclass(frozen=True)
 class PhotoCheck:
-    """The figures measured on one photo and its verdict (module docstring). ``box``: the
+    """The verdict on one photo and the figures it was decided on (module docstring). ``box``: the
     insulator's (x1, y1, x2, y2, score) in the photo's pixels, None when none was detected;
     ``detections``: boxes the detector gave; ``span_share``: the box's longer side over the
     frame's long side; ``offset``: (dx, dy) of the box centre from the image centre over the
     width and height (None on an open axis); ``sharpness``: see :data:`MIN_SHARPNESS`;
     ``detect_s``/``check_s``: wall seconds of the detector and of the measurements."""
 
-    fit: bool
-    reasons: list[str]
+    verdict: PhotoVerdict
     box: list[float] | None = None
     detections: int = 0
     cut_sides: list[str] = field(default_factory=list)
@@ -160,8 +152,20 @@ class PhotoCheck:
     detect_s: float = 0.0
     check_s: float = 0.0
 
+    @property
+    def fit(self) -> bool:
+        return self.verdict.fit
+
+    @property
+    def reasons(self) -> list[str]:
+        """Why unfit, in words ([] when fit)."""
+        return self.verdict.unfit_reasons
+
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The record of ``summary.json``: the figures and ``verdict`` (its JSON), and ``fit``
+        and ``reasons`` read off that verdict for the flight's own tally of the checks."""
+        out = {k: v for k, v in asdict(self).items() if k != "verdict"}
+        return {"verdict": self.verdict.to_json(), "fit": self.fit, "reasons": self.reasons, **out}
 
 
 def _pick(boxes: np.ndarray, target: tuple[float, float] | None, width: int, height: int) -> int:
@@ -213,30 +217,31 @@ def check_boxes(image: np.ndarray, boxes: np.ndarray, view: ExpectedView) -> Pho
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, boxes.shape[1] if np.ndim(boxes) == 2 else 5)
     h, w = image.shape[:2]
     if len(b) == 0:
-        return PhotoCheck(False, [Unfit.NOT_DETECTED.value], min_span=view.min_span,
+        return PhotoCheck(PhotoVerdict.unfit([Reason.NOT_DETECTED]), min_span=view.min_span,
                           check_s=time.perf_counter() - t0)
     k = _pick(b, view.target_px, w, h)
     x1, y1, x2, y2 = (float(v) for v in _merged(b, k, view))
     score = float(b[k, 4]) if b.shape[1] > 4 else 1.0
-    reasons: list[Unfit] = []
+    reasons: list[Reason] = []
     mx, my = max(BORDER_MARGIN_PX, BORDER_MARGIN * w), max(BORDER_MARGIN_PX, BORDER_MARGIN * h)
     touches = (x1 <= mx, y1 <= my, x2 >= w - mx, y2 >= h - my)
     is_open = view.open_sides()
     names = ("left", "top", "right", "bottom")
     cut = [n for n, t, o in zip(names, touches, is_open) if t and not o]
     if cut:
-        reasons.append(Unfit.CUT)
+        reasons.append(Reason.CUT)
     span = max(x2 - x1, y2 - y1) / max(w, h)
     if span < view.min_span:
-        reasons.append(Unfit.TOO_SMALL)
+        reasons.append(Reason.TOO_SMALL)
     off_x = None if (is_open[0] or is_open[2]) else (0.5 * (x1 + x2) - 0.5 * w) / w
     off_y = None if (is_open[1] or is_open[3]) else (0.5 * (y1 + y2) - 0.5 * h) / h
     if any(o is not None and abs(o) > MAX_OFFSET for o in (off_x, off_y)):
-        reasons.append(Unfit.OFF_CENTRE)
+        reasons.append(Reason.OFF_CENTRE)
     sharp = sharpness(image, (x1, y1, x2, y2))
     if sharp < MIN_SHARPNESS:
-        reasons.append(Unfit.BLURRED)
-    return PhotoCheck(not reasons, [r.value for r in reasons], box=[x1, y1, x2, y2, score], detections=len(b),
+        reasons.append(Reason.NOT_SHARP)
+    verdict = PhotoVerdict.unfit(reasons) if reasons else PhotoVerdict.passed()
+    return PhotoCheck(verdict, box=[x1, y1, x2, y2, score], detections=len(b),
                       cut_sides=cut, span_share=float(span), min_span=view.min_span, offset=[off_x, off_y],
                       sharpness=sharp, check_s=time.perf_counter() - t0)
 
@@ -248,11 +253,13 @@ def check_photo(detector: Callable[[np.ndarray], np.ndarray], image: np.ndarray,
     try:
         boxes = np.asarray(detector(image), dtype=np.float64)
     except Exception as exc:  # noqa: BLE001 - any adapter's failure costs this check, never the flight
-        return PhotoCheck(False, [Unfit.DETECTOR_ERROR.value], min_span=view.min_span,
-                          error=f"{type(exc).__name__}: {exc}", detect_s=time.perf_counter() - t0)
+        error = f"{type(exc).__name__}: {exc}"
+        return PhotoCheck(PhotoVerdict.unfit([Reason.DETECTOR_ERROR], error), min_span=view.min_span,
+                          error=error, detect_s=time.perf_counter() - t0)
     detect_s = time.perf_counter() - t0
     if boxes.ndim != 2 or boxes.shape[1] not in (4, 5):
-        return PhotoCheck(False, [Unfit.DETECTOR_ERROR.value], min_span=view.min_span,
-                          error=f"boxes: expected (M, 4|5), got shape {boxes.shape}", detect_s=detect_s)
+        error = f"boxes: expected (M, 4|5), got shape {boxes.shape}"
+        return PhotoCheck(PhotoVerdict.unfit([Reason.DETECTOR_ERROR], error), min_span=view.min_span,
+                          error=error, detect_s=detect_s)
     check = check_boxes(image, boxes, view)
     return replace(check, detect_s=detect_s)

@@ -1,4 +1,4 @@
-"""Is an inspection photo fit for defect inspection? Its figures, from the camera and the geometry.
+"""An inspection photo's planned figures, from the camera and the geometry (not its verdict).
 
 For a photo taken by a camera (intrinsics ``camera``, pose ``T_c_w``) of an insulator (centre,
 unit axis, length and shed diameter in W), moving at ``speed`` m/s with exposure ``exposure`` s:
@@ -9,10 +9,13 @@ unit axis, length and shed diameter in W), moving at ``speed`` m/s with exposure
   image's width or height its longer side spans;
 * **whole**: both ends and the sheds' rims project inside the image (a margin of
   :data:`EDGE_MARGIN_PX`);
-* **motion blur** (px): speed x exposure / GSD (the smear of one exposure on the sensor); the
-  photo is **sharp** when it is at most :data:`MAX_BLUR_PX`.
+* **motion blur** (px): speed x exposure / GSD (the smear of one exposure on the sensor);
+  ``blur_within_limit`` when it is at most :data:`MAX_BLUR_PX`. (Named apart from the photo's
+  own sharpness, the Laplacian variance :mod:`~insulator_rs.perception.photo_check` measures.)
 
 Defect inspection (cracked sheds, flashover marks) wants :data:`MAX_GSD_MM` = 2 mm/px or finer.
+Whether a photo is fit is not decided here: that is its
+:class:`~insulator_rs.perception.photo_verdict.PhotoVerdict`, from the photo itself.
 Pinhole figures: lens distortion moves the ends a few pixels and is ignored for the GSD.
 """
 
@@ -28,7 +31,7 @@ import insulator_rs as ir
 
 # mm/px: the finest detail a defect inspection needs resolved (a crack, a burn mark).
 MAX_GSD_MM = 2.0
-# px: at most this much smear in one exposure counts as sharp.
+# px: at most this much smear in one exposure is within the limit (less than a pixel: no detail lost).
 MAX_BLUR_PX = 1.0
 # px: an end this close to the image border does not count as inside.
 EDGE_MARGIN_PX = 2.0
@@ -36,6 +39,23 @@ EDGE_MARGIN_PX = 2.0
 DEFAULT_EXPOSURE = 1.0 / 500.0
 # m: the shed diameter of common composite/glass strings (0.2-0.3 m); the scenes' are 0.22-0.24.
 STRING_DIAMETER = 0.25
+
+
+#: Points on each end shed's rim: the string's outline in an image (its box) to a few pixels.
+RIM_POINTS = 16
+
+
+def end_rims(center: np.ndarray, unit_axis: np.ndarray, length: float, radius: float) -> np.ndarray:
+    """(2 * RIM_POINTS, 3) points on the rims (``radius`` m) of a string's two end sheds (W), the
+    string ``length`` m along ``unit_axis`` about ``center``: the first end's ring, then the other's."""
+    u = np.asarray(unit_axis, dtype=np.float64)
+    c = np.asarray(center, dtype=np.float64)
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    a = np.linspace(0.0, 2 * np.pi, RIM_POINTS, endpoint=False)[:, None]
+    ring = radius * (np.cos(a) * e1 + np.sin(a) * e2)
+    return np.vstack([c - 0.5 * length * u + ring, c + 0.5 * length * u + ring])
 
 
 @dataclass(frozen=True)
@@ -47,8 +67,7 @@ class PhotoQuality:
     span_share: float
     whole_in_frame: bool
     motion_blur_px: float
-    sharp: bool
-    fit_for_inspection: bool
+    blur_within_limit: bool
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -78,19 +97,14 @@ def photo_quality(camera: ir.CameraModel, T_c_w: np.ndarray, center: np.ndarray,
     if not (np.all(np.isfinite(c)) and np.all(np.isfinite(u))) or np.linalg.norm(u) < 1e-9:
         raise ValueError("center/axis: must be finite and the axis non-zero")
     u = u / np.linalg.norm(u)
-    # The string as its two end rims (16 points each) and its axis: enough for its box.
-    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(u, e1)
-    a = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)[:, None]
-    ring = 0.5 * diameter * (np.cos(a) * e1 + np.sin(a) * e2)
+    # The string as its two end rims and its axis: enough for its box.
     ends = [c - 0.5 * length * u, c + 0.5 * length * u]
-    pts = np.vstack([ends[0] + ring, ends[1] + ring, np.stack(ends)])
+    pts = np.vstack([end_rims(c, u, length, 0.5 * diameter), np.stack(ends)])
     p_c = pts @ T[:3, :3].T + T[:3, 3]
     f = 0.5 * (camera.fx + camera.fy)
     depth = float(np.max(p_c[-2:, 2]))
     if np.any(p_c[:, 2] <= ir.NEAR_LIMIT):
-        return PhotoQuality(math.inf, 0.0, 0.0, False, math.inf, False, False)
+        return PhotoQuality(math.inf, 0.0, 0.0, False, math.inf, False)
     # Pinhole pixels (no distortion: the GSD and box need no sub-pixel truth).
     uv = np.column_stack([camera.fx * p_c[:, 0] / p_c[:, 2] + camera.cx,
                           camera.fy * p_c[:, 1] / p_c[:, 2] + camera.cy])
@@ -103,10 +117,7 @@ def photo_quality(camera: ir.CameraModel, T_c_w: np.ndarray, center: np.ndarray,
     frame_share = float((x2 - x1) * (y2 - y1) / (w * h))
     span_share = float(max((x2 - x1) / w, (y2 - y1) / h))
     blur = speed * exposure / gsd_m
-    sharp = blur <= MAX_BLUR_PX
-    gsd_mm = 1000.0 * gsd_m
-    return PhotoQuality(gsd_mm, frame_share, span_share, whole, float(blur), bool(sharp),
-                        bool(whole and sharp and gsd_mm <= MAX_GSD_MM))
+    return PhotoQuality(1000.0 * gsd_m, frame_share, span_share, whole, float(blur), bool(blur <= MAX_BLUR_PX))
 
 
 def gsd_distance(camera: ir.CameraModel, max_gsd_mm: float = MAX_GSD_MM) -> float:

@@ -185,3 +185,12 @@ class Sensors(Protocol):
 
     def close(self) -> None:
         ...
+
+
+def sensors_name(sensors: object) -> str:
+    """The sensors in words for the report's sensors row: the adapter's ``name`` when it has
+    one (a live rig names its drivers), else its class's name; never a private wrapper's."""
+    name = getattr(sensors, "name", None)
+    if isinstance(name, str) and name:
+        return name
+    return type(sensors).__name__.lstrip("_")

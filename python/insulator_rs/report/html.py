@@ -4,18 +4,25 @@ One self-contained page, written into the report folder from the folder's own fi
 (``summary.json``, ``inspection.geojson``, ``images/``), so it works on a flight's report and on
 a replay's alike (``insulator-rs report DIR`` rewrites it):
 
-* a summary at the top: status, flight time, insulators found / inspected / skipped (with the
-  reasons), photos and how many are fit for inspection, and which insulators have no fit photo
-  and why;
+* a summary at the top: status, flight time, insulators found / inspected / with a fit photo /
+  skipped (with the reasons), photos and how many are fit for inspection, and which insulators
+  have no fit photo and why (a replay, which takes no photos, says so);
 * a map of the tower drawn as inline SVG from the GeoJSON (no tile server, no script): a top
   view and a side view across the line, with the flown path, the photo positions (with their
   heading) and the insulators (each a link to its section);
 * per insulator: WGS-84 position, side, observations, and its photos as thumbnails (JPEG,
   embedded as ``data:`` URIs, so the page shows them even when copied alone) linking to the
-  full photos in ``images/``, with each photo's quality figures (GSD, frame share, whole,
-  blur, fit for inspection) and its check on the photo itself (perception/photo_check.py: the
-  attempt, the detected span and offset, the sharpness, the verdict; a retaken photo is listed
-  with its retakes).
+  full photos in ``images/``, each with its verdict and the figures it was decided on.
+
+Every verdict on the page is the one the flight decided and wrote into ``summary.json`` (each
+photo's ``check.verdict``, :class:`~insulator_rs.perception.photo_verdict.PhotoVerdict`); the
+page never judges a photo again, so it cannot disagree with the log or the scorer. The planned
+figures (GSD, frame share, motion blur in the exposure, from
+:mod:`~insulator_rs.perception.photo_quality`) are shown as figures, not as a second verdict.
+
+The page is written from Jinja2 templates (``templates/``: ``report.html.j2``, its macros
+``photo.html.j2`` and ``map.svg.j2``, the style sheet ``report.css``), autoescaped: this module
+only reads the folder and computes what the templates show (map pixel positions, texts).
 
 Nothing is fetched at viewing time: no external style sheet, font, script or image. A
 missing ``summary.json`` or ``inspection.geojson``, or one that is not what a report writes,
@@ -26,18 +33,19 @@ photo is shown as such in the page (and listed in ``HtmlReport.problems``), neve
 from __future__ import annotations
 
 import base64
-import html
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
+import jinja2
 import numpy as np
 
 from insulator_rs.exceptions import ReportError
+from insulator_rs.perception.photo_verdict import PhotoVerdict, fit_tally, verdict_of_record
 from insulator_rs.report.folder import write_atomic
 
 HTML_NAME = "report.html"
@@ -47,7 +55,8 @@ THUMB_WIDTH = 320  # px: thumbnails are scaled down to this width (never up)
 THUMB_QUALITY = 80  # JPEG quality of the embedded thumbnails
 MAP_SIZE = 460  # px: each map panel is a square of this side
 MAP_MARGIN = 28  # px inside a panel kept free of drawing (labels, scale bar)
-MAX_GSD_MM = 2.0  # mm/px: what defect inspection needs (perception.photo_quality.MAX_GSD_MM)
+TEMPLATES = "templates"  # the page's Jinja2 templates and style sheet, in this package
+PAGE_TEMPLATE = "report.html.j2"
 _EARTH_R = 6_378_137.0  # m: WGS-84 semi-major axis (the map is a few tens of metres: a local tangent plane)
 
 
@@ -155,66 +164,43 @@ class _Panel:
         self.center = 0.5 * (lo + hi)
         self.span = span
 
-    def xy(self, a: float, b: float) -> tuple[float, float]:
-        return (MAP_SIZE / 2 + (a - self.center[0]) * self.scale, MAP_SIZE / 2 - (b - self.center[1]) * self.scale)
+    def xy(self, a: float, b: float) -> tuple[str, str]:
+        """SVG pixel coordinates of world (a, b), as written (0.1 px)."""
+        return (f"{MAP_SIZE / 2 + (a - self.center[0]) * self.scale:.1f}",
+                f"{MAP_SIZE / 2 - (b - self.center[1]) * self.scale:.1f}")
 
 
-def _fmt(v: float) -> str:
-    return f"{v:.1f}"
-
-
-def _map_svg(title: str, axes: tuple[str, str], pts_by_kind: dict[str, np.ndarray], path: np.ndarray,
-             insulators: list[dict[str, Any]], photos: list[dict[str, Any]], headings: list[np.ndarray | None],
-             *, north_arrow: bool) -> str:
+def _map_panel(title: str, axes: tuple[str, str], pts_by_kind: dict[str, np.ndarray], path: np.ndarray,
+               insulators: list[dict[str, Any]], photos: list[dict[str, Any]], headings: list[np.ndarray | None],
+               *, north_arrow: bool) -> dict[str, Any]:
+    """What ``map.svg.j2`` draws of one panel: every mark's pixel position."""
     everything = [p for p in (path, *pts_by_kind.values()) if len(p)]
     panel = _Panel(np.vstack(everything)[:, :2])
-    out = [f'<svg class="map" xmlns="http://www.w3.org/2000/svg" width="{MAP_SIZE}" height="{MAP_SIZE}" '
-           f'viewBox="0 0 {MAP_SIZE} {MAP_SIZE}" role="img" aria-label="{html.escape(title)}">',
-           f'<rect x="0" y="0" width="{MAP_SIZE}" height="{MAP_SIZE}" fill="#f7f7f4" stroke="#bbb"/>',
-           f'<text x="8" y="16" class="maptitle">{html.escape(title)}</text>']
-    if len(path) >= 2:
-        d = " ".join(f"{_fmt(x)},{_fmt(y)}" for x, y in (panel.xy(a, b) for a, b in path[:, :2]))
-        out.append(f'<polyline class="path" points="{d}" fill="none" stroke="#7a8ca3" stroke-width="1.2"/>')
-    base = pts_by_kind.get("tower_base", np.zeros((0, 2)))
-    for a, b in base[:, :2]:
+    out: dict[str, Any] = {"title": title, "axes": axes, "north_arrow": north_arrow, "towers": [], "photos": [],
+                           "insulators": [], "labels": []}
+    out["path"] = " ".join(",".join(panel.xy(a, b)) for a, b in path[:, :2]) if len(path) >= 2 else ""
+    for a, b in pts_by_kind.get("tower_base", np.zeros((0, 2)))[:, :2]:
         x, y = panel.xy(a, b)
-        out.append(f'<rect class="tower" x="{_fmt(x - 5)}" y="{_fmt(y - 5)}" width="10" height="10" fill="#333">'
-                   f'<title>tower base</title></rect>')
+        out["towers"].append({"x": f"{float(x) - 5:.1f}", "y": f"{float(y) - 5:.1f}"})
     for ph, (a, b), head in zip(photos, pts_by_kind.get("photo", np.zeros((0, 2))), headings):
         x, y = panel.xy(a, b)
-        if head is not None:
-            x2, y2 = panel.xy(a + head[0], b + head[1])
-            out.append(f'<line x1="{_fmt(x)}" y1="{_fmt(y)}" x2="{_fmt(x2)}" y2="{_fmt(y2)}" stroke="#1f6fd1" '
-                       f'stroke-width="1.2"/>')
-        out.append(f'<a href="#{_anchor(ph)}"><circle class="photo-marker" cx="{_fmt(x)}" cy="{_fmt(y)}" r="3.5" '
-                   f'fill="#1f6fd1"><title>{html.escape(ph["file"])}</title></circle></a>')
+        out["photos"].append({"x": x, "y": y, "file": ph["file"], "anchor": ph["anchor"],
+                              "head": None if head is None else panel.xy(a + head[0], b + head[1])})
     labels: list[tuple[float, float, list[str]]] = []  # markers closer than 16 px share one label
     for ins, (a, b) in zip(insulators, pts_by_kind.get("insulator", np.zeros((0, 2)))):
         x, y = panel.xy(a, b)
-        color = {"fit": "#1a9850", "unfit": "#f28e2b", "none": "#d62728"}[ins["_verdict"]]
-        out.append(f'<a href="#insulator-{html.escape(str(ins["id"]))}"><circle class="insulator-marker" '
-                   f'cx="{_fmt(x)}" cy="{_fmt(y)}" r="6" fill="{color}" stroke="#222" stroke-width="0.8">'
-                   f'<title>insulator {html.escape(str(ins["id"]))}</title></circle></a>')
-        near = next((lab for lab in labels if math.hypot(lab[0] - x, lab[1] - y) < 16.0), None)
+        out["insulators"].append({"id": ins["id"], "x": x, "y": y, "color": _VERDICT_STYLE[ins["state"]][0]})
+        fx, fy = float(x), float(y)
+        near = next((lab for lab in labels if math.hypot(lab[0] - fx, lab[1] - fy) < 16.0), None)
         if near is None:
-            labels.append((x, y, [str(ins["id"])]))
+            labels.append((fx, fy, [str(ins["id"])]))
         else:
             near[2].append(str(ins["id"]))
-    for x, y, ids in labels:
-        out.append(f'<text x="{_fmt(x + 8)}" y="{_fmt(y - 6)}" class="label">{html.escape(", ".join(ids))}</text>')
-    # scale bar and axes
+    out["labels"] = [{"x": f"{x + 8:.1f}", "y": f"{y - 6:.1f}", "text": ", ".join(ids)} for x, y, ids in labels]
     bar = _nice_length(panel.span)
-    px = bar * panel.scale
-    y0 = MAP_SIZE - 12
-    out.append(f'<line x1="12" y1="{y0}" x2="{_fmt(12 + px)}" y2="{y0}" stroke="#000" stroke-width="2"/>'
-               f'<text x="12" y="{y0 - 5}" class="small">{bar:g} m</text>'
-               f'<text x="{MAP_SIZE - 8}" y="{MAP_SIZE - 8}" class="small" text-anchor="end">'
-               f'{html.escape(axes[0])} → / {html.escape(axes[1])} ↑</text>')
-    if north_arrow:
-        out.append(f'<g transform="translate({MAP_SIZE - 22},34)"><polygon points="0,-14 6,4 0,0 -6,4" fill="#000"/>'
-                   f'<text x="0" y="16" class="small" text-anchor="middle">N</text></g>')
-    out.append("</svg>")
-    return "".join(out)
+    out["bar_end"] = f"{12 + bar * panel.scale:.1f}"
+    out["bar_label"] = f"{bar:g} m"
+    return out
 
 
 def _anchor(photo: Mapping[str, Any]) -> str:
@@ -234,50 +220,46 @@ def _thumbnail(path: Path) -> tuple[str | None, tuple[int, int] | None, str | No
         data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
     except OSError as exc:
         return None, None, f"cannot be read: {exc.strerror}"
-    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if len(data) else None
+    size = _jpeg_size(data)
+    # a JPEG decodes at 1/2, 1/4 or 1/8 of its size for the cost of that size: the smallest that
+    # still gives the thumbnail's width (a 12 MP photo: 1/8, ~60x less work than all of it)
+    factor = max((f for f in (1, 2, 4, 8) if size is not None and size[0] >= f * THUMB_WIDTH), default=1)
+    flag = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
+            8: cv2.IMREAD_REDUCED_COLOR_8}[factor]
+    image = cv2.imdecode(data, flag) if len(data) else None
     if image is None or image.size == 0:
         return None, None, "not a decodable image"
-    h, w = image.shape[:2]
-    if w > THUMB_WIDTH:
-        image = cv2.resize(image, (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))), interpolation=cv2.INTER_AREA)
+    w, h = size or (factor * image.shape[1], factor * image.shape[0])
+    if image.shape[1] > THUMB_WIDTH:
+        image = cv2.resize(image, (THUMB_WIDTH, max(1, round(image.shape[0] * THUMB_WIDTH / image.shape[1]))),
+                           interpolation=cv2.INTER_AREA)
     ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, THUMB_QUALITY])
     if not ok:
         return None, (w, h), "could not be scaled down"
     return "data:image/jpeg;base64," + base64.b64encode(buf.tobytes()).decode("ascii"), (w, h), None
 
 
-def _quality_reasons(q: Mapping[str, Any] | None) -> list[str]:
-    """Why a photo is not fit for inspection, in words (empty when it is)."""
-    if not isinstance(q, Mapping):
-        return ["no quality figures"]
-    if q.get("fit_for_inspection"):
-        return []
-    out = []
-    gsd = _number(q.get("gsd_mm_px"))
-    if gsd is None or gsd > MAX_GSD_MM:
-        out.append(f"GSD {'∞' if gsd is None else f'{gsd:.1f}'} mm/px > {MAX_GSD_MM:g}")
-    if q.get("whole_in_frame") is False:
-        out.append("string cut by the border")
-    if q.get("sharp") is False:
-        blur = _number(q.get("motion_blur_px"))
-        out.append(f"motion blur {'?' if blur is None else f'{blur:.1f}'} px")
-    return out or ["not fit for inspection"]
+def _jpeg_size(data: np.ndarray) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's start-of-frame marker; None when it has none (not a JPEG)."""
+    b = data.tobytes()
+    i = 2
+    while i + 9 < len(b) and b[0:2] == b"\xff\xd8":
+        if b[i] != 0xFF:
+            return None
+        marker, length = b[i + 1], int.from_bytes(b[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return int.from_bytes(b[i + 7:i + 9], "big"), int.from_bytes(b[i + 5:i + 7], "big")
+        i += 2 + length
+    return None
 
 
-def _check_reasons(check: Any) -> list[str]:
-    """Why the photo's own check (perception/photo_check.py) found it unfit, in words (empty when
-    fit or not checked)."""
-    if not isinstance(check, Mapping) or check.get("fit"):
-        return []
-    out = [str(r) for r in check.get("reasons") or []] or ["unfit"]
-    if check.get("error"):
-        out.append(str(check["error"]))
-    return out
-
-
-def _photo_fit(p: Mapping[str, Any]) -> bool:
-    """Fit for inspection by its figures and, where it was checked on itself, by its check."""
-    return bool((p.get("quality") or {}).get("fit_for_inspection")) and not _check_reasons(p.get("check"))
+def _verdict(p: Mapping[str, Any]) -> PhotoVerdict | None:
+    """The verdict the flight decided for photo ``p`` (None: not checked); ReportError on a
+    record that holds no readable one."""
+    try:
+        return verdict_of_record(p)
+    except ValueError as exc:
+        raise ReportError(f"{SUMMARY_NAME}: {exc}") from None
 
 
 def _pct(v: Any) -> str:
@@ -296,37 +278,6 @@ def _latlon(lat: float, lon: float) -> str:
 
 def _yes(v: Any) -> str:
     return "–" if v is None else ("yes" if v else "no")
-
-
-# -- the page --------------------------------------------------------------------------------
-
-_CSS = """
-body{font:14px/1.4 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;color:#222;background:#fff}
-header{background:#23395d;color:#fff;padding:14px 22px}
-header h1{margin:0;font-size:22px}
-header .sub{opacity:.85;font-size:13px}
-main{padding:10px 22px 40px}
-h2{border-bottom:2px solid #23395d;padding-bottom:2px;margin-top:26px}
-.status{display:inline-block;padding:2px 10px;border-radius:10px;font-weight:600;background:#ccc;color:#000}
-.status.finished{background:#1a9850;color:#fff}.status.aborted,.status.failed{background:#d62728;color:#fff}
-.status.running,.status.interrupted{background:#f28e2b;color:#000}
-.cards{display:flex;flex-wrap:wrap;gap:10px;margin:12px 0}
-.card{border:1px solid #ccd;border-radius:6px;padding:8px 14px;min-width:120px;background:#f6f8fb}
-.card .v{font-size:22px;font-weight:600}.card .k{font-size:12px;color:#556}
-table{border-collapse:collapse;margin:6px 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:left;vertical-align:top}
-th{background:#f0f2f5}
-.maps{display:flex;flex-wrap:wrap;gap:16px}
-.map .maptitle{font-weight:600;font-size:13px}.map .label{font-size:12px;font-weight:600}.map .small{font-size:11px}
-.legend span{display:inline-block;margin-right:14px}.dot{display:inline-block;width:11px;height:11px;border-radius:6px;margin-right:4px;vertical-align:-1px}
-.insulator{border:1px solid #ccd;border-radius:6px;padding:4px 16px 12px;margin:14px 0}
-.photos{display:flex;flex-wrap:wrap;gap:14px}
-figure{margin:0;border:1px solid #ddd;padding:6px;border-radius:4px;max-width:330px}
-figure img{display:block;max-width:320px;height:auto}
-figcaption{font-size:12px}
-.fit{color:#1a9850;font-weight:600}.unfit{color:#c0392b;font-weight:600}
-.missing{width:320px;height:120px;background:#fdecea;color:#a00;display:flex;align-items:center;justify-content:center}
-.problems{background:#fdecea;border:1px solid #e6a1a1;padding:6px 12px;border-radius:4px}
-"""
 
 
 def _battery_fact(battery: Any, abort: Any) -> str | None:
@@ -357,6 +308,93 @@ def _duration(seconds: float | None) -> str:
     return f"{int(m)} min {s:04.1f} s" if m else f"{s:.1f} s"
 
 
+# -- the page --------------------------------------------------------------------------------
+
+#: Each insulator's state on the page: (map colour, heading text, CSS class, legend text).
+_VERDICT_STYLE = {
+    "fit": ("#1a9850", "fit photo", "fit", "insulator with a fit photo"),
+    "unfit": ("#f28e2b", "no fit photo", "unfit", "photos, none fit"),
+    "none": ("#d62728", "no photo", "unfit", "no photo"),
+    "replay": ("#8c8c8c", "found (a replay takes no photos)", "none", "found in a replay (no photos)"),
+}
+
+
+def _insulator_state(has_fit_photo: bool, photos: int, replay: bool) -> str:
+    if has_fit_photo:
+        return "fit"
+    if photos:
+        return "unfit"
+    return "replay" if replay else "none"
+
+
+def _no_fit_why(ins: Mapping[str, Any], verdicts: list[PhotoVerdict | None], photos: list[Mapping[str, Any]],
+                skipped: list[dict[str, Any]], replay: bool) -> str:
+    """Why insulator ``ins`` has no fit photo, from its photos' verdicts (never empty)."""
+    if not photos:
+        why = ("found in a replay, which takes no photos" if replay
+               else "not inspected" if not ins.get("inspected") else "no photo")
+        return why + "".join(f"; skipped: {it.get('reason')}" for it in skipped if it.get("insulator_id") == ins["id"])
+    counts: dict[str, int] = {}
+    for v in verdicts:
+        for text in (["not checked"] if v is None else v.unfit_reasons):
+            counts[text] = counts.get(text, 0) + 1
+    n = len(photos)
+    why = f"{n} photo{'s' if n > 1 else ''}, none fit: " + ", ".join(f"{t} ({k}x)" for t, k in counts.items())
+    details = sorted({v.detail for v in verdicts if v is not None and v.detail})
+    why += "".join(f"; {d}" for d in details)
+    gsd = [g for g in (_number((p.get("quality") or {}).get("gsd_mm_px")) for p in photos) if g is not None]
+    if gsd:
+        why += f"; the finest GSD {min(gsd):.1f} mm/px"
+    return why
+
+
+def _photo_view(folder: Path, ph: Mapping[str, Any], verdict: PhotoVerdict | None,
+                report: HtmlReport) -> dict[str, Any]:
+    """What ``photo.html.j2`` shows of one photo: the thumbnail, the verdict, the figures."""
+    rel = str(ph["file"])
+    thumb: str | None
+    size: tuple[int, int] | None
+    problem: str | None
+    if Path(rel).is_absolute() or ".." in Path(rel).parts:
+        thumb, size, problem = None, None, "outside the report folder"
+    else:
+        thumb, size, problem = _thumbnail(folder / rel)
+    if thumb is None:
+        report.problems.append(f"{rel}: {problem}")
+    geo_v = ph.get("wgs84")
+    geo: Mapping[str, Any] = geo_v if isinstance(geo_v, dict) else {}
+    rows = [("time (UTC)", str(ph.get("time_utc", "–"))),
+            ("from", f"{_num(geo.get('lat'), '.7f')}°, {_num(geo.get('lon'), '.7f')}°, {_num(geo.get('alt'), '.1f')} m"),
+            ("heading / gimbal", f"{_num(ph.get('heading_deg'), '.1f', '°')} / "
+                                 f"{_num(ph.get('gimbal_pitch_deg'), '.1f', '°')}")]
+    q = ph.get("quality") if isinstance(ph.get("quality"), dict) else None
+    if q is not None:  # the figures from the pose and the localized string (photo_quality.py)
+        rows += [("GSD (planned figure)", _num(q.get("gsd_mm_px"), ".2f", " mm/px")),
+                 ("span / area of frame (planned)", f"{_pct(q.get('span_share'))} / {_pct(q.get('frame_share'))}"),
+                 ("motion blur in the exposure", _num(q.get("motion_blur_px"), ".2f", " px"))]
+    c = ph.get("check") if isinstance(ph.get("check"), dict) else None
+    if c is not None:  # the figures measured on the photo, that the verdict was decided on
+        off = [f"{100 * float(o):+.1f} %" if _number(o) is not None else "open" for o in c.get("offset") or []]
+        rows += [("attempt", str(ph.get("attempt", 1))),
+                 ("detected span / offset", f"{_pct(c.get('span_share'))} (needs {_pct(c.get('min_span'))}) / "
+                                            + (", ".join(off) or "–")),
+                 ("sharpness (Laplacian variance)", _num(c.get("sharpness"), ".0f"))]
+    if verdict is None:
+        text, css, code = "not checked on the photo: no verdict", "none", "none"
+    else:
+        text, css, code = ("fit for inspection" if verdict.fit else f"not fit: {verdict.describe()[len('unfit: '):]}",
+                           "fit" if verdict.fit else "unfit", verdict.fitness.value)
+    return {"file": rel, "href": quote(rel), "anchor": _anchor(ph), "thumb": thumb, "problem": problem or "",
+            "size": f"{size[0]}×{size[1]} px" if size else None, "rows": rows,
+            "verdict_text": text, "verdict_class": css, "verdict_code": code}
+
+
+def _environment() -> jinja2.Environment:
+    return jinja2.Environment(loader=jinja2.PackageLoader("insulator_rs.report", TEMPLATES),
+                              autoescape=True, undefined=jinja2.StrictUndefined,
+                              trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+
+
 def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     """The page of the report in ``folder`` and what it holds; raises ReportError (see the module)."""
     folder = Path(folder)
@@ -370,15 +408,17 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     insulators: list[dict[str, Any]] = [dict(i) for i in s.get("insulators", [])]
     photos: list[dict[str, Any]] = [dict(p) for p in s.get("photos", [])]
     report = HtmlReport(folder / HTML_NAME, len(insulators), len(photos))
+    replay = s.get("run") == "replay"
+    verdicts = {id(p): _verdict(p) for p in photos}
+    fit_photos, with_fit = fit_tally(photos)
 
-    # each insulator's verdict: a fit photo, photos but none fit, no photo
+    # each insulator's state, read off its photos' verdicts: a fit photo, photos but none fit, none
     by_ins: dict[Any, list[dict[str, Any]]] = {}
     for ph in photos:
         by_ins.setdefault(ph.get("insulator_id"), []).append(ph)
     for ins in insulators:
-        mine = by_ins.get(ins["id"], [])
-        ins["_photos"] = mine
-        ins["_verdict"] = ("fit" if any(_photo_fit(p) for p in mine) else "unfit" if mine else "none")
+        ins["_photos"] = by_ins.get(ins["id"], [])
+        ins["state"] = _insulator_state(ins["id"] in with_fit, len(ins["_photos"]), replay)
 
     # the map from the GeoJSON: points in the order the writer puts them, matched by kind
     pts = {k: _local(np.vstack([f["coords"] for f in features if f["kind"] == k and f["type"] == "Point"]), base)
@@ -387,8 +427,9 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     path = _local(line[0]["coords"], base) if line else np.zeros((0, 3))
     geo_ins = [f["properties"].get("id") for f in features if f["kind"] == "insulator"]
     geo_photos = [f["properties"] for f in features if f["kind"] == "photo"]
-    map_ins = [next((i for i in insulators if i["id"] == gid), {"id": gid, "_verdict": "none"}) for gid in geo_ins]
-    map_photos = [{"file": str(p.get("file", "photo"))} for p in geo_photos]
+    map_ins = [next((i for i in insulators if i["id"] == gid), {"id": gid, "state": "none"}) for gid in geo_ins]
+    map_photos = [{"file": str(p.get("file", "photo")), "anchor": _anchor({"file": p.get("file", "photo")})}
+                  for p in geo_photos]
     headings = []
     for p in geo_photos:
         h = _number(p.get("heading_deg"))
@@ -406,175 +447,65 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
 
     side_pts = {k: side(v) for k, v in pts.items()}
     side_heads = [None if h is None else np.array([h[:2] @ across, 0.0]) for h in headings]
-    maps = (_map_svg("top view", ("east", "north"), top, path[:, :2], map_ins, map_photos, headings, north_arrow=True)
-            + _map_svg("side view (across the line)", ("across", "up"), side_pts, side(path) if len(path) else path,
-                       map_ins, map_photos, side_heads, north_arrow=False))
+    panels = [_map_panel("top view", ("east", "north"), top, path[:, :2], map_ins, map_photos, headings,
+                         north_arrow=True),
+              _map_panel("side view (across the line)", ("across", "up"), side_pts, side(path) if len(path) else path,
+                         map_ins, map_photos, side_heads, north_arrow=False)]
 
-    # summary figures
+    # the summary
     status = str(s.get("status", "unknown"))
-    skipped = s.get("inspections_skipped") or []
-    fit_photos = sum(1 for p in photos if _photo_fit(p))
+    skipped = [it if isinstance(it, dict) else {"reason": str(it)} for it in s.get("inspections_skipped") or []]
     checks_v = s.get("photo_checks")
     checks: dict[str, Any] = checks_v if isinstance(checks_v, dict) else {}
-    checked_out = {w.get("insulator_id"): w for w in checks.get("insulators_without_fit_photo") or []
-                   if isinstance(w, dict)}
-    no_fit = [i for i in insulators if i["_verdict"] != "fit"]
-    e = html.escape
-    title = f"Insulator inspection — {s.get('scene') or Path(str(s.get('mission') or folder.name)).stem}"
-    parts = [f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{e(title)}</title>'
-             f'<meta name="viewport" content="width=device-width,initial-scale=1"><style>{_CSS}</style></head><body>',
-             f'<header><h1>{e(title)}</h1><div class="sub">report folder {e(folder.name)} · started '
-             f'{e(str(s.get("started_utc", "–")))} · mission {e(str(s.get("mission", "–")))}</div></header><main>',
-             '<section id="summary"><h2>Summary</h2>',
-             f'<p>Status: <span class="status {e(_status_class(status))}" id="status">{e(status)}</span></p>',
-             '<div class="cards">']
     cards = [("found", len(insulators), "insulators found"),
              ("inspected", sum(1 for i in insulators if i.get("inspected")), "insulators inspected"),
+             ("with-fit-photo", sum(1 for i in insulators if i["state"] == "fit"), "insulators with a fit photo"),
              ("skipped", len(skipped), "inspections skipped"),
-             ("photos", len(photos), "photos"),
+             ("photos", len(photos), "photos" if photos or not replay else "photos (a replay takes none)"),
              ("fit", fit_photos, "photos fit for inspection"),
              ("retakes", checks.get("retakes", 0), "photos retaken (checked unfit)"),
              ("flight-time", _duration(_number(s.get("flight_time_s"))), "flight time"),
              ("distance", _num(s.get("distance_m"), ".0f", " m"), "flown")]
-    for key, value, label in cards:
-        parts.append(f'<div class="card" id="card-{key}"><div class="v">{e(str(value))}</div>'
-                     f'<div class="k">{e(label)}</div></div>')
-    parts.append("</div><table>")
     origin = s.get("origin") or {}
-    facts = [("run", s.get("run")), ("recording", s.get("recording")),
-             ("detector", s.get("detector")), ("localization", s.get("method")), ("vehicle", s.get("vehicle")),
-             ("sensors", s.get("sensors")),
-             ("tower base (WGS-84)", f"{_num(origin.get('lat'), '.7f')}°, {_num(origin.get('lon'), '.7f')}°, "
-                                     f"{_num(origin.get('alt'), '.1f', ' m')}" if origin else None)]
+    facts: list[tuple[str, Any]] = [
+        ("run", s.get("run")), ("recording", s.get("recording")), ("detector", s.get("detector")),
+        ("localization", s.get("method")), ("vehicle", s.get("vehicle")), ("sensors", s.get("sensors")),
+        ("tower base (WGS-84)", f"{_num(origin.get('lat'), '.7f')}°, {_num(origin.get('lon'), '.7f')}°, "
+                                f"{_num(origin.get('alt'), '.1f', ' m')}" if origin else None)]
     fs = s.get("failsafe")
     if isinstance(fs, dict):
         facts.append(("failsafe", f"{fs.get('reason')}; action: {fs.get('action')}"))
     facts.append(("battery", _battery_fact(s.get("battery"), s.get("abort"))))
-    for k, v in facts:
-        if v is not None:
-            parts.append(f"<tr><th>{e(k)}</th><td>{e(str(v))}</td></tr>")
-    parts.append("</table>")
-    if skipped:
-        parts.append('<h3>Skipped inspections</h3><table id="skipped"><tr><th>insulator</th><th>reason</th></tr>')
-        for it in skipped:
-            it = it if isinstance(it, dict) else {"reason": str(it)}
-            parts.append(f"<tr><td>{e(str(it.get('insulator_id', '–')))}</td><td>{e(str(it.get('reason', '')))}</td></tr>")
-        parts.append("</table>")
-    if no_fit:
-        parts.append('<h3>Insulators without a photo fit for inspection</h3><table id="no-fit">'
-                     '<tr><th>insulator</th><th>why</th></tr>')
-        for ins in no_fit:
-            if not ins["_photos"]:
-                why = "not inspected" if not ins.get("inspected") else "no photo"
-                why += "".join(f"; skipped: {it.get('reason')}" for it in skipped
-                               if isinstance(it, dict) and it.get("insulator_id") == ins["id"])
-            else:
-                best = min(ins["_photos"], key=lambda p: _number((p.get("quality") or {}).get("gsd_mm_px")) or math.inf)
-                n = len(ins["_photos"])
-                why = (f"{n} photo{'s' if n > 1 else ''}, none fit; the finest: "
-                       + ", ".join(_quality_reasons(best.get("quality"))))
-            out = checked_out.get(ins["id"])
-            if out is not None and out.get("photos"):
-                why += "; checked on the photos: " + ", ".join(
-                    f"{r} ({k}x)" for r, k in (out.get("reasons") or {}).items())
-                why += "".join(f"; detector error: {err}" for err in out.get("errors") or [])
-            parts.append(f'<tr><td><a href="#insulator-{e(str(ins["id"]))}">{e(str(ins["id"]))}</a></td>'
-                         f"<td>{e(why)}</td></tr>")
-        parts.append("</table>")
-    parts.append("</section>")
+    no_fit = [{"id": ins["id"], "why": _no_fit_why(ins, [verdicts[id(p)] for p in ins["_photos"]], ins["_photos"],
+                                                   skipped, replay)}
+              for ins in insulators if ins["state"] != "fit"]
 
-    parts.append('<section id="map"><h2>Map</h2><div class="maps">' + maps + "</div>"
-                 '<p class="legend"><span><i class="dot" style="background:#1a9850"></i>insulator with a fit photo</span>'
-                 '<span><i class="dot" style="background:#f28e2b"></i>photos, none fit</span>'
-                 '<span><i class="dot" style="background:#d62728"></i>no photo</span>'
-                 '<span><i class="dot" style="background:#1f6fd1"></i>photo position (line: heading)</span>'
-                 '<span><i class="dot" style="background:#333;border-radius:0"></i>tower base</span>'
-                 '<span>grey line: flown path</span></p></section>')
+    def side_text(v: Any) -> str:
+        return ("+ side of the line" if v == 1 else "− side of the line" if v == -1 else "–" if v is None else str(v))
 
-    parts.append('<section id="insulators"><h2>Insulators</h2>')
+    listed = {i["id"] for i in insulators}
+    views = []
     for ins in insulators:
-        iid = e(str(ins["id"]))
-        g = ins["wgs84"]
-        c = ins.get("center") or [None] * 3
-        verdict = {"fit": '<span class="fit">fit photo</span>', "unfit": '<span class="unfit">no fit photo</span>',
-                   "none": '<span class="unfit">no photo</span>'}[ins["_verdict"]]
-        side_v = ins.get("side")
-        side_text = ("+ side of the line" if side_v == 1 else "− side of the line" if side_v == -1
-                     else "–" if side_v is None else str(side_v))
-        parts.append(f'<section class="insulator" id="insulator-{iid}" data-insulator-id="{iid}">'
-                     f'<h3>Insulator {iid} · {verdict}</h3><table>'
-                     f'<tr><th>WGS-84</th><td class="wgs84">{_latlon(g["lat"], g["lon"])}, {g["alt"]:.2f} m</td></tr>'
-                     f'<tr><th>W (ENU at the tower base)</th><td>{_num(c[0])}, {_num(c[1])}, {_num(c[2])} m</td></tr>'
-                     f'<tr><th>side</th><td class="side">{e(side_text)}</td></tr>'
-                     f'<tr><th>observations</th><td>{e(str(ins.get("observations", "–")))}</td></tr>'
-                     f'<tr><th>inspected</th><td>{_yes(ins.get("inspected"))}</td></tr></table>')
-        parts.append(_photos_html(folder, ins["_photos"], report))
-        parts.append("</section>")
-    others = [p for p in photos if p.get("insulator_id") not in {i["id"] for i in insulators}]
-    if others:
-        parts.append('<section class="insulator" id="other-photos"><h3>Photos of no listed insulator</h3>')
-        parts.append(_photos_html(folder, others, report))
-        parts.append("</section>")
-    parts.append("</section>")
-    if report.problems:
-        parts.append('<section id="problems"><h2>Problems</h2><ul class="problems">'
-                     + "".join(f"<li>{e(p)}</li>" for p in report.problems) + "</ul></section>")
-    parts.append('<footer><p class="small">Written by insulator_rs from summary.json and inspection.geojson of this '
-                 'folder; photos in images/ (thumbnails embedded). Altitudes in the vertical datum of the mission '
-                 "tower's altitude.</p></footer></main></body></html>")
-    return "".join(parts), report
-
-
-def _photos_html(folder: Path, photos: Sequence[Mapping[str, Any]], report: HtmlReport) -> str:
-    if not photos:
-        return "<p>No photo.</p>"
-    e = html.escape
-    out = ['<div class="photos">']
-    for ph in photos:
-        rel = str(ph["file"])
-        target = folder / rel
-        thumb: str | None
-        size: tuple[int, int] | None
-        problem: str | None
-        if Path(rel).is_absolute() or ".." in Path(rel).parts:
-            thumb, size, problem = None, None, "outside the report folder"
-        else:
-            thumb, size, problem = _thumbnail(target)
-        href = quote(rel)
-        q = ph.get("quality") if isinstance(ph.get("quality"), dict) else None
-        reasons = _quality_reasons(q) + [f"checked: {r}" for r in _check_reasons(ph.get("check"))]
-        verdict = '<span class="fit">fit for inspection</span>' if not reasons else \
-            f'<span class="unfit">not fit: {e(", ".join(reasons))}</span>'
-        if thumb is not None:
-            img = (f'<a href="{e(href)}" class="full"><img class="thumb" src="{thumb}" alt="{e(rel)}" '
-                   f'title="{e(rel)}"></a>')
-        else:
-            report.problems.append(f"{rel}: {problem}")
-            img = f'<div class="missing">{e(rel)}: {e(problem or "")}</div>'
-        geo_v = ph.get("wgs84")
-        geo: Mapping[str, Any] = geo_v if isinstance(geo_v, dict) else {}
-        rows = [("file", f'<a href="{e(href)}">{e(rel)}</a>' + (f" ({size[0]}×{size[1]} px)" if size else "")),
-                ("time (UTC)", e(str(ph.get("time_utc", "–")))),
-                ("from", f"{_num(geo.get('lat'), '.7f')}°, {_num(geo.get('lon'), '.7f')}°, {_num(geo.get('alt'), '.1f')} m"),
-                ("heading / gimbal", f"{_num(ph.get('heading_deg'), '.1f', '°')} / {_num(ph.get('gimbal_pitch_deg'), '.1f', '°')}")]
-        if q is not None:
-            rows += [("GSD", _num(q.get("gsd_mm_px"), ".2f", " mm/px")),
-                     ("span / area of frame", f"{_pct(q.get('span_share'))} / {_pct(q.get('frame_share'))}"),
-                     ("whole in frame", _yes(q.get("whole_in_frame"))),
-                     ("motion blur", _num(q.get("motion_blur_px"), ".2f", " px"))]
-        c = ph.get("check") if isinstance(ph.get("check"), dict) else None
-        if c is not None:
-            off = [f"{100 * float(o):+.1f} %" if _number(o) is not None else "open" for o in c.get("offset") or []]
-            rows += [("checked on the photo", e(f"attempt {ph.get('attempt', 1)}: "
-                                                + ("fit" if c.get("fit") else "unfit: " + ", ".join(_check_reasons(c))))),
-                     ("detected span / offset", e(f"{_pct(c.get('span_share'))} (needs {_pct(c.get('min_span'))}) / "
-                                                  + (", ".join(off) or "–"))),
-                     ("sharpness (Laplacian var.)", _num(c.get("sharpness"), ".0f"))]
-        table = "".join(f"<tr><th>{k}</th><td>{v}</td></tr>" for k, v in rows)
-        out.append(f'<figure class="photo" id="{_anchor(ph)}" data-file="{e(rel)}">{img}'
-                   f"<figcaption>{verdict}<table>{table}</table></figcaption></figure>")
-    out.append("</div>")
-    return "".join(out)
+        g, c = ins["wgs84"], ins.get("center") or [None] * 3
+        style = _VERDICT_STYLE[ins["state"]]
+        views.append({"id": ins["id"], "verdict_text": style[1], "verdict_class": style[2],
+                      "wgs84": f"{_latlon(g['lat'], g['lon'])}, {g['alt']:.2f} m",
+                      "enu": f"{_num(c[0])}, {_num(c[1])}, {_num(c[2])} m", "side": side_text(ins.get("side")),
+                      "observations": str(ins.get("observations", "–")), "inspected": _yes(ins.get("inspected")),
+                      "photos": [_photo_view(folder, p, verdicts[id(p)], report) for p in ins["_photos"]]})
+    others = [_photo_view(folder, p, verdicts[id(p)], report) for p in photos if p.get("insulator_id") not in listed]
+    # a flight's legend has its three states; a replay's the ones its insulators are in
+    shown = {i["state"] for i in insulators} if replay else {"fit", "unfit", "none"}
+    legend = [(style[0], style[3]) for key, style in _VERDICT_STYLE.items() if key in shown]
+    page = _environment().get_template(PAGE_TEMPLATE).render(
+        title=f"Insulator inspection — {s.get('scene') or Path(str(s.get('mission') or folder.name)).stem}",
+        folder_name=folder.name, started_utc=str(s.get("started_utc", "–")), mission=str(s.get("mission", "–")),
+        status=status, status_class=_status_class(status), replay=replay, photos=photos,
+        cards=[{"key": k, "value": str(v), "label": label} for k, v, label in cards],
+        facts=[(k, str(v)) for k, v in facts if v is not None], skipped=skipped, no_fit=no_fit,
+        panels=panels, map_size=MAP_SIZE, legend=legend, insulators=views, other_photos=others,
+        problems=report.problems)
+    return page, report
 
 
 def write_report_html(folder: Path) -> HtmlReport:
