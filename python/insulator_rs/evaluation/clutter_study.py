@@ -340,9 +340,9 @@ class TrackInputs:
 
 
 def fullest_track_inputs(pipe: PerceptionPipeline, rig: SensorRig) -> TrackInputs | None:
-    """The inputs of the pipeline's track that gathered all EVENTS with the most points (None
+    """The inputs of the pipeline's track that gathered all EVENTS_PER_LOCALIZATION events with the most points (None
     without one)."""
-    full = [t for t in pipe.tracks if len(t.events) == EVENTS]
+    full = [t for t in pipe.tracks if len(t.events) == EVENTS_PER_LOCALIZATION]
     if not full:
         return None
     track = max(full, key=lambda t: sum(len(e) for e in t.events))
