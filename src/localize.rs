@@ -3,7 +3,7 @@
 
 use std::str::FromStr;
 
-use fusion_core::bounded::{DEFAULT_BORDER_MARGIN, DEFAULT_MAX_EXTENT};
+use fusion_core::localize::bounded::{DEFAULT_BORDER_MARGIN, DEFAULT_MAX_EXTENT};
 use fusion_core::{BoxEvidence, BoxView, Localization, LocalizeParams, Method, RansacParams};
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::{PyTypeError, PyValueError};

@@ -12,7 +12,7 @@ pub enum FusionError {
     NoInsulator(String),
     /// The bounded method cannot tell which line in the box is the insulator: another,
     /// larger line fits the insulator's known length better than the one fitted
-    /// (`crate::ambiguity`). Refused rather than guessed.
+    /// (`crate::localize::bounded::ambiguity`). Refused rather than guessed.
     #[error("ambiguous: {0}")]
     Ambiguous(String),
 }

@@ -4,8 +4,6 @@
 //! coordinates into frame a. Units: metres, radians, pixels.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
-pub mod ambiguity;
-pub mod bounded;
 pub mod camera;
 pub mod culling;
 pub mod deskew;
@@ -18,8 +16,8 @@ pub mod transform;
 #[cfg(test)]
 mod test_scenes;
 
-pub use ambiguity::SCALE_TOLERANCE;
-pub use bounded::{BoxEvidence, BoxView};
+pub use localize::bounded::ambiguity::SCALE_TOLERANCE;
+pub use localize::bounded::{BoxEvidence, BoxView};
 pub use camera::{CameraModel, NEAR_LIMIT};
 pub use culling::{points_in_boxes, points_in_boxes_scalar, PixelBox};
 pub use dbscan::{dbscan, NOISE};

@@ -11,7 +11,11 @@
 
 use std::str::FromStr;
 
-use crate::bounded::BoxEvidence;
+// The fifth method is a child of this module: it reads the shared line fit and parameters, and
+// the one entry point below dispatches to it.
+pub mod bounded;
+
+use bounded::BoxEvidence;
 use crate::dbscan::{dbscan_finite, NOISE};
 use crate::error::{check_positive, invalid, FusionError, Result};
 use crate::pca::{canonical_sign, pca_of};
@@ -66,7 +70,7 @@ pub enum Method {
     DbscanRansac,
     /// Paper Algorithm 2.
     DbscanPca,
-    /// Algorithm 1's line, its ends from the detection boxes ([`crate::bounded`]).
+    /// Algorithm 1's line, its ends from the detection boxes ([`bounded`]).
     Bounded,
 }
 
@@ -118,7 +122,7 @@ impl Method {
             }
         }
         if self.needs_boxes() {
-            names.extend(crate::bounded::BOX_PARAMETERS);
+            names.extend(bounded::BOX_PARAMETERS);
         }
         names
     }
@@ -232,7 +236,7 @@ impl Localization {
 /// (the paper's four); `NoInsulator` when nothing usable remains (no cluster, fewer than 2
 /// points, RANSAC finds no line); `Ambiguous` when the bounded method, given the
 /// insulator's length, finds another line in the box that it cannot tell from the one fitted
-/// ([`crate::ambiguity`]).
+/// ([`bounded::ambiguity`]).
 pub fn localize<P: PointCloud + ?Sized>(
     points: &P,
     method: Method,
@@ -260,7 +264,7 @@ pub fn localize<P: PointCloud + ?Sized>(
         (Method::Ransac, _) => by_ransac(coords, params),
         (Method::DbscanRansac, _) => by_dbscan_ransac(coords, params),
         (Method::DbscanPca, _) => by_dbscan_pca(coords, params),
-        (Method::Bounded, Some(b)) => crate::bounded::by_bounded(coords, params, b),
+        (Method::Bounded, Some(b)) => bounded::by_bounded(coords, params, b),
         (Method::Bounded, None) => Err(invalid("boxes", "the bounded method needs the detection boxes")),
     }?;
     loc.method = method;

@@ -27,7 +27,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::bounded::{bound_line, BoxEvidence, LineBounds};
+use crate::localize::bounded::{bound_line, BoxEvidence, LineBounds};
 use crate::error::{FusionError, Result};
 use crate::localize::{dbscan_ransac_line, InsulatorLine, LocalizeParams};
 use crate::ransac::line_distance;
@@ -148,7 +148,7 @@ pub(crate) fn resolve(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bounded::BoxView;
+    use crate::localize::bounded::BoxView;
     use crate::culling::PixelBox;
     use crate::localize::Method;
     use crate::test_scenes::{dist, ends, forward_camera, pinhole, seen_part, segment_box};

@@ -19,7 +19,7 @@
 //! is Algorithm 1's centre. [`Localization::ends_from_image`] says which.
 //!
 //! Given the insulator's length, the method also looks at the other lines in the box
-//! ([`crate::ambiguity`]): another, larger line that fits the length clearly better is taken
+//! ([`ambiguity`]): another, larger line that fits the length clearly better is taken
 //! instead of the fitted one (a conductor in front of the string), and a box where the two fit
 //! about as well is refused. With both ends bounded, a line whose bounded extent is not the
 //! known length (within [`SCALE_TOLERANCE`]) crosses the box: no insulator.
@@ -28,10 +28,14 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
+// The rule for a box holding several lines lives beside the method it serves, as its child:
+// it reads the method's box evidence and line bounds, and the method asks it for a verdict.
+pub mod ambiguity;
+
 use crate::camera::CameraModel;
 use crate::culling::PixelBox;
 use crate::error::{check_positive, invalid, FusionError, Result};
-use crate::ambiguity::{resolve, Verdict, SCALE_TOLERANCE};
+use ambiguity::{resolve, Verdict, SCALE_TOLERANCE};
 use crate::localize::{dbscan_ransac_line, InsulatorLine, Localization, LocalizeParams};
 
 /// Pixels: a box edge this close to the image border is the frame's edge, not the insulator's.
@@ -65,7 +69,7 @@ pub struct BoxEvidence<'a> {
     /// The camera model of every view.
     pub camera: &'a CameraModel,
     /// Known length of the insulator string (m): places the centre when the image bounds
-    /// only one end, and lets the method refuse an ambiguous box ([`crate::ambiguity`]).
+    /// only one end, and lets the method refuse an ambiguous box ([`ambiguity`]).
     pub insulator_length: Option<f64>,
     /// See [`DEFAULT_BORDER_MARGIN`].
     pub border_margin: f64,
