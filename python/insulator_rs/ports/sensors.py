@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import math
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from insulator_rs._core import CameraModel
+from insulator_rs.ports.capabilities import ReportsStreams
 
 
 @dataclass(frozen=True)
@@ -146,11 +146,10 @@ class StreamStatus:
 
 
 def sensor_streams(sensors: object, now: float) -> list[StreamStatus] | None:
-    """The streams of ``sensors`` at vehicle time ``now`` (an adapter's optional
-    ``streams(now)``, which consumes nothing: the flight's data stay the flight's), or None for
-    an adapter that cannot say."""
-    streams: Callable[[float], list[StreamStatus]] | None = getattr(sensors, "streams", None)
-    return None if not callable(streams) else list(streams(now))
+    """The streams of ``sensors`` at vehicle time ``now``
+    (:class:`~insulator_rs.ports.capabilities.ReportsStreams`, which consumes nothing: the flight's
+    data stay the flight's), or None for an adapter that cannot say."""
+    return list(sensors.streams(now)) if isinstance(sensors, ReportsStreams) else None
 
 
 @runtime_checkable

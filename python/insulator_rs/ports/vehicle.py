@@ -14,10 +14,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from insulator_rs.ports.capabilities import HasParameters, MapsClock, ReportsNavigation, ReportsSetpointStream
 from insulator_rs.poses import pose_from_quaternion, pose_from_yaw
 
 
@@ -160,28 +161,38 @@ class NavigationStatus:
 
 
 def vehicle_navigation(vehicle: object) -> NavigationStatus | None:
-    """The vehicle's global navigation status (an adapter's optional ``navigation()``: an
-    autopilot's), None for a vehicle without one (the in-process simulator)."""
-    navigation = getattr(vehicle, "navigation", None)
-    if not callable(navigation):
+    """The vehicle's global navigation status (:class:`~insulator_rs.ports.capabilities.ReportsNavigation`:
+    an autopilot's), None for a vehicle without one (the in-process simulator)."""
+    if not isinstance(vehicle, ReportsNavigation):
         return None
-    status = navigation()
+    status = vehicle.navigation()
     return status if isinstance(status, NavigationStatus) else None
 
 
 def vehicle_parameters(vehicle: object) -> ParameterStore | None:
-    """The vehicle's parameter store, or None when it has none (or not that interface)."""
-    store = getattr(vehicle, "parameters", None)
+    """The vehicle's parameter store (:class:`~insulator_rs.ports.capabilities.HasParameters`), or
+    None when it has none (or not that interface)."""
+    store = vehicle.parameters if isinstance(vehicle, HasParameters) else None
     return store if isinstance(store, ParameterStore) else None
 
 
 class VehicleDecorator:
-    """A :class:`Vehicle` adapter round ``inner`` that passes every call on as it is: a decorator
-    (the recording's, the fault matrix's) subclasses it and overrides what it watches or changes;
-    anything else the inner adapter offers (parameters, link_stats) is reached through it."""
+    """A :class:`Vehicle` adapter round ``inner`` that passes every call of the port on as it is: a
+    decorator (the recording's, the fault matrix's) subclasses it and overrides what it watches or
+    changes. Of the optional capabilities (:mod:`insulator_rs.ports.capabilities`) it offers those
+    ``inner`` has, and only those, so the flight finds the same through it; anything else of the
+    adapter (its link's counters, its telemetry) is ``inner``'s, reached there."""
 
     def __init__(self, inner: Vehicle) -> None:
         self.inner = inner
+        if isinstance(inner, HasParameters):
+            self.parameters = inner.parameters
+        if isinstance(inner, ReportsNavigation):
+            self.navigation = inner.navigation
+        if isinstance(inner, MapsClock):
+            self.timesync_record = inner.timesync_record
+        if isinstance(inner, ReportsSetpointStream):
+            self.setpoint_gaps = inner.setpoint_gaps
 
     def state(self) -> VehicleState:
         return self.inner.state()
@@ -210,6 +221,3 @@ class VehicleDecorator:
 
     def close(self) -> None:
         self.inner.close()
-
-    def __getattr__(self, name: str) -> Any:  # what else the inner adapter offers
-        return getattr(self.inner, name)
