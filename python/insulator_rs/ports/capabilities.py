@@ -17,16 +17,72 @@ would make each adapter say None for what it lacks, for capabilities most adapte
 used as the Protocol. A decorator of a port (recording, fault injection) therefore offers a
 capability only when what it wraps has it, by explicit delegation
 (:class:`~insulator_rs.ports.vehicle.VehicleDecorator`), never by passing every attribute on.
+The capabilities' data (:class:`NavigationStatus`, :class:`StreamStatus`) live here with them;
+the port modules import this one (and re-export those names), never the other way round.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
-if TYPE_CHECKING:  # the data types only (annotations): the port modules import this one
-    from insulator_rs.ports.sensors import StreamStatus
-    from insulator_rs.ports.vehicle import NavigationStatus, ParameterStore
-    from insulator_rs.timesync import TimesyncRecord
+from insulator_rs.timesync import TimesyncRecord
+
+
+@runtime_checkable
+class ParameterStore(Protocol):
+    """An autopilot's own parameters (PX4's names), as a vehicle that has them exposes them on
+    its ``parameters`` attribute (a vehicle without, the in-process simulator, has None there).
+
+    ``read`` returns the value the autopilot reports (an int for an integer parameter, a float
+    otherwise); ``set`` returns the value the autopilot reports after the set, verified equal.
+    Both raise ``insulator_rs.exceptions.ParameterError`` naming the parameter when it is missing,
+    unanswered or refused. ``ground_station`` is whether a ground station's HEARTBEAT has reached
+    the vehicle's link within ``wait`` s (PX4 refuses to arm with a data-link-loss action and no
+    ground station)."""
+
+    def read(self, name: str) -> int | float: ...
+
+    def set(self, name: str, value: int | float) -> int | float: ...
+
+    def ground_station(self, wait: float) -> bool: ...
+
+
+GPS_3D_FIX = 3  # MAVLink GPS_FIX_TYPE_3D_FIX: the least fix a flight may start on (DGPS, RTK above it)
+
+
+@dataclass(frozen=True)
+class NavigationStatus:
+    """What an autopilot says of its global position, as the pre-flight gate reads it.
+
+    ``gps_fix_type``: MAVLink's GPS_FIX_TYPE of the newest GPS_RAW_INT (0 no GPS, 1 no fix,
+    2 2D, 3 3D, 4 DGPS, 5/6 RTK), None when none came. ``satellites``: its satellites visible.
+    ``global_position``: (lat deg, lon deg, alt m AMSL) of the newest GLOBAL_POSITION_INT (PX4
+    publishes it only while its estimator has a global position), None before one. ``home``:
+    (lat, lon, alt AMSL) of HOME_POSITION, None while the autopilot has set no home."""
+
+    gps_fix_type: int | None
+    satellites: int | None
+    global_position: tuple[float, float, float] | None
+    home: tuple[float, float, float] | None
+
+
+
+@dataclass(frozen=True)
+class StreamStatus:
+    """One sensor stream as the pre-flight gate sees it (:mod:`insulator_rs.flight.preflight`).
+
+    ``name``: the sensor ("camera", "lidar"). ``delivered``: data it has delivered so far (frames,
+    scans). ``newest``: the vehicle-clock stamp (s) of its newest datum at or before the time
+    asked, None when there is none. ``unstamped``: data dropped for want of a vehicle-clock stamp.
+    ``error``: why the sensor could not deliver, if it could not (a render that failed).
+    """
+
+    name: str
+    delivered: int
+    newest: float | None
+    unstamped: int = 0
+    error: str | None = None
 
 
 @runtime_checkable

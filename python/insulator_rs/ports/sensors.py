@@ -27,6 +27,7 @@ import numpy as np
 
 from insulator_rs._core import CameraModel
 from insulator_rs.ports.capabilities import ReportsStreams
+from insulator_rs.ports.capabilities import StreamStatus as StreamStatus  # re-exported: the streams capability's data
 
 
 @dataclass(frozen=True)
@@ -126,23 +127,6 @@ class PoseStamped:
 
     time: float
     T_w_b: np.ndarray
-
-
-@dataclass(frozen=True)
-class StreamStatus:
-    """One sensor stream as the pre-flight gate sees it (:mod:`insulator_rs.flight.preflight`).
-
-    ``name``: the sensor ("camera", "lidar"). ``delivered``: data it has delivered so far (frames,
-    scans). ``newest``: the vehicle-clock stamp (s) of its newest datum at or before the time
-    asked, None when there is none. ``unstamped``: data dropped for want of a vehicle-clock stamp.
-    ``error``: why the sensor could not deliver, if it could not (a render that failed).
-    """
-
-    name: str
-    delivered: int
-    newest: float | None
-    unstamped: int = 0
-    error: str | None = None
 
 
 def sensor_streams(sensors: object, now: float) -> list[StreamStatus] | None:

@@ -18,6 +18,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from insulator_rs.ports.capabilities import GPS_3D_FIX as GPS_3D_FIX  # re-exported: the navigation capability's data
+from insulator_rs.ports.capabilities import NavigationStatus as NavigationStatus
+from insulator_rs.ports.capabilities import ParameterStore as ParameterStore
 from insulator_rs.ports.capabilities import HasParameters, MapsClock, ReportsNavigation, ReportsSetpointStream
 from insulator_rs.poses import pose_from_quaternion, pose_from_yaw
 
@@ -120,44 +123,6 @@ class Vehicle(Protocol):
         ...
 
     def close(self) -> None: ...
-
-
-@runtime_checkable
-class ParameterStore(Protocol):
-    """An autopilot's own parameters (PX4's names), as a vehicle that has them exposes them on
-    its ``parameters`` attribute (a vehicle without, the in-process simulator, has None there).
-
-    ``read`` returns the value the autopilot reports (an int for an integer parameter, a float
-    otherwise); ``set`` returns the value the autopilot reports after the set, verified equal.
-    Both raise ``insulator_rs.exceptions.ParameterError`` naming the parameter when it is missing,
-    unanswered or refused. ``ground_station`` is whether a ground station's HEARTBEAT has reached
-    the vehicle's link within ``wait`` s (PX4 refuses to arm with a data-link-loss action and no
-    ground station)."""
-
-    def read(self, name: str) -> int | float: ...
-
-    def set(self, name: str, value: int | float) -> int | float: ...
-
-    def ground_station(self, wait: float) -> bool: ...
-
-
-GPS_3D_FIX = 3  # MAVLink GPS_FIX_TYPE_3D_FIX: the least fix a flight may start on (DGPS, RTK above it)
-
-
-@dataclass(frozen=True)
-class NavigationStatus:
-    """What an autopilot says of its global position, as the pre-flight gate reads it.
-
-    ``gps_fix_type``: MAVLink's GPS_FIX_TYPE of the newest GPS_RAW_INT (0 no GPS, 1 no fix,
-    2 2D, 3 3D, 4 DGPS, 5/6 RTK), None when none came. ``satellites``: its satellites visible.
-    ``global_position``: (lat deg, lon deg, alt m AMSL) of the newest GLOBAL_POSITION_INT (PX4
-    publishes it only while its estimator has a global position), None before one. ``home``:
-    (lat, lon, alt AMSL) of HOME_POSITION, None while the autopilot has set no home."""
-
-    gps_fix_type: int | None
-    satellites: int | None
-    global_position: tuple[float, float, float] | None
-    home: tuple[float, float, float] | None
 
 
 def vehicle_navigation(vehicle: object) -> NavigationStatus | None:
