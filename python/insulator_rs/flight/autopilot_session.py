@@ -9,6 +9,7 @@ the ground (while PX4 still flies, its own return or a pilot holding, the tower'
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import KW_ONLY, dataclass, field
 
 import numpy as np
 
@@ -35,25 +36,24 @@ TAKEOFF_TIMEOUT = 60.0  # s of vehicle time for the climb to the first pass heig
 LAND_TIMEOUT = 120.0  # s of vehicle time for the descent
 
 
+@dataclass(eq=False)
 class AutopilotSession:
     """Parameters, pre-flight gate, take-off, landing and restore of one flight (see the module
     docstring). ``energy``: the flight's energy budget (what the mission needs, what the descent
     drains); ``log_pose(state)``: the report's pose log, fed while the vehicle lands."""
 
-    def __init__(self, pilot: Pilot, geom: MissionGeometry, *, sensors: Sensors, detector: BoxDetector,
-                 crossing_clearance: float, battery_reserve: float, observer: FlightObserver,
-                 energy: EnergyBudget, log_pose: Callable[[VehicleState], None]) -> None:
-        self.pilot = pilot
-        self.geom = geom
-        self.sensors = sensors
-        self.detector = detector
-        self.crossing_clearance = crossing_clearance
-        self.battery_reserve = battery_reserve
-        self.observer = observer
-        self.energy = energy
-        self.log_pose = log_pose
-        self.setup: AutopilotSetup | None = None  # the tower's PX4 parameters (a PX4 vehicle)
-        self.preflight_result: PreflightResult | None = None  # the gate before arming
+    pilot: Pilot
+    geom: MissionGeometry
+    _: KW_ONLY
+    sensors: Sensors
+    detector: BoxDetector
+    crossing_clearance: float  # m above the tower where the sides are crossed
+    battery_reserve: float  # fraction of the pack kept at landing
+    observer: FlightObserver
+    energy: EnergyBudget
+    log_pose: Callable[[VehicleState], None]
+    setup: AutopilotSetup | None = field(default=None, init=False)  # the tower's PX4 parameters (a PX4 vehicle)
+    preflight_result: PreflightResult | None = field(default=None, init=False)  # the gate before arming
 
     def configure(self) -> None:
         """Before arming: the autopilot's own failsafes set for this tower and verified (a vehicle

@@ -43,7 +43,7 @@ offers its lowest steel to a look. At most :data:`MAX_LOOKS` a flight, the most 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -204,24 +204,24 @@ def look_viewpoints(center: np.ndarray, line: LineFrame, volumes: SafetyVolumes,
     return views
 
 
+@dataclass(eq=False)
 class SecondLookFlight:
     """Where the search (or a side's passes) ends: the hover until perception has caught up, then
     the second looks (see the module docstring); ``looks``: each look, for summary.json."""
 
-    def __init__(self, pilot: Pilot, legs: LegFollower, *, registry: InsulatorRegistry, runner: PerceptionRunner,
-                 geom: MissionGeometry, mission: Mission, detect_period: float) -> None:
-        self.pilot = pilot
-        self.legs = legs
-        self.registry = registry
-        self.runner = runner
-        self.geom = geom
-        self.mission = mission
-        self.detect_period = detect_period  # s between detection events
-        self.looks: list[SecondLook] = []
-        self.looked: list[Insulator] = []  # the candidates looked at (the records themselves)
-        # look targets made for the pipeline's refused tracks, one per track (``looked`` holds them)
-        self._refused_targets: dict[int, Insulator] = {}
-        self._search_end: PlanItem | None = None  # the item where the search ended, once caught up
+    pilot: Pilot
+    legs: LegFollower
+    _: KW_ONLY
+    registry: InsulatorRegistry
+    runner: PerceptionRunner
+    geom: MissionGeometry
+    mission: Mission
+    detect_period: float  # s between detection events
+    looks: list[SecondLook] = field(default_factory=list, init=False)
+    looked: list[Insulator] = field(default_factory=list, init=False)  # the candidates looked at (the records)
+    # look targets made for the pipeline's refused tracks, one per track (``looked`` holds them)
+    _refused_targets: dict[int, Insulator] = field(default_factory=dict, init=False)
+    _search_end: PlanItem | None = field(default=None, init=False)  # where the search ended, once caught up
 
     def may_end(self, item: PlanItem) -> bool:
         """Before ``item``, the plan's head, is reported reached: True to go on. Where reaching it
