@@ -50,6 +50,7 @@ from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import InspectionStateMachine, PlanItem, State
 from insulator_rs.perception.pipeline import LocalizedInsulator, PerceptionPipeline
 from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.planning.abort import AbortRoute
 from insulator_rs.planning.exploration import PlanKind
 from insulator_rs.planning.pmm import rest_to_rest_times
 from insulator_rs.ports.detector import BoxDetector
@@ -127,8 +128,7 @@ class FlightLoop:
         self.autopilot = AutopilotSession(self, geom, sensors=sensors, detector=detector,
                                           crossing_clearance=p.crossing_clearance, battery_reserve=p.battery_reserve,
                                           observer=self.observer, energy=self.energy, log_pose=self._log_pose)
-        self.assembly = SummaryAssembly(mission, rig, settings.method, settings.policy.value,
-                                        settings.time_allocation, vehicle, sensors, detector, self.registry, self.sm,
+        self.assembly = SummaryAssembly(mission, rig, settings, vehicle, sensors, detector, self.registry, self.sm,
                                         self.runner, self.report, self.photos, self.origin, self.autopilot,
                                         self.energy, self.legs, self.looks, self.exit)
 
@@ -138,7 +138,7 @@ class FlightLoop:
         return str(self.outcome)
 
     @property
-    def abort_route(self) -> Any:
+    def abort_route(self) -> AbortRoute | None:
         return self.exit.route
 
     @property

@@ -20,6 +20,7 @@ from insulator_rs.flight.record import (camera_record, candidate_records, insula
                                         setpoint_stream_record, timesync_record)
 from insulator_rs.flight.safe_exit import SafeExit
 from insulator_rs.flight.second_look import SecondLookFlight
+from insulator_rs.flight.settings import FlightSettings
 from insulator_rs.flight.stall_watch import StallWatch
 from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
 from insulator_rs.mission.config import Mission
@@ -43,9 +44,7 @@ class SummaryAssembly:
 
     mission: Mission
     rig: SensorRig
-    method: str
-    policy: str
-    time_allocation: str
+    settings: FlightSettings
     vehicle: Vehicle
     sensors: Sensors
     detector: BoxDetector
@@ -93,8 +92,8 @@ class SummaryAssembly:
             photos.setdefault(rec["insulator_id"], []).append(rec["file"])
         setup, gate = p.autopilot.setup, p.autopilot.preflight_result
         details = FlightDetails(
-            mission=str(p.mission.source), rig=str(p.rig.source), policy=p.policy,
-            time_allocation=p.time_allocation, state=p.sm.state.value, vehicle=type(p.vehicle).__name__,
+            mission=str(p.mission.source), rig=str(p.rig.source), policy=p.settings.policy.value,
+            time_allocation=p.settings.time_allocation, state=p.sm.state.value, vehicle=type(p.vehicle).__name__,
             sensors=type(p.sensors).__name__,
             failsafe=None if failsafe is None else {"reason": failsafe.reason, "action": failsafe.action},
             distance_m=p.report.distance_m,
@@ -119,7 +118,7 @@ class SummaryAssembly:
             setpoint_stream=setpoint_stream_record(p.vehicle))
         refused = p.autopilot.refused  # nothing flew
         return RunSummary(run="flight", status=str(outcome), detector=detector_name(p.detector),
-                          method=p.method, flight_time_s=0.0 if refused else st.time - t_start,
+                          method=p.settings.method, flight_time_s=0.0 if refused else st.time - t_start,
                           perception=perception_record(p.runner, sensor_errors),
                           insulators=insulator_records(p.registry, photos), photos=p.photos.records,
                           candidates=candidate_records(p.registry),
