@@ -1,4 +1,4 @@
-"""Every photo checked on itself (perception/photo_check.py) and retaken when unfit (flight/loop.py).
+"""Every photo checked on itself (perception/photo_check.py) and retaken when unfit (flight/photo_session.py).
 
 Reference: the scene's ground truth (sim/towers.py ``InsulatorTruth``: centre, axis, length,
 shed radius) projected with cv2.projectPoints through the photo's own camera pose and

@@ -136,7 +136,8 @@ class PhotoSession:
             self.on_sensor_error(exc)
             frame = None
         if frame is None:
-            self.pilot.say(f"[{self.pilot.now():7.1f} s] photo of insulator {wp.insulator_id}: no image from the camera")
+            self.pilot.say(f"[{self.pilot.now():7.1f} s] photo of insulator {wp.insulator_id}: "
+                           "no image from the camera")
             return None
         axis = None if ins is None else ins.axis
         T_c_w = np.linalg.inv(st.T_w_b @ frame.T_b_c)

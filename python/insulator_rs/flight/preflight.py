@@ -1,10 +1,10 @@
 """The pre-flight gate: before arming, every check named, with its outcome and its reason.
 
 The flight loop runs :func:`preflight_checks` after the autopilot's parameters are set and before
-the arm command (:meth:`insulator_rs.flight.loop.FlightLoop.preflight`); one failed check refuses
-the flight, and the refusal names every check that failed (the console, the GCS's STATUSTEXT,
-summary.json's ``status`` ``refused_preflight: ...`` and its ``preflight`` record). The checks
-read only what the ports already expose:
+the arm command (:meth:`insulator_rs.flight.autopilot_session.AutopilotSession.preflight`); one
+failed check refuses the flight, and the refusal names every check that failed (the console, the
+GCS's STATUSTEXT, summary.json's ``status`` ``refused_preflight: ...`` and its ``preflight``
+record). The checks read only what the ports already expose:
 
 * ``sensors``: every sensor streaming and stamped: the camera and the LiDAR each delivered
   something stamped on the vehicle clock, no older than STREAM_MAX_AGE and not ahead of it
