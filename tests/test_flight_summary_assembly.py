@@ -41,6 +41,14 @@ def test_the_status_strings_are_summary_jsons():
         RunOutcome("landed")
 
 
+def test_a_status_string_reads_back_as_its_enum():
+    for outcome in (RunOutcome(RunStatus.FINISHED), RunOutcome(RunStatus.FAILED, "ValueError: x: y"),
+                    RunOutcome(RunStatus.ABORTED, "planning failed: boxed in; held for the pilot: no route")):
+        assert RunOutcome.parse(str(outcome)) == outcome
+    with pytest.raises(ValueError, match="'finished, mostly'"):
+        RunOutcome.parse("finished, mostly")
+
+
 def test_only_an_abort_or_a_refusal_is_unsuccessful():
     bad = {s for s in RunStatus if RunOutcome(s).unsuccessful}
     assert bad == {RunStatus.ABORTED, RunStatus.REFUSED_PREFLIGHT}

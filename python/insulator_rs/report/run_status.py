@@ -37,6 +37,13 @@ class RunOutcome:
     def __post_init__(self) -> None:
         object.__setattr__(self, "status", RunStatus(self.status))  # a bad status is refused, named
 
+    @classmethod
+    def parse(cls, text: str) -> RunOutcome:
+        """summary.json's ``status`` read back (a report built from the files); ValueError naming
+        the status when it is none of :class:`RunStatus`."""
+        head, sep, reason = text.partition(": ")
+        return cls(RunStatus(head.strip()), reason if sep else None)
+
     def __str__(self) -> str:
         """summary.json's ``status``."""
         return self.status.value if self.reason is None else f"{self.status.value}: {self.reason}"
