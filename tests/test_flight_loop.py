@@ -128,9 +128,9 @@ def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(t
     finishes with the other insulator inspected. A failure on an exploration leg still aborts
     (test above)."""
     from insulator_rs.exceptions import PlanningError
-    from insulator_rs.flight import loop
+    from insulator_rs.flight import leg_follower
 
-    original = loop.plan_segment
+    original = leg_follower.plan_segment
     refused = []
 
     def first_inspection_unreachable(line, volumes, start, velocity, items, **kwargs):
@@ -140,7 +140,7 @@ def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(t
             raise PlanningError("the waypoint lies in the tower safety box")
         return original(line, volumes, start, velocity, items, **kwargs)
 
-    monkeypatch.setattr(loop, "plan_segment", first_inspection_unreachable)
+    monkeypatch.setattr(leg_follower, "plan_segment", first_inspection_unreachable)
     # detection every 0.5 s: the tilting airframe's camera (pitched along its thrust when it
     # brakes) sees each string in fewer of the 1 s events, and both must be confirmed here
     rc, out, s = _run(tmp_path, "--detect-period", "0.5")
@@ -161,28 +161,29 @@ def test_a_find_as_the_leg_passes_a_waypoint_is_flown_to_not_counted_done(tmp_pa
     the flight's own plan: every inspection waypoint of the string gets its first shot.
     The find is made at the moment the loop reports a scan waypoint passed (before it reaches
     it), from the scene's true centre of the near-side string."""
-    from insulator_rs.flight.loop import FlightLoop
+    from insulator_rs.flight.second_look import SecondLookFlight
     from insulator_rs.mission.state_machine import State
     from insulator_rs.planning.exploration import PlanKind
     from insulator_rs.sim.towers import load_tower
 
     scene, mission = small_scene(tmp_path)
     truth = load_tower(str(scene)).insulators
-    original = FlightLoop._search_may_end
+    original = SecondLookFlight.may_end
     injected = []
 
     def find_on_passing(self, item):
         go_on = original(self, item)
-        if not injected and item.kind == PlanKind.SCAN and self.sm.state == State.EXPLORE and self.sm.target() is item:
-            st = self.vehicle.state()
+        sm = self.pilot.sm
+        if not injected and item.kind == PlanKind.SCAN and sm.state == State.EXPLORE and sm.target() is item:
+            st = self.pilot.vehicle.state()
             near = min(truth, key=lambda ins: float(np.linalg.norm(ins.center - st.position)))
             for _ in range(10):  # as many observations as the mission's registry confirms on
-                if self.sm.localized(near.center, np.array([0.0, 0.0, 1.0]), st.position, st.time) == "new":
+                if sm.localized(near.center, np.array([0.0, 0.0, 1.0]), st.position, st.time) == "new":
                     injected.append(self.registry.nearest(near.center)[0].id)
                     break
         return go_on
 
-    monkeypatch.setattr(FlightLoop, "_search_may_end", find_on_passing)
+    monkeypatch.setattr(SecondLookFlight, "may_end", find_on_passing)
     out = tmp_path / "report"
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS,
                "--detect-period", "0.5"])

@@ -11,7 +11,7 @@ from helpers.flights import ARGS, MISSIONS, small_scene
 
 from insulator_rs.app.cli import main
 from insulator_rs.evaluation import track_evidence
-from insulator_rs.flight.loop import FlightLoop
+from insulator_rs.flight.photo_session import PhotoSession
 
 
 @pytest.mark.slow
@@ -53,13 +53,13 @@ def test_inspect_end_to_end_on_a_small_scene(tmp_path, capsys):
 def test_interruption_keeps_what_was_found(tmp_path, monkeypatch):
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"
-    original = FlightLoop.take_photo
+    original = PhotoSession.take_photo
 
     def photo_then_ctrl_c(self, wp):
         original(self, wp)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(FlightLoop, "take_photo", photo_then_ctrl_c)
+    monkeypatch.setattr(PhotoSession, "take_photo", photo_then_ctrl_c)
     rc = main(["inspect", "--scene", str(scene), "--mission", str(mission), "--out", str(out), *ARGS])
     assert rc == 130
     s = json.loads((out / "summary.json").read_text())

@@ -18,6 +18,7 @@ from insulator_rs.app.cli import main
 from insulator_rs.mission.config import InspectionParams
 from insulator_rs.perception.pipeline import PerceptionPipeline
 from insulator_rs.flight.loop import FlightLoop
+from insulator_rs.flight.photo_session import PhotoSession
 from insulator_rs.sim.kinematics import KinematicVehicle
 
 MAVLINK = ["--vehicle", "mavlink", "--time-scale", "4"]
@@ -47,16 +48,16 @@ def _after_first_photo(monkeypatch, action):
     may have retaken it: on a loaded machine the simulated PX4 flies on while a photo renders, a
     shot comes out off centre, and one call saved 2-3 photos (a test that waited for exactly
     one photo never acted, and the flight finished: CI, session 9)."""
-    original = FlightLoop.take_photo
+    original = PhotoSession.take_photo
     fired = []
 
     def photo_then_fault(self, wp):
         original(self, wp)
         if len(self.photos) >= 1 and not fired:
             fired.append(True)
-            action(self)
+            action(self.pilot)  # the loop
 
-    monkeypatch.setattr(FlightLoop, "take_photo", photo_then_fault)
+    monkeypatch.setattr(PhotoSession, "take_photo", photo_then_fault)
 
 
 def _started_simulators(monkeypatch):

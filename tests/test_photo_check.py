@@ -1,4 +1,4 @@
-"""Every photo checked on itself (perception/photo_check.py) and retaken when unfit (flight/loop.py).
+"""Every photo checked on itself (perception/photo_check.py) and retaken when unfit (flight/photo_session.py).
 
 Reference: the scene's ground truth (sim/towers.py ``InsulatorTruth``: centre, axis, length,
 shed radius) projected with cv2.projectPoints through the photo's own camera pose and
@@ -177,7 +177,7 @@ def test_an_unfit_photo_is_retaken_a_bounded_number_of_times(tmp_path, monkeypat
     shots is taken 1 + photo_retakes times and no more, the flight finishes, and the summary and
     report.html say insulator 2 has no fit photo and why. Every other photo is fit at the first
     attempt (the small scene keeps its photos fit)."""
-    import insulator_rs.flight.loop as loop_module
+    import insulator_rs.flight.photo_session as photo_session
     from insulator_rs.app.cli import main
     from helpers.flights import ARGS, small_scene
 
@@ -188,15 +188,15 @@ def test_an_unfit_photo_is_retaken_a_bounded_number_of_times(tmp_path, monkeypat
         aims.append(np.array(target))
         return aim_at(T_w_b, T_b_c, np.array(target) + ([0.0, 0.0, 0.6] if len(aims) == 1 else 0.0), gimbal)
 
-    monkeypatch.setattr(loop_module, "aim_at", mis_aim)
+    monkeypatch.setattr(photo_session, "aim_at", mis_aim)
     shooting = {}
-    take_photo = loop_module.FlightLoop.take_photo
+    take_photo = photo_session.PhotoSession.take_photo
 
     def noting(self, wp):
         shooting["id"] = wp.insulator_id
         return take_photo(self, wp)
 
-    monkeypatch.setattr(loop_module.FlightLoop, "take_photo", noting)
+    monkeypatch.setattr(photo_session.PhotoSession, "take_photo", noting)
 
     detect = GroundTruthDetector.__call__
 

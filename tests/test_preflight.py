@@ -22,6 +22,7 @@ from insulator_rs.app import inspect_command
 from insulator_rs.app.cli import main
 from insulator_rs.drivers.live_sensors import LiveSensors
 from insulator_rs.drivers.livox import LivoxMid360
+from insulator_rs.flight.autopilot_session import AutopilotSession
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs.flight.preflight import (CLOCK_WAIT, STREAM_MAX_AGE, Check, Outcome, check_detector,
                                            check_sensors_waiting)
@@ -77,13 +78,13 @@ def _fly_px4(tmp_path: Path, *, battery: float | None = None, answer_timesync: b
                       settings=FlightSettings(detect_period=0.5, quiet=True), observer=gcs,
                       photo_camera=sensors.photo_model)
     if before_preflight is not None:
-        configure = loop.configure_autopilot
+        configure = loop.autopilot.configure
 
         def configure_then(*args, **kwargs):
             configure(*args, **kwargs)
             before_preflight(loop)
 
-        loop.configure_autopilot = configure_then
+        loop.autopilot.configure = configure_then  # type: ignore[method-assign]
     try:
         loop.fly()
         summary = loop.finish_report()
@@ -265,7 +266,7 @@ def test_a_healthy_flight_passes_the_gate_and_flies_as_without_it(tmp_path, monk
     assert _outcomes(s) == {"sensors": "passed", "clock": "not_applicable", "gps_home": "not_applicable",
                             "detector": "not_applicable", "battery": "passed", "geofence": "not_applicable"}
     assert _reason(s, "sensors").startswith("camera 1 delivered, newest 0.00 s old, lidar 1 delivered")
-    monkeypatch.setattr(FlightLoop, "preflight", lambda self: None)
+    monkeypatch.setattr(AutopilotSession, "preflight", lambda self: None)
     rc2, s2, ungated = fly(tmp_path / "ungated")
     assert rc2 == 0 and s2["preflight"] is None
     assert gated == ungated

@@ -5,7 +5,7 @@ On a loaded computer a frame's LiDAR points come late: against PX4 SITL the pair
 search is over a localization only refines the registry, so a string seen in the last pass's
 last seconds was reported without a photo, or never confirmed. The flight now hovers at the
 last pass's end until every frame taken up to its arrival there has been handed to perception
-(``FlightLoop._search_may_end``).
+(``SecondLookFlight.may_end``).
 
 Here the simulator's sensors carry a 10 Hz LiDAR whose newest scan ends 1.5 s in the past (a
 loaded computer's lag). Reference: the frames' own exposure times against the arrival at the
@@ -21,6 +21,7 @@ from helpers.flights import small_scene
 from insulator_rs.app.inspect_command import kinematic_vehicle
 from insulator_rs.evaluation.scoring import score_flight
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.flight.second_look import SecondLookFlight
 from insulator_rs.mission.config import load_mission
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.rig import simulator_rig
@@ -64,19 +65,19 @@ def test_the_search_ends_once_every_frame_of_the_last_pass_is_paired(tmp_path, m
     sensors = LaggingLidar(cameras)
     arrivals: list[float] = []
     drained: list[float] = []
-    may_end = FlightLoop._search_may_end
+    may_end = SecondLookFlight.may_end
     finish = PerceptionRunner.finish
 
     def spy_arrival(self, item):
-        if self.sm.head_ends_search() and self._search_end is not item:
-            arrivals.append(self.vehicle.state().time)  # where the search would end
+        if self.pilot.sm.head_ends_search() and self._search_end is not item:
+            arrivals.append(self.pilot.vehicle.state().time)  # where the search would end
         return may_end(self, item)
 
     def spy_drain(self, now):
         drained.extend(p.frame.time for p in self.pairing.pending if len(p.boxes))
         return finish(self, now)
 
-    monkeypatch.setattr(FlightLoop, "_search_may_end", spy_arrival)
+    monkeypatch.setattr(SecondLookFlight, "may_end", spy_arrival)
     monkeypatch.setattr(PerceptionRunner, "finish", spy_drain)
     loop = FlightLoop(mission, vehicle, sensors, GroundTruthDetector(cameras, seed=0), tmp_path / "report", rig=rig,
                       settings=FlightSettings(quiet=True))  # the mission's defaults

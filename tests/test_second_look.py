@@ -110,6 +110,7 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     confirmed from the first view or, blind there, the second; none at the ghost, still a
     candidate)."""
     from insulator_rs.flight.loop import FlightLoop
+    from insulator_rs.flight.second_look import SecondLookFlight
     from insulator_rs.sim.towers import load_tower
 
     scene, mission = small_scene(tmp_path)
@@ -121,29 +122,29 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     original = FlightLoop._localized
     kept = []
 
-    watch = FlightLoop._watch_from
+    watch = SecondLookFlight.watch_from
     first_watch: list[float] = []  # vehicle times: the first view's flight there and watch
 
     def watch_from(self, view, candidate, version):
-        start = self.vehicle.state().time
+        start = self.pilot.vehicle.state().time
         note = watch(self, view, candidate, version)
         if not first_watch:
-            first_watch.extend([start, self.vehicle.state().time])
+            first_watch.extend([start, self.pilot.vehicle.state().time])
         return note
 
     def see_the_string_once(self, fix, st):
         on_string = float(np.linalg.norm(fix.center - string)) < 1.0
-        if not self._looked and on_string:
+        if not self.looks.looked and on_string:
             if kept:
                 return  # the passes' localizations beyond the one the live path made: lost
             kept.append(fix.center)
             for _ in range(3):
                 self.registry.observe(ghost, np.array([0.0, 0.0, 1.0]))
-        if first_view_blind and self._looked and on_string and (not first_watch or fix.time <= first_watch[1]):
+        if first_view_blind and self.looks.looked and on_string and (not first_watch or fix.time <= first_watch[1]):
             return  # the frames taken on the way to the first view and there: lost
         original(self, fix, st)
 
-    monkeypatch.setattr(FlightLoop, "_watch_from", watch_from)
+    monkeypatch.setattr(SecondLookFlight, "watch_from", watch_from)
 
     monkeypatch.setattr(FlightLoop, "_localized", see_the_string_once)
     s = _inspect(tmp_path, scene, mission)
@@ -172,7 +173,7 @@ def test_a_string_whose_every_localization_is_refused_gets_a_look_at_its_track(t
     there (the gates let it through again) it is confirmed and inspected. Reference: the scene's
     ground truth (found within 0.3 m, photographed from both its waypoints), the summary's second
     look (source "refused track", at the string, confirmed)."""
-    from insulator_rs.flight.loop import FlightLoop
+    from insulator_rs.flight.second_look import SecondLookFlight
     from insulator_rs.perception.pipeline import PerceptionPipeline
     from insulator_rs.sim.towers import load_tower
 
@@ -191,14 +192,14 @@ def test_a_string_whose_every_localization_is_refused_gets_a_look_at_its_track(t
             return False
         return plausible(self, center, axis, box, T_c_w, camera)
 
-    second_look = FlightLoop._second_look
+    second_look = SecondLookFlight.look
 
     def mark_the_look(self, candidate):
         looking.append(True)
         return second_look(self, candidate)
 
     monkeypatch.setattr(PerceptionPipeline, "_scale_plausible", refuse_on_the_string_until_the_look)
-    monkeypatch.setattr(FlightLoop, "_second_look", mark_the_look)
+    monkeypatch.setattr(SecondLookFlight, "look", mark_the_look)
     s = _inspect(tmp_path, scene, mission)
     assert len(refused) >= 2, "the passes never tried the string: the test did not act"
     looks = [look for look in s["second_looks"] if look["source"] == "refused track"]

@@ -40,6 +40,7 @@ from insulator_rs.perception.photo_verdict import fit_tally
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
 from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
 from insulator_rs.flight.loop import FlightSettings
+from insulator_rs.report.run_status import RunOutcome, RunStatus
 from insulator_rs.flight.gc_pauses import startup_heap_frozen
 from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
@@ -377,10 +378,10 @@ def run(args: argparse.Namespace) -> int:
             try:
                 loop.fly()
             except KeyboardInterrupt:
-                loop.status = "interrupted"
+                loop.outcome = RunOutcome(RunStatus.INTERRUPTED)
                 code = 130
             except Exception:
-                loop.status = "failed"
+                loop.outcome = RunOutcome(RunStatus.FAILED)
                 loop.finish_report()
                 raise
             # the flight is over (landed, aborted or interrupted): the recording is whole now, not
@@ -404,7 +405,7 @@ def run(args: argparse.Namespace) -> int:
         sensors.close()
         if recorder is not None:
             recorder.close()
-    if summary["status"].startswith(("aborted", "refused_preflight")):
+    if loop.outcome.unsuccessful:  # aborted, or refused before arming
         code = 1
     print(_final_line(summary, score, args.out), file=sys.stdout)
     if link_stats is not None:  # what the link refused (strangers, garbage, bad signatures), by reason

@@ -1,10 +1,10 @@
 """The pre-flight gate: before arming, every check named, with its outcome and its reason.
 
 The flight loop runs :func:`preflight_checks` after the autopilot's parameters are set and before
-the arm command (:meth:`insulator_rs.flight.loop.FlightLoop.preflight`); one failed check refuses
-the flight, and the refusal names every check that failed (the console, the GCS's STATUSTEXT,
-summary.json's ``status`` ``refused_preflight: ...`` and its ``preflight`` record). The checks
-read only what the ports already expose:
+the arm command (:meth:`insulator_rs.flight.autopilot_session.AutopilotSession.preflight`); one
+failed check refuses the flight, and the refusal names every check that failed (the console, the
+GCS's STATUSTEXT, summary.json's ``status`` ``refused_preflight: ...`` and its ``preflight``
+record). The checks read only what the ports already expose:
 
 * ``sensors``: every sensor streaming and stamped: the camera and the LiDAR each delivered
   something stamped on the vehicle clock, no older than STREAM_MAX_AGE and not ahead of it
@@ -45,6 +45,7 @@ from insulator_rs.flight.reserve import ESTIMATE_MARGIN, READING_STEP
 from insulator_rs.planning.energy import RouteDemand, nominal_consumed
 from insulator_rs.planning.px4_failsafes import mission_extent
 from insulator_rs.planning.safety import SafetyVolumes
+from insulator_rs.ports.capabilities import MapsClock
 from insulator_rs.ports.detector import NetworkDetector, detector_name
 from insulator_rs.ports.sensors import sensor_streams
 from insulator_rs.ports.vehicle import GPS_3D_FIX, Vehicle, vehicle_navigation, vehicle_parameters
@@ -173,7 +174,7 @@ def check_sensors(sensors: object, now: float) -> CheckResult:
 
 def check_clock(vehicle: object, sensors: object, *, wait: float = CLOCK_WAIT) -> CheckResult:
     """The clock the stamps come from mapped to the vehicle clock (waited for up to ``wait`` s)."""
-    if not any(callable(getattr(port, "timesync_record", None)) for port in (sensors, vehicle)):
+    if not any(isinstance(port, MapsClock) for port in (sensors, vehicle)):
         # the in-process vehicle: its time is the clock the simulated sensors are rendered and
         # stamped in; there is no second clock to map
         return CheckResult(Check.CLOCK, Outcome.NOT_APPLICABLE,

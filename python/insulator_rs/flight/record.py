@@ -10,6 +10,7 @@ from typing import Any
 
 
 from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.ports.capabilities import MapsClock, ReportsSetpointStream
 from insulator_rs.report.summary import InsulatorRecord, PerceptionRecord
 from insulator_rs.timesync import TimesyncRecord
 from insulator_rs.tracking.registry import InsulatorRegistry
@@ -51,8 +52,7 @@ def candidate_records(registry: InsulatorRegistry) -> list[dict[str, Any]]:
 def setpoint_stream_record(vehicle: Any) -> dict[str, Any] | None:
     """The MAVLink client's setpoint-stream gaps (``summary.json`` ``setpoint_stream``); None for
     a vehicle without a setpoint stream (the in-process simulator)."""
-    gaps = getattr(vehicle, "setpoint_gaps", None)
-    return None if gaps is None else gaps.record()
+    return vehicle.setpoint_gaps.record() if isinstance(vehicle, ReportsSetpointStream) else None
 
 
 def timesync_record(vehicle: Any, sensors: Any) -> TimesyncRecord:
@@ -60,7 +60,6 @@ def timesync_record(vehicle: Any, sensors: Any) -> TimesyncRecord:
     or its telemetry fallback), else the MAVLink client's TIMESYNC map, else source ``none``
     (an in-process vehicle: its clock is the host's)."""
     for port in (sensors, vehicle):
-        record = getattr(port, "timesync_record", None)
-        if callable(record):
-            return record()
+        if isinstance(port, MapsClock):
+            return port.timesync_record()
     return TimesyncRecord()

@@ -43,18 +43,26 @@ offers its lowest steel to a look. At most :data:`MAX_LOOKS` a flight, the most 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError
+from insulator_rs.flight.leg_follower import LegFollower
+from insulator_rs.flight.photo_session import PHOTO_SETTLE_TIMEOUT, settle
+from insulator_rs.flight.pilot import CONTROL_PERIOD, Pilot
 from insulator_rs.geodesy import LineFrame
-from insulator_rs.planning.exploration import PATH_CLEARANCE
+from insulator_rs.mission.config import Mission
+from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.mission.state_machine import PlanItem, State
+from insulator_rs.perception.pairing import PAIRING_WAIT
+from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.planning.exploration import MIN_PASS_HEIGHT, PATH_CLEARANCE, PlanKind
 from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.perception.pipeline import EVENTS_PER_LOCALIZATION
 from insulator_rs.tracking.confirmation import localizations_missing
-from insulator_rs.tracking.registry import Insulator
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 
 #: looks a flight at most
 MAX_LOOKS = 3
@@ -195,3 +203,169 @@ def look_viewpoints(center: np.ndarray, line: LineFrame, volumes: SafetyVolumes,
         raise PlanningError(f"no viewpoint clear of the safety volumes within {LOOK_DISTANCE + LOOK_MAX_PUSH:.0f} m "
                             f"of the candidate at {np.round(c, 2).tolist()}")
     return views
+
+
+@dataclass(eq=False)
+class SecondLookFlight:
+    """Where the search (or a side's passes) ends: the hover until perception has caught up, then
+    the second looks (see the module docstring); ``looks``: each look, for summary.json."""
+
+    pilot: Pilot
+    legs: LegFollower
+    _: KW_ONLY
+    registry: InsulatorRegistry
+    runner: PerceptionRunner
+    geom: MissionGeometry
+    mission: Mission
+    detect_period: float  # s between detection events
+    looks: list[SecondLook] = field(default_factory=list, init=False)
+    looked: list[Insulator] = field(default_factory=list, init=False)  # the candidates looked at (the records)
+    # look targets made for the pipeline's refused tracks, one per track (``looked`` holds them)
+    _refused_targets: dict[int, Insulator] = field(default_factory=dict, init=False)
+    _search_end: PlanItem | None = field(default=None, init=False)  # where the search ended, once caught up
+
+    def may_end(self, item: PlanItem) -> bool:
+        """Before ``item``, the plan's head, is reported reached: True to go on. Where reaching it
+        ends the search (only crossings back and the landing follow) and perception still holds
+        frames taken up to now, the vehicle first hovers at ``item`` until they are handed on
+        (:meth:`wait_for_perception`), and False says: re-plan from there (a find of those
+        frames is inspected first; else the item is reached at once). Once per item. Then, there
+        and where a side's passes end, a candidate the passes saw too few times gets a second
+        look (:meth:`look`), and False: re-plan."""
+        sm = self.pilot.sm
+        ends_search = sm.head_ends_search()
+        if not ends_search and not sm.head_ends_side():
+            return True
+        if ends_search and self._search_end is not item:
+            self._search_end = item
+            arrival = self.pilot.vehicle.state().time
+            if not self.runner.caught_up(arrival):
+                self.wait_for_perception(item, arrival)
+                return False
+        # where a side's passes end (perception caught up where the search ends): a string they
+        # saw too few times is looked at again, one a call (False: re-plan from the viewpoint,
+        # back here or to the find's waypoints)
+        position = self.pilot.vehicle.state().position
+        target = look_target(self.registry.candidates, self.geom.line, position, self.mission.max_width, self.looked)
+        if target is None:  # then a track confidently boxed whose every localization was refused
+            target = look_target(self.refused_candidates(), self.geom.line, position, self.mission.max_width,
+                                 self.looked)
+        if target is None:
+            return True
+        self.looked.append(target)
+        self.look(target)
+        return False
+
+    def refused_candidates(self) -> list[Insulator]:
+        """Look targets for the pipeline's tracks boxed REFUSED_TRACK_MIN_CONFIDENT times with
+        confidence whose every localization the gates refused, at their anchors (the same record
+        for a track at every call, so ``looked`` knows it), the most confident first; not those
+        anchored on a string the registry already holds (a known string seen from its steel)."""
+        known = self.registry.insulators + self.registry.candidates
+        length = self.mission.inspection.insulator_length
+        tracks = [t for t in self.runner.pipeline.refused_tracks(REFUSED_TRACK_MIN_CONFIDENT)
+                  if not near_a_known_string(t.anchor, known, length)]
+        tracks.sort(key=lambda t: -t.evidence.confident_boxes)
+        for track in tracks:
+            if id(track) not in self._refused_targets:
+                self._refused_targets[id(track)] = refused_track_candidate(track.anchor, self.geom.line)
+        return [self._refused_targets[id(t)] for t in tracks]
+
+    def look(self, candidate: Insulator) -> None:
+        """Watch ``candidate`` from its look viewpoints in turn, each for :func:`look_events`
+        detection events once settled, then wait for their LiDAR points; ended by a find (the plan
+        changes: its waypoints come first), cut short by a hold, an abort, lost health or an
+        obstacle on the way. The look goes into ``looks``."""
+        pilot = self.pilot
+        before = candidate.observations
+        refused = any(candidate is target for target in self._refused_targets.values())
+        source = "refused track" if refused else "candidate"
+        try:
+            views = look_viewpoints(candidate.center, self.geom.line, self.geom.volumes,
+                                    min_height=float(self.geom.takeoff[2]) + MIN_PASS_HEIGHT)
+        except PlanningError as exc:
+            self.looks.append(SecondLook(candidate.id, candidate.center.copy(), before, before,
+                                         candidate.confirmed, f"not flown: {exc}", source=source))
+            return
+        seen = (f"seen {before} times" if source == "candidate"
+                else "boxed with confidence, every localization refused")
+        pilot.say(f"[{pilot.now():7.1f} s] a second look at a {source} ({seen}) at "
+                  f"{np.round(candidate.center, 2).tolist()}")
+        version = pilot.sm.plan_version
+        note, flown = None, 0
+        for position, yaw in views:
+            if note is not None or pilot.sm.plan_version != version:
+                break  # cut short, or a find: its inspection follows (the look did its job)
+            view = PlanItem(PlanKind.SCAN, position, yaw, candidate.side)
+            note = self.watch_from(view, candidate, version)
+            flown += 1
+        st = pilot.vehicle.state()
+        watched = st.time
+        deadline = watched + self.runner.pipeline.pairing_window + PAIRING_WAIT
+        # the last view's LiDAR points (a frame's come up to PAIRING_WAIT s after its window)
+        while (note is None and pilot.sm.plan_version == version and st.time < deadline
+               and not self.runner.caught_up(watched)):
+            st = pilot.tick(view.position, None, view.yaw)
+            note = self._cut_short(version)
+        after, confirmed = candidate.observations, candidate.confirmed
+        if source == "refused track":  # what the registry now holds where the track was
+            gate = self.registry.gate
+            after = observations_near(self.registry.insulators + self.registry.candidates, candidate.center, gate)
+            confirmed = observations_near(self.registry.insulators, candidate.center, gate) > 0
+        self.looks.append(SecondLook(candidate.id, candidate.center.copy(), before, after, confirmed, note,
+                                     flown, source=source))
+
+    def _cut_short(self, version: int) -> str | None:
+        """Why a look stops here (None: it goes on, or a find changed the plan ``version``)."""
+        sm = self.pilot.sm
+        if sm.plan_version != version:
+            return None
+        if sm.state in (State.HOLD, State.ABORT) or not self.pilot.healthy():
+            return f"cut short: {sm.state.value}"
+        return None
+
+    def watch_from(self, view: PlanItem, candidate: Insulator, version: int) -> str | None:
+        """Fly to ``view`` (the obstacle map rechecked on the way), settle (a braking, turning
+        body's frames box a string badly) and watch ``candidate`` for :func:`look_events` events,
+        in vehicle time too (a detector that stops asking must not hold the vehicle here).
+        Why the look stopped early (None: watched to the end, or a find)."""
+        pilot = self.pilot
+        try:
+            leg = self.legs.plan([view], counted=False)
+        except PlanningError as exc:
+            return f"not flown: {exc}"
+        for t, _ in leg.fly(lambda: view.yaw):
+            note = self._cut_short(version)
+            if note is not None or pilot.sm.plan_version != version:
+                return note
+            if leg.blocked(t):
+                return "cut short: the LiDAR sees an obstacle on the way"
+        if pilot.sm.plan_version != version:
+            return None
+        if settle(pilot, view, 0.0) is None:
+            return "cut short: abort"
+        events0 = self.runner.counts.events
+        budget = look_events(self.mission.inspection.confirmations, candidate.observations)
+        st = pilot.vehicle.state()
+        limit = st.time + budget * max(self.detect_period, CONTROL_PERIOD) + PHOTO_SETTLE_TIMEOUT
+        while pilot.sm.plan_version == version and st.time < limit and self.runner.counts.events - events0 < budget:
+            st = pilot.tick(view.position, None, view.yaw)
+            note = self._cut_short(version)
+            if note is not None:
+                return note
+        return None
+
+    def wait_for_perception(self, item: PlanItem, arrival: float) -> None:
+        """Hover at ``item`` until perception has handed on every frame taken up to ``arrival``,
+        at most the pairing window plus PAIRING_WAIT; sooner when the plan changes (a find) or
+        the mission holds or aborts. Why: a frame's LiDAR points come up to PAIRING_WAIT s after
+        its window (a loaded computer: 1.3-1.5 s at the median against PX4 SITL), and once the
+        search is over a find only refines the registry, so a string seen in the last pass's
+        last seconds was reported without a photo, or never confirmed."""
+        sm = self.pilot.sm
+        deadline = arrival + self.runner.pipeline.pairing_window + PAIRING_WAIT + CONTROL_PERIOD
+        version = sm.plan_version
+        while not self.runner.caught_up(arrival):
+            st = self.pilot.tick(item.position, None, item.yaw)
+            if sm.plan_version != version or sm.state in (State.HOLD, State.ABORT) or st.time >= deadline:
+                return

@@ -108,7 +108,7 @@ class InspectionParams:
     # most: each retake re-settles and re-aims (a few seconds of hover); 2 cures a gust or a
     # settle cut short, and a fault that survives three shots will not go away with a fourth.
     # Only with the rig's inspection camera: the detection camera's frame is not retaken
-    # (FlightLoop.take_photo says why).
+    # (PhotoSession.take_photo, flight/photo_session.py, says why).
     photo_retakes: int = 2
 
 

@@ -18,6 +18,7 @@ from insulator_rs.detection.detector import Detections as Detections  # the port
 from insulator_rs.detection.detector import Detector, open_detector
 from insulator_rs.detection.sanitize import DroppedDetections
 from insulator_rs.models import REAL_PHOTO_MODEL, SIMULATOR_MODEL
+from insulator_rs.ports.capabilities import CountsDrops, Named
 
 STANDIN = "standin"  # --detector standin: the simulator's ground-truth stand-in, by name only
 DETECT_CONF = 0.25  # detection-event confidence threshold of a network (Ultralytics predict default)
@@ -57,12 +58,12 @@ class NetworkDetector:
 
 def detector_name(detector: object) -> str:
     """What the report calls a detector: its ``name``, else its type's name."""
-    return str(getattr(detector, "name", type(detector).__name__))
+    return str(detector.name) if isinstance(detector, Named) else type(detector).__name__
 
 
 def detections_dropped(detector: object) -> dict[str, int] | None:
     """The sanitiser's counts summed over the flight (a network), None for a detector without them."""
-    dropped = getattr(detector, "dropped", None)
+    dropped = detector.dropped if isinstance(detector, CountsDrops) else None
     return dropped.to_dict() if isinstance(dropped, DroppedDetections) else None
 
 

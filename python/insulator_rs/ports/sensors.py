@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import math
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from insulator_rs._core import CameraModel
+from insulator_rs.ports.capabilities import ReportsStreams
+from insulator_rs.ports.capabilities import StreamStatus as StreamStatus  # re-exported: the streams capability's data
 
 
 @dataclass(frozen=True)
@@ -128,29 +129,11 @@ class PoseStamped:
     T_w_b: np.ndarray
 
 
-@dataclass(frozen=True)
-class StreamStatus:
-    """One sensor stream as the pre-flight gate sees it (:mod:`insulator_rs.flight.preflight`).
-
-    ``name``: the sensor ("camera", "lidar"). ``delivered``: data it has delivered so far (frames,
-    scans). ``newest``: the vehicle-clock stamp (s) of its newest datum at or before the time
-    asked, None when there is none. ``unstamped``: data dropped for want of a vehicle-clock stamp.
-    ``error``: why the sensor could not deliver, if it could not (a render that failed).
-    """
-
-    name: str
-    delivered: int
-    newest: float | None
-    unstamped: int = 0
-    error: str | None = None
-
-
 def sensor_streams(sensors: object, now: float) -> list[StreamStatus] | None:
-    """The streams of ``sensors`` at vehicle time ``now`` (an adapter's optional
-    ``streams(now)``, which consumes nothing: the flight's data stay the flight's), or None for
-    an adapter that cannot say."""
-    streams: Callable[[float], list[StreamStatus]] | None = getattr(sensors, "streams", None)
-    return None if not callable(streams) else list(streams(now))
+    """The streams of ``sensors`` at vehicle time ``now``
+    (:class:`~insulator_rs.ports.capabilities.ReportsStreams`, which consumes nothing: the flight's
+    data stay the flight's), or None for an adapter that cannot say."""
+    return list(sensors.streams(now)) if isinstance(sensors, ReportsStreams) else None
 
 
 @runtime_checkable

@@ -14,10 +14,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from insulator_rs.ports.capabilities import GPS_3D_FIX as GPS_3D_FIX  # re-exported: the navigation capability's data
+from insulator_rs.ports.capabilities import NavigationStatus as NavigationStatus
+from insulator_rs.ports.capabilities import ParameterStore as ParameterStore
+from insulator_rs.ports.capabilities import HasParameters, MapsClock, ReportsNavigation, ReportsSetpointStream
 from insulator_rs.poses import pose_from_quaternion, pose_from_yaw
 
 
@@ -121,67 +125,39 @@ class Vehicle(Protocol):
     def close(self) -> None: ...
 
 
-@runtime_checkable
-class ParameterStore(Protocol):
-    """An autopilot's own parameters (PX4's names), as a vehicle that has them exposes them on
-    its ``parameters`` attribute (a vehicle without, the in-process simulator, has None there).
-
-    ``read`` returns the value the autopilot reports (an int for an integer parameter, a float
-    otherwise); ``set`` returns the value the autopilot reports after the set, verified equal.
-    Both raise ``insulator_rs.exceptions.ParameterError`` naming the parameter when it is missing,
-    unanswered or refused. ``ground_station`` is whether a ground station's HEARTBEAT has reached
-    the vehicle's link within ``wait`` s (PX4 refuses to arm with a data-link-loss action and no
-    ground station)."""
-
-    def read(self, name: str) -> int | float: ...
-
-    def set(self, name: str, value: int | float) -> int | float: ...
-
-    def ground_station(self, wait: float) -> bool: ...
-
-
-GPS_3D_FIX = 3  # MAVLink GPS_FIX_TYPE_3D_FIX: the least fix a flight may start on (DGPS, RTK above it)
-
-
-@dataclass(frozen=True)
-class NavigationStatus:
-    """What an autopilot says of its global position, as the pre-flight gate reads it.
-
-    ``gps_fix_type``: MAVLink's GPS_FIX_TYPE of the newest GPS_RAW_INT (0 no GPS, 1 no fix,
-    2 2D, 3 3D, 4 DGPS, 5/6 RTK), None when none came. ``satellites``: its satellites visible.
-    ``global_position``: (lat deg, lon deg, alt m AMSL) of the newest GLOBAL_POSITION_INT (PX4
-    publishes it only while its estimator has a global position), None before one. ``home``:
-    (lat, lon, alt AMSL) of HOME_POSITION, None while the autopilot has set no home."""
-
-    gps_fix_type: int | None
-    satellites: int | None
-    global_position: tuple[float, float, float] | None
-    home: tuple[float, float, float] | None
-
-
 def vehicle_navigation(vehicle: object) -> NavigationStatus | None:
-    """The vehicle's global navigation status (an adapter's optional ``navigation()``: an
-    autopilot's), None for a vehicle without one (the in-process simulator)."""
-    navigation = getattr(vehicle, "navigation", None)
-    if not callable(navigation):
+    """The vehicle's global navigation status (:class:`~insulator_rs.ports.capabilities.ReportsNavigation`:
+    an autopilot's), None for a vehicle without one (the in-process simulator)."""
+    if not isinstance(vehicle, ReportsNavigation):
         return None
-    status = navigation()
+    status = vehicle.navigation()
     return status if isinstance(status, NavigationStatus) else None
 
 
 def vehicle_parameters(vehicle: object) -> ParameterStore | None:
-    """The vehicle's parameter store, or None when it has none (or not that interface)."""
-    store = getattr(vehicle, "parameters", None)
+    """The vehicle's parameter store (:class:`~insulator_rs.ports.capabilities.HasParameters`), or
+    None when it has none (or not that interface)."""
+    store = vehicle.parameters if isinstance(vehicle, HasParameters) else None
     return store if isinstance(store, ParameterStore) else None
 
 
 class VehicleDecorator:
-    """A :class:`Vehicle` adapter round ``inner`` that passes every call on as it is: a decorator
-    (the recording's, the fault matrix's) subclasses it and overrides what it watches or changes;
-    anything else the inner adapter offers (parameters, link_stats) is reached through it."""
+    """A :class:`Vehicle` adapter round ``inner`` that passes every call of the port on as it is: a
+    decorator (the recording's, the fault matrix's) subclasses it and overrides what it watches or
+    changes. Of the optional capabilities (:mod:`insulator_rs.ports.capabilities`) it offers those
+    ``inner`` has, and only those, so the flight finds the same through it; anything else of the
+    adapter (its link's counters, its telemetry) is ``inner``'s, reached there."""
 
     def __init__(self, inner: Vehicle) -> None:
         self.inner = inner
+        if isinstance(inner, HasParameters):
+            self.parameters = inner.parameters
+        if isinstance(inner, ReportsNavigation):
+            self.navigation = inner.navigation
+        if isinstance(inner, MapsClock):
+            self.timesync_record = inner.timesync_record
+        if isinstance(inner, ReportsSetpointStream):
+            self.setpoint_gaps = inner.setpoint_gaps
 
     def state(self) -> VehicleState:
         return self.inner.state()
@@ -210,6 +186,3 @@ class VehicleDecorator:
 
     def close(self) -> None:
         self.inner.close()
-
-    def __getattr__(self, name: str) -> Any:  # what else the inner adapter offers
-        return getattr(self.inner, name)

@@ -47,6 +47,7 @@ import numpy as np
 from insulator_rs.exceptions import ReportError
 from insulator_rs.perception.photo_verdict import PhotoVerdict, fit_tally, verdict_of_record
 from insulator_rs.report.folder import write_atomic
+from insulator_rs.report.run_status import RunOutcome
 
 HTML_NAME = "report.html"
 SUMMARY_NAME = "summary.json"
@@ -298,7 +299,10 @@ def _battery_fact(battery: Any, abort: Any) -> str | None:
 
 
 def _status_class(status: str) -> str:
-    return status.split(":")[0].strip().split()[0] if status.strip() else "unknown"
+    try:
+        return RunOutcome.parse(status).status.value
+    except ValueError:  # a summary.json of another version, or hand-edited
+        return "unknown"
 
 
 def _duration(seconds: float | None) -> str:

@@ -1,0 +1,147 @@
+"""The way out after an abort: stop, fly the safe route out, land clear of the tower and the
+conductor corridors, or hold and hand the vehicle to the pilot.
+
+The route is :mod:`insulator_rs.planning.abort`'s, planned from what the state machine knew (on
+across over the tower where a crossing was heading, back out beside an arm where a detour
+began); where no route can be planned, or the vehicle stops taking setpoints on it, the vehicle
+holds in the autopilot's HOLD and the pilot is told: never a blind descent. Nothing is flown
+while a vehicle failsafe has the vehicle (the autopilot flies it) or when it never took off.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from insulator_rs.exceptions import PlanningError, VehicleError
+from insulator_rs.flight.leg_follower import follow
+from insulator_rs.flight.pilot import LAND_HEIGHT, Pilot
+from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.planning.abort import AbortCase, AbortRoute, leg_trajectory, plan_abort_route, plan_stop
+from insulator_rs.planning.exploration import PlanKind
+from insulator_rs.planning.minsnap import MinSnapTrajectory
+from insulator_rs.planning.segments import SAFETY_CHECK_DT
+from insulator_rs.ports.observer import FlightObserver
+from insulator_rs.ports.vehicle import FlightMode
+from insulator_rs.tracking.registry import InsulatorRegistry
+
+OFFBOARD_WARMUP = 0.5  # s of setpoints streamed before asking for OFFBOARD (PX4 wants a stream)
+
+
+class SafeExit:
+    """The abort's way out of one flight: ``route`` flown (None: none), ``handed_over`` why the
+    vehicle was left holding for the pilot, ``left`` what the plan still held at the abort."""
+
+    def __init__(self, pilot: Pilot, geom: MissionGeometry, registry: InsulatorRegistry, *, v_max: np.ndarray,
+                 a_max: np.ndarray, crossing_clearance: float, observer: FlightObserver) -> None:
+        self.pilot = pilot
+        self.geom = geom
+        self.registry = registry
+        self.v_max, self.a_max = v_max, a_max
+        self.crossing_clearance = crossing_clearance
+        self.observer = observer
+        self.route: AbortRoute | None = None
+        self.handed_over: str | None = None
+        self.left: dict[str, Any] | None = None
+
+    def route_from(self, position: np.ndarray) -> AbortRoute:
+        """The safe route out from ``position`` (at rest) that an abort flies, from what the state
+        machine knows (the abort's context once aborted, else what an abort now would keep)."""
+        sm = self.pilot.sm
+        ctx = sm.aborted or sm.exit_context("battery reserve", self.pilot.vehicle.state().time)
+        return plan_abort_route(self.geom.line, self.geom.volumes, position, toward_side=ctx.toward_side,
+                                back_to=ctx.back_to, ground_z=float(self.geom.takeoff[2]),
+                                land_height=LAND_HEIGHT, crossing_clearance=self.crossing_clearance)
+
+    def note_what_is_left(self) -> None:
+        """What the plan still holds (at the moment of an abort, before the state machine drops
+        it): the insulators found and not yet inspected, the inspection waypoints not flown
+        (buffered and deferred), the exploration path not flown (its waypoints and length)."""
+        sm = self.pilot.sm
+        scan = [np.asarray(it.position, dtype=np.float64) for it in sm.plan
+                if it.kind in (PlanKind.SCAN, PlanKind.CROSS)]
+        length = float(np.sum(np.linalg.norm(np.diff(np.array(scan), axis=0), axis=1))) if len(scan) > 1 else 0.0
+        self.left = {"insulators_uninspected": [i.id for i in self.registry.insulators if not i.inspected],
+                     "inspection_waypoints": sum(it.kind == PlanKind.INSPECT for it in sm.plan)
+                     + sum(len(w) for w in sm.deferred.values()),
+                     "exploration_waypoints": len(scan), "exploration_left_m": length}
+
+    def leave(self) -> None:
+        """After an abort: stop, fly the safe route out and land at its end; where no route can
+        be planned, or the vehicle will not fly it, hold and hand over to the pilot. Nothing when
+        a failsafe has the vehicle or it never flew."""
+        pilot = self.pilot
+        if pilot.failsafe is not None or not pilot.airborne:
+            return
+        st = pilot.vehicle.state()
+        if st.landed:
+            return
+        offboard = st.mode == FlightMode.OFFBOARD.value
+        yaw = st.yaw
+        try:
+            stop = plan_stop(self.geom.volumes, st.position, st.velocity, self.a_max)
+            if stop is not None and offboard and not self._fly(stop, yaw):
+                return
+            route = self.route_from(pilot.vehicle.state().position)
+        except PlanningError as exc:
+            self.hand_over(f"no safe route to land: {exc}")
+            return
+        self.route = route
+        pilot.say(f"[{pilot.now():7.1f} s] abort: {route.case} to the landing point "
+                  f"{np.round(route.landing, 1).tolist()} ({len(route.legs)} legs)")
+        pilot.write_summary()
+        if route.case == AbortCase.DESCEND and not offboard:
+            pilot.land()  # straight down is clear: the autopilot's own landing, no offboard needed
+            return
+        if not offboard and not self._take_offboard():
+            return
+        for leg in route.legs:
+            try:
+                traj = leg_trajectory(leg, self.geom.volumes, v_max=self.v_max, a_max=self.a_max,
+                                      dt=SAFETY_CHECK_DT)
+            except PlanningError as exc:
+                self.hand_over(f"no safe trajectory along the route out: {exc}")
+                return
+            if not self._fly(traj, yaw):
+                return
+        pilot.land()
+
+    def _fly(self, traj: MinSnapTrajectory, yaw: float) -> bool:
+        """Fly one trajectory of the way out; False (and the vehicle handed over, unless a
+        failsafe has it) when the vehicle stops taking setpoints on the way."""
+        for _, st in follow(self.pilot, traj, lambda: yaw):
+            if self.pilot.failsafe is not None:
+                return False
+            if not st.healthy or st.mode != FlightMode.OFFBOARD.value:
+                self.hand_over(st.fault or f"the vehicle left offboard on the way out (mode {st.mode})")
+                return False
+        return True
+
+    def _take_offboard(self) -> bool:
+        """Back into offboard for the way out (setpoints streamed here first, as PX4 wants);
+        False, and the vehicle handed over, when the autopilot refuses."""
+        pilot = self.pilot
+        st = pilot.vehicle.state()
+        here, t0 = st.position.copy(), st.time
+        while st.time - t0 < OFFBOARD_WARMUP and pilot.failsafe is None:
+            st = pilot.tick(here, None, st.yaw)
+        try:
+            pilot.vehicle.start_offboard()
+        except VehicleError as exc:
+            self.hand_over(f"offboard refused for the way out: {exc}")
+            return False
+        return pilot.failsafe is None
+
+    def hand_over(self, reason: str) -> None:
+        """No safe way on: hold in the autopilot's HOLD where the vehicle is (never a blind
+        descent), say so to the pilot (the GCS's STATUSTEXT), stop commanding."""
+        self.handed_over = reason
+        try:
+            self.pilot.vehicle.hold()
+        except VehicleError as exc:
+            reason += f"; the hold command failed too: {exc}"
+            self.handed_over = reason
+        self.observer.handed_over(self.pilot.now(), reason)
+        self.pilot.say(f"[{self.pilot.now():7.1f} s] holding for the pilot: {reason}")
+        self.pilot.write_summary()
