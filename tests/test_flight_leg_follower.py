@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.exceptions import PlanningError
 from insulator_rs.flight.leg_follower import SURVEY_PERIOD, LegFollower, follow

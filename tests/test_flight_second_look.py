@@ -12,7 +12,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.exceptions import PlanningError
 from insulator_rs.flight import second_look

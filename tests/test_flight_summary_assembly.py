@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pymap3d
 import pytest
-from test_mission_inspect import small_scene
+from helpers.flights import small_scene
 
 from insulator_rs.app.inspect_command import kinematic_vehicle
 from insulator_rs.flight.loop import FlightLoop, FlightSettings

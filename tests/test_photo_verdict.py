@@ -11,7 +11,7 @@ import pytest
 
 from insulator_rs.app.cli import main
 from insulator_rs.perception.photo_verdict import Fitness, PhotoVerdict, Reason, verdict_of_record
-from test_mission_inspect import ARGS, small_scene
+from helpers.flights import ARGS, small_scene
 
 
 def test_round_trip_through_json_for_every_reason():

@@ -109,7 +109,7 @@ class PhotoSession:
                 return
             if attempt <= retakes:
                 self.pilot.say(f"[{self.pilot.now():7.1f} s] photo of insulator {wp.insulator_id} unfit "
-                               f"({', '.join(check.reasons)}): retake {attempt} of {retakes}")
+                               f"({check.verdict.describe()}): retake {attempt} of {retakes}")
 
     def shoot(self, wp: InspectionWaypoint, attempt: int) -> PhotoCheck | None:
         """Settle on the waypoint with the camera aimed, take the photo through the sensors,
@@ -150,10 +150,10 @@ class PhotoSession:
                                   position=st.position, yaw=st.yaw, T_w_b=st.T_w_b, velocity=st.velocity,
                                   axis=axis, gimbal=(pitch, gimbal_yaw), check=check, attempt=attempt)
         q = record["quality"]
-        verdict = "fit" if check.fit else f"unfit: {', '.join(check.reasons)}"
+        # the verdict's own words (it carries the detector's error): the log, summary.json,
+        # report.html and score.json all say what this one PhotoVerdict says
         self.pilot.say(f"[{self.pilot.now():7.1f} s] photo {record['file']}: GSD {q['gsd_mm_px']:.1f} mm/px, "
-                       f"blur {q['motion_blur_px']:.2f} px; checked on the photo: {verdict}"
-                       + (f" ({check.error})" if check.error else ""))
+                       f"motion blur {q['motion_blur_px']:.2f} px; checked on the photo: {check.verdict.describe()}")
         w = record["wgs84"]  # where the GCS draws the photo's marker
         self.observer.photo_taken(PhotoTaken(record["time_s"], time_utc.timestamp(), wp.insulator_id,
                                              len(self.photos), record["file"], st.position.copy(),

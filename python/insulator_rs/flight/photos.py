@@ -17,6 +17,7 @@ import numpy as np
 from insulator_rs.inspection_camera import InspectionCamera
 from insulator_rs.perception.photo_check import PhotoCheck
 from insulator_rs.perception.photo_quality import photo_quality
+from insulator_rs.perception.photo_verdict import fit_tally, verdict_of_record
 from insulator_rs.planning.waypoints import InspectionWaypoint
 from insulator_rs.ports.sensors import CameraFrame
 from insulator_rs.report import ReportWriter
@@ -94,15 +95,18 @@ class InspectionPhotos:
         checks, or "no photo taken") and the detector's ``errors``."""
         checks = [p["check"] for p in self.records if p.get("check") is not None]
         cost = [c["detect_s"] for c in checks]
+        fit, fit_ids = fit_tally(self.records)  # read off the one verdict each record carries
         without = []
         for iid in insulator_ids:
-            mine = [p["check"] for p in self.of(iid) if p.get("check") is not None]
-            if any(c["fit"] for c in mine):
+            if iid in fit_ids:
                 continue
-            reasons = Counter(r for c in mine for r in c["reasons"]) if mine else Counter({"no photo taken": 1})
+            mine = [p for p in self.of(iid) if p.get("check") is not None]
+            verdicts = [v for p in mine if (v := verdict_of_record(p)) is not None]
+            reasons = (Counter(r for v in verdicts for r in v.unfit_reasons) if mine
+                       else Counter({"no photo taken": 1}))
             without.append({"insulator_id": iid, "photos": len(mine), "reasons": dict(reasons),
-                            "errors": sorted({c["error"] for c in mine if c.get("error")})})
-        return {"photos": len(checks), "fit": sum(1 for c in checks if c["fit"]),
+                            "errors": sorted({p["check"]["error"] for p in mine if p["check"].get("error")})})
+        return {"photos": len(checks), "fit": fit,
                 "retakes": sum(1 for p in self.records if p.get("attempt", 1) > 1),
                 "detect_s_median": statistics.median(cost) if cost else None,
                 "detect_s_max": max(cost) if cost else None,

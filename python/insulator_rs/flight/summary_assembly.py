@@ -26,6 +26,7 @@ from insulator_rs.geodesy import GeoPoint, enu_to_geodetic
 from insulator_rs.mission.config import Mission
 from insulator_rs.mission.state_machine import InspectionStateMachine
 from insulator_rs.perception.runner import PerceptionRunner
+from insulator_rs.ports.sensors import sensors_name
 from insulator_rs.planning.safety import SafetyVolumes
 from insulator_rs.planning.waypoints import InspectionWaypoint
 from insulator_rs.ports.detector import BoxDetector, detections_dropped, detector_name
@@ -94,7 +95,7 @@ class SummaryAssembly:
         details = FlightDetails(
             mission=str(p.mission.source), rig=str(p.rig.source), policy=p.settings.policy.value,
             time_allocation=p.settings.time_allocation, state=p.sm.state.value, vehicle=type(p.vehicle).__name__,
-            sensors=type(p.sensors).__name__,
+            sensors=sensors_name(p.sensors),
             failsafe=None if failsafe is None else {"reason": failsafe.reason, "action": failsafe.action},
             distance_m=p.report.distance_m,
             detections_dropped_by_sanitiser=detections_dropped(p.detector),
