@@ -260,7 +260,7 @@ fn shade(
         let mut direct = normal.dot(sun).max(0.0);
         if direct > 0.0 && lighting.shadows {
             let point = origin + dir * hit.distance + normal * SHADOW_OFFSET;
-            if scene.cast_one(&point, sun, lighting.max_range).is_some() {
+            if scene.occluded(&point, sun, lighting.max_range) {
                 direct = 0.0;
             }
         }
