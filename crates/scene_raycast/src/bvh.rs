@@ -241,14 +241,25 @@ impl Bvh {
         let mut best: Option<(f64, u32)> = None;
         // (child, count, entry distance): a node when count == 0, else a leaf.
         let mut stack = [(0u32, 0u32, 0.0f32); STACK];
-        stack[0] = (0, 0, 0.0);
-        let mut depth = 1usize;
-        while depth > 0 {
-            depth -= 1;
-            let (child, count, t_enter) = stack[depth];
-            if t_enter > limit {
-                continue; // a nearer hit was found since the push
-            }
+        let mut depth = 0usize;
+        // The next node or leaf to visit: the nearest child met, without a trip
+        // through the stack; None pops the stack.
+        let mut next = Some((0u32, 0u32));
+        loop {
+            let (child, count) = match next.take() {
+                Some(visit) => visit,
+                None => loop {
+                    if depth == 0 {
+                        return best;
+                    }
+                    depth -= 1;
+                    let (child, count, t_enter) = stack[depth];
+                    // Skipped when a nearer hit was found since the push.
+                    if t_enter <= limit {
+                        break (child, count);
+                    }
+                },
+            };
             if count > 0 {
                 let first = child as usize;
                 for leaf in &self.leaves[first..first + count as usize] {
@@ -266,7 +277,15 @@ impl Bvh {
             }
             let node = &self.nodes[child as usize];
             let (t_in, mut mask) = ray.entries(node, limit);
-            // Push the children met, farthest first, so that the nearest is popped next.
+            if mask == 0 {
+                continue;
+            }
+            if mask & (mask - 1) == 0 {
+                let lane = mask.trailing_zeros() as usize;
+                next = Some((node.child[lane], node.count[lane]));
+                continue;
+            }
+            // Several met: visit the nearest next, push the others farthest first.
             let mut order = [(0usize, 0.0f32); 4];
             let mut n = 0;
             while mask != 0 {
@@ -281,15 +300,16 @@ impl Bvh {
                 order[k] = (lane, t);
                 n += 1;
             }
-            for &(lane, t) in &order[..n] {
+            for &(lane, t) in &order[..n - 1] {
                 // Cannot overflow (see STACK); a guard instead of a panic all the same.
                 if depth < STACK {
                     stack[depth] = (node.child[lane], node.count[lane], t);
                     depth += 1;
                 }
             }
+            let nearest = order[n - 1].0;
+            next = Some((node.child[nearest], node.count[nearest]));
         }
-        best
     }
 
     /// Where the ray enters and leaves the scene's (padded) bounds, in f64:

@@ -42,33 +42,6 @@ pub struct Hits {
 }
 
 impl Hits {
-    fn from_options(hits: Vec<Option<Hit>>) -> Self {
-        let n = hits.len();
-        let mut out = Hits {
-            distance: Vec::with_capacity(n),
-            instance_id: Vec::with_capacity(n),
-            triangle: Vec::with_capacity(n),
-            normal: Vec::with_capacity(n),
-        };
-        for hit in hits {
-            match hit {
-                Some(h) => {
-                    out.distance.push(h.distance);
-                    out.instance_id.push(h.instance_id);
-                    out.triangle.push(i64::from(h.triangle));
-                    out.normal.push([h.normal.x, h.normal.y, h.normal.z]);
-                }
-                None => {
-                    out.distance.push(f64::INFINITY);
-                    out.instance_id.push(-1);
-                    out.triangle.push(-1);
-                    out.normal.push([0.0; 3]);
-                }
-            }
-        }
-        out
-    }
-
     /// Number of rays.
     pub fn len(&self) -> usize {
         self.distance.len()
@@ -219,15 +192,39 @@ impl Scene {
                 got: directions.len(),
             });
         }
-        let units = unit_directions("directions", directions)?;
+        check_directions("directions", directions)?;
         check_finite_rows("origins", origins)?;
-        let hits: Vec<Option<Hit>> = origins
-            .par_iter()
-            .zip(units.par_iter())
-            .with_min_len(RAYS_PER_TASK)
-            .map(|(o, d)| self.cast_one(&Point3::new(o[0], o[1], o[2]), d, max_range))
-            .collect();
-        Ok(Hits::from_options(hits))
+        let n = origins.len();
+        let mut out = Hits {
+            distance: vec![f64::INFINITY; n],
+            instance_id: vec![-1; n],
+            triangle: vec![-1; n],
+            normal: vec![[0.0; 3]; n],
+        };
+        // Written in place, chunk by chunk: no per-ray result list to gather.
+        out.distance
+            .par_chunks_mut(RAYS_PER_TASK)
+            .zip(out.instance_id.par_chunks_mut(RAYS_PER_TASK))
+            .zip(out.triangle.par_chunks_mut(RAYS_PER_TASK))
+            .zip(out.normal.par_chunks_mut(RAYS_PER_TASK))
+            .enumerate()
+            .for_each(|(chunk, (((distance, instance_id), triangle), normal))| {
+                let start = chunk * RAYS_PER_TASK;
+                for (k, (o, d)) in origins[start..start + distance.len()]
+                    .iter()
+                    .zip(&directions[start..start + distance.len()])
+                    .enumerate()
+                {
+                    let origin = Point3::new(o[0], o[1], o[2]);
+                    if let Some(hit) = self.cast_one(&origin, &unit(d), max_range) {
+                        distance[k] = hit.distance;
+                        instance_id[k] = hit.instance_id;
+                        triangle[k] = i64::from(hit.triangle);
+                        normal[k] = [hit.normal.x, hit.normal.y, hit.normal.z];
+                    }
+                }
+            });
+        Ok(out)
     }
 }
 
@@ -250,23 +247,21 @@ pub(crate) fn check_finite_rows(name: &'static str, rows: &[[f64; 3]]) -> Result
     }
 }
 
-/// Normalises ray directions, refusing non-finite and zero-length rows.
-pub(crate) fn unit_directions(
-    name: &'static str,
-    directions: &[[f64; 3]],
-) -> Result<Vec<Vector3<f64>>, RaycastError> {
+/// Refuses non-finite and zero-length (or overflowing) direction rows.
+pub(crate) fn check_directions(name: &'static str, directions: &[[f64; 3]]) -> Result<(), RaycastError> {
     check_finite_rows(name, directions)?;
-    directions
-        .iter()
-        .enumerate()
-        .map(|(index, d)| {
-            let v = Vector3::new(d[0], d[1], d[2]);
-            let norm = v.norm();
-            if norm > 0.0 && norm.is_finite() {
-                Ok(v / norm)
-            } else {
-                Err(RaycastError::ZeroDirection { name, index })
-            }
-        })
-        .collect()
+    match directions.iter().position(|d| {
+        let norm = Vector3::new(d[0], d[1], d[2]).norm();
+        !(norm > 0.0 && norm.is_finite())
+    }) {
+        Some(index) => Err(RaycastError::ZeroDirection { name, index }),
+        None => Ok(()),
+    }
+}
+
+/// The unit vector along a direction row that [`check_directions`] accepted.
+#[inline]
+pub(crate) fn unit(d: &[f64; 3]) -> Vector3<f64> {
+    let v = Vector3::new(d[0], d[1], d[2]);
+    v / v.norm()
 }
