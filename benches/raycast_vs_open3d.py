@@ -82,11 +82,14 @@ def ray_sets(tower: Tower, camera: Camera) -> dict[str, tuple[np.ndarray, np.nda
 
 
 def open3d_scene(mesh: Mesh) -> Any:
-    import open3d as o3d
+    try:
+        import open3d as o3d
+    except ImportError as exc:  # open3d is no dependency of the package: a bench-only extra
+        raise SystemExit(f"this benchmark needs Open3D (pip install open3d): {exc}") from exc
 
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.triangles.astype(np.uint32)))
+    scene.add_triangles(o3d.core.Tensor.from_numpy(np.ascontiguousarray(mesh.vertices, np.float32)),
+                        o3d.core.Tensor.from_numpy(np.ascontiguousarray(mesh.triangles, np.uint32)))
     return scene
 
 
@@ -112,7 +115,7 @@ def compare(name: str, mesh: Mesh, o3d_scene: Any, origins: np.ndarray, dirs: np
         return np.asarray(mesh.raycaster.cast(origins, dirs, np.inf).distance)
 
     def theirs() -> np.ndarray:
-        out = o3d_scene.cast_rays(o3d.core.Tensor(rays32), nthreads=0)
+        out = o3d_scene.cast_rays(o3d.core.Tensor.from_numpy(rays32), nthreads=0)
         return np.asarray(out["t_hit"].numpy())
 
     t_ours, t_theirs = best_of(repeats, [ours, theirs])
