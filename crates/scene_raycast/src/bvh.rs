@@ -172,12 +172,10 @@ impl Bvh {
         // (node index, pieces range, depth)
         let mut work = vec![(0usize, 0usize, pieces.len(), 0usize)];
         while let Some((index, start, end, depth)) = work.pop() {
-            let bounds = pieces[start..end]
-                .iter()
-                .fold(Bounds::EMPTY, |mut b, p| {
-                    b.grow(&p.lo, &p.hi);
-                    b
-                });
+            let bounds = pieces[start..end].iter().fold(Bounds::EMPTY, |mut b, p| {
+                b.grow(&p.lo, &p.hi);
+                b
+            });
             let (lo, hi) = padded_f32(&bounds, &center);
             let node = &mut nodes[index];
             node.lo = lo;
@@ -234,7 +232,10 @@ impl Bvh {
         if enter > max_range {
             return None;
         }
-        let ray = SlabRay::new(&(origin.coords + direction * enter - self.center), direction);
+        let ray = SlabRay::new(
+            &(origin.coords + direction * enter - self.center),
+            direction,
+        );
         // Node distances are measured from the moved origin, `enter` along the ray.
         let limit_of = |t: f64| ((t.min(exit) - enter) as f32 + 1e-4) * SLAB_SLACK;
         let mut limit = limit_of(max_range);
@@ -351,7 +352,11 @@ impl SlabRay {
         // needs no special case (the padded boxes absorb the difference).
         let inv = |c: f64| {
             let c = c as f32;
-            let c = if c.abs() < 1e-30 { 1e-30f32.copysign(c) } else { c };
+            let c = if c.abs() < 1e-30 {
+                1e-30f32.copysign(c)
+            } else {
+                c
+            };
             f32x4::splat(1.0 / c)
         };
         Self {
@@ -542,7 +547,8 @@ fn split(pieces: &mut [Piece], bounds: &Bounds, depth: usize) -> Option<usize> {
                 continue;
             }
             let cost = TRAVERSAL_COST
-                + (acc.half_area() * count as f64 + ra * rc as f64) / parent_area.max(f64::MIN_POSITIVE);
+                + (acc.half_area() * count as f64 + ra * rc as f64)
+                    / parent_area.max(f64::MIN_POSITIVE);
             if best.is_none_or(|(c, _, _)| cost < c) {
                 best = Some((cost, axis, lo + (b + 1) as f64 / scale));
             }

@@ -248,7 +248,10 @@ pub(crate) fn check_finite_rows(name: &'static str, rows: &[[f64; 3]]) -> Result
 }
 
 /// Refuses non-finite and zero-length (or overflowing) direction rows.
-pub(crate) fn check_directions(name: &'static str, directions: &[[f64; 3]]) -> Result<(), RaycastError> {
+pub(crate) fn check_directions(
+    name: &'static str,
+    directions: &[[f64; 3]],
+) -> Result<(), RaycastError> {
     check_finite_rows(name, directions)?;
     match directions.iter().position(|d| {
         let norm = Vector3::new(d[0], d[1], d[2]).norm();

@@ -155,7 +155,11 @@ fn brute_force(soup: &Soup, o: &Point3<f64>, d: &Vector3<f64>, range: f64) -> Op
         let q = s.cross(&e1);
         let v = d.dot(&q) * inv;
         let t = e2.dot(&q) * inv;
-        if (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && t >= 0.0 && t <= range
+        if (0.0..=1.0).contains(&u)
+            && v >= 0.0
+            && u + v <= 1.0
+            && t >= 0.0
+            && t <= range
             && best.is_none_or(|(bt, _)| t < bt)
         {
             best = Some((t, k as u32));
@@ -188,18 +192,31 @@ fn check(soup: &Soup, n: usize, seed: u64) {
                 (Some(g), Some((t, _))) => (g.distance - t).abs() <= 1e-12 * (1.0 + t),
                 _ => false,
             };
-            assert!(agree, "ray {i} ({o}, {d}, range {range}): {got:?}, reference {want:?}, exact {exact:?}");
+            assert!(
+                agree,
+                "ray {i} ({o}, {d}, range {range}): {got:?}, reference {want:?}, exact {exact:?}"
+            );
         }
         match got {
             Some(_) => hits += 1,
             None => misses += 1,
         }
-        assert_eq!(scene.occluded(&o, &d, range), got.is_some(), "ray {i}: occlusion");
+        assert_eq!(
+            scene.occluded(&o, &d, range),
+            got.is_some(),
+            "ray {i}: occlusion"
+        );
     }
     // The rays must exercise both outcomes.
-    assert!(hits > n / 10 && misses > n / 20, "{hits} hits, {misses} misses");
+    assert!(
+        hits > n / 10 && misses > n / 20,
+        "{hits} hits, {misses} misses"
+    );
     // Disagreements are the reference's rare f32 losses, never more.
-    assert!(disagreements * 100 < n, "{disagreements} disagreements in {n} rays");
+    assert!(
+        disagreements * 100 < n,
+        "{disagreements} disagreements in {n} rays"
+    );
     println!("{n} rays: {hits} hits, {misses} misses, {disagreements} settled by brute force");
 }
 
@@ -228,7 +245,15 @@ fn batch_cast_matches_one_by_one() {
     for (i, (o, d, _)) in rays.iter().enumerate() {
         // The batch normalises the directions again, as here.
         let one = scene.cast_one(o, &(d / d.norm()), 30.0);
-        assert_eq!(one.map_or(f64::INFINITY, |h| h.distance), hits.distance[i], "ray {i}");
-        assert_eq!(one.map_or(-1, |h| i64::from(h.triangle)), hits.triangle[i], "ray {i}");
+        assert_eq!(
+            one.map_or(f64::INFINITY, |h| h.distance),
+            hits.distance[i],
+            "ray {i}"
+        );
+        assert_eq!(
+            one.map_or(-1, |h| i64::from(h.triangle)),
+            hits.triangle[i],
+            "ray {i}"
+        );
     }
 }

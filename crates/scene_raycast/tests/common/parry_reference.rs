@@ -118,7 +118,6 @@ impl ParryScene {
         let distance = e2.dot(&q) * inv;
         (distance >= 0.0).then_some(distance)
     }
-
 }
 
 /// The BVH's leaves: (triangle of each leaf, loosened f32 box of each leaf relative
@@ -222,4 +221,3 @@ impl Slab {
         }
     }
 }
-
