@@ -8,10 +8,6 @@ use parry3d::bounding_volume::Aabb;
 use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhNode};
 use std::cell::Cell;
 
-/// Triangles got one box per piece while their longest edge exceeded this (m)
-/// and [`BVH_SPLIT_ASPECT`] times their height.
-const BVH_SPLIT_EDGE: f64 = 1.0;
-const BVH_SPLIT_ASPECT: f64 = 4.0;
 /// Loosening of the f32 bounding boxes, m, so that rounding never culls a hit.
 const AABB_MARGIN: f64 = 1e-5;
 /// |det| below this (relative to the edge lengths) is a ray in the triangle's plane.
@@ -121,62 +117,27 @@ impl ParryScene {
 }
 
 /// The BVH's leaves: (triangle of each leaf, loosened f32 box of each leaf relative
-/// to `center`); one leaf per triangle, or one per piece of a long thin triangle
-/// (see [`BVH_SPLIT_EDGE`]).
+/// to `center`), one per triangle. (The shipped caster had one leaf per piece of a
+/// long thin triangle; that only changed which boxes culled, never a hit.)
 fn leaf_boxes(
     points: &[Point3<f64>],
     triangles: &[[u32; 3]],
     center: &Vector3<f64>,
 ) -> (Vec<u32>, Vec<Aabb>) {
-    let boxed = |c: &[Point3<f64>; 3]| {
-        let lo = c
-            .iter()
-            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(&p.coords))
-            - center;
-        let hi = c
-            .iter()
-            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(&p.coords))
-            - center;
-        let pad = |v: &Vector3<f64>| v.map(|x| AABB_MARGIN + 1e-6 * x.abs());
-        Aabb::new(
-            Point3::from((lo - pad(&lo)).map(|x| x as f32)),
-            Point3::from((hi + pad(&hi)).map(|x| x as f32)),
-        )
-    };
-    let mut leaf_triangle = Vec::with_capacity(triangles.len());
-    let mut leaves = Vec::with_capacity(triangles.len());
-    let mut stack: Vec<[Point3<f64>; 3]> = Vec::new();
-    for (t, tri) in triangles.iter().enumerate() {
-        stack.push(tri.map(|i| points[i as usize]));
-        while let Some(c) = stack.pop() {
-            if needs_split(&c) {
-                // Halve the longest edge (a, b); o is the corner opposite it.
-                let k = (0..3)
-                    .max_by(|&i, &j| edge(&c, i).total_cmp(&edge(&c, j)))
-                    .unwrap_or(0);
-                let (a, b, o) = (c[(k + 1) % 3], c[(k + 2) % 3], c[k]);
-                let m = Point3::from((a.coords + b.coords) * 0.5);
-                stack.push([o, a, m]);
-                stack.push([o, m, b]);
-            } else {
-                leaf_triangle.push(t as u32);
-                leaves.push(boxed(&c));
-            }
-        }
-    }
-    (leaf_triangle, leaves)
-}
-
-/// Length of the edge opposite corner `k`.
-fn edge(c: &[Point3<f64>; 3], k: usize) -> f64 {
-    (c[(k + 1) % 3] - c[(k + 2) % 3]).norm()
-}
-
-fn needs_split(c: &[Point3<f64>; 3]) -> bool {
-    let longest = (0..3).map(|k| edge(c, k)).fold(0.0, f64::max);
-    let twice_area = (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
-    let height = twice_area / longest;
-    longest > BVH_SPLIT_EDGE && longest > BVH_SPLIT_ASPECT * height
+    let pad = |v: &Vector3<f64>| v.map(|x| AABB_MARGIN + 1e-6 * x.abs());
+    let boxes = triangles
+        .iter()
+        .map(|tri| {
+            let c = tri.map(|i| points[i as usize].coords - center);
+            let lo = c[0].inf(&c[1]).inf(&c[2]);
+            let hi = c[0].sup(&c[1]).sup(&c[2]);
+            Aabb::new(
+                Point3::from((lo - pad(&lo)).map(|x| x as f32)),
+                Point3::from((hi + pad(&hi)).map(|x| x as f32)),
+            )
+        })
+        .collect();
+    ((0..triangles.len() as u32).collect(), boxes)
 }
 
 /// A ray in the BVH's f32 frame, ready for slab tests against node boxes.
