@@ -3,14 +3,16 @@
 //! worst case far denser than any tower).
 //!
 //! Side by side: the parallel batch `Scene::cast` against the same rays cast one
-//! by one on one thread (the rayon speed-up), and a camera render with and
-//! without shadow rays. `cargo bench -p scene_raycast` prints the ratios at the end.
+//! by one on one thread (the rayon speed-up), those against the previous caster
+//! (parry3d's BVH, `common::parry_reference`) one by one, and a camera render
+//! with and without shadow rays. `cargo bench -p scene_raycast` prints the ratios at the end.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
 
 use std::time::Instant;
 
+use common::parry_reference::ParryScene;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use nalgebra::{Matrix3, Point3, Vector3};
 use scene_raycast::{render, Lighting, Scene};
@@ -70,11 +72,12 @@ fn bench(c: &mut Criterion) {
         ("tower", common::lattice_tower()),
         ("thicket", common::tower_like(MEMBERS, SEGMENTS)),
     ] {
-        bench_scene(c, name, &scene(&soup));
+        let reference = ParryScene::new(&soup.vertices, &soup.triangles);
+        bench_scene(c, name, &scene(&soup), &reference);
     }
 }
 
-fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
+fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene, reference: &ParryScene) {
     let (origins, dirs) = lidar_rays();
     let mut group = c.benchmark_group(format!("{name}/lidar_frame"));
     group.throughput(Throughput::Elements(LIDAR_RAYS as u64));
@@ -82,17 +85,31 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
     group.bench_function(BenchmarkId::new("parallel", scene.n_triangles()), |b| {
         b.iter(|| scene.cast(&origins, &dirs, 40.0))
     });
+    let one_by_one = || {
+        origins
+            .iter()
+            .zip(&dirs)
+            .filter_map(|(o, d)| {
+                scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)
+            })
+            .count()
+    };
+    let reference_one_by_one = || {
+        origins
+            .iter()
+            .zip(&dirs)
+            .filter_map(|(o, d)| {
+                reference.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)
+            })
+            .count()
+    };
     group.bench_function(BenchmarkId::new("one_by_one", scene.n_triangles()), |b| {
-        b.iter(|| {
-            origins
-                .iter()
-                .zip(&dirs)
-                .filter_map(|(o, d)| {
-                    scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)
-                })
-                .count()
-        })
+        b.iter(one_by_one)
     });
+    group.bench_function(
+        BenchmarkId::new("parry_reference_one_by_one", scene.n_triangles()),
+        |b| b.iter(reference_one_by_one),
+    );
     group.finish();
 
     let (w, h) = IMAGE;
@@ -127,15 +144,10 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
     };
     let par = time(&|| drop(std::hint::black_box(scene.cast(&origins, &dirs, 40.0))));
     let seq = time(&|| {
-        std::hint::black_box(
-            origins
-                .iter()
-                .zip(&dirs)
-                .filter_map(|(o, d)| {
-                    scene.cast_one(&Point3::from(*o), &Vector3::from(*d).normalize(), 40.0)
-                })
-                .count(),
-        );
+        std::hint::black_box(one_by_one());
+    });
+    let seq_reference = time(&|| {
+        std::hint::black_box(reference_one_by_one());
     });
     let lit = |s| Lighting {
         shadows: s,
@@ -144,13 +156,16 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: &Scene) {
     let no_sh = time(&|| drop(render(scene, &rot, &pos, &rays, w, h, &[], &lit(false))));
     let sh = time(&|| drop(render(scene, &rot, &pos, &rays, w, h, &[], &lit(true))));
     println!(
-        "\n{name}, {} triangles: LiDAR frame {:.2} ms parallel vs {:.2} ms one-by-one (x{:.2}); \
+        "\n{name}, {} triangles: LiDAR frame {:.2} ms parallel vs {:.2} ms one-by-one (x{:.2}), \
+         parry3d reference one-by-one {:.2} ms (ours x{:.2} faster); \
          {w}x{h} image {:.1} ms without shadows, {:.1} ms with (x{:.2}); \
          1280x960 extrapolated: {:.0} ms with shadows",
         scene.n_triangles(),
         par * 1e3,
         seq * 1e3,
         seq / par,
+        seq_reference * 1e3,
+        seq_reference / seq,
         no_sh * 1e3,
         sh * 1e3,
         sh / no_sh,

@@ -12,7 +12,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use crate::error::RaycastError;
-use crate::scene::{check_finite_rows, unit_directions, Scene};
+use crate::scene::{check_directions, check_finite_rows, unit, Scene};
 
 /// Shadow rays start this far (m) off the surface, along its normal, so that
 /// they do not hit the surface they leave.
@@ -192,7 +192,7 @@ pub fn render(
         });
     }
     let sun = lighting.validate()?;
-    let rays = unit_directions("rays_c", rays_c)?;
+    check_directions("rays_c", rays_c)?;
 
     let mut rgb = vec![0u8; n_pixels * 3];
     let mut ids = vec![-1i32; n_pixels];
@@ -210,7 +210,7 @@ pub fn render(
                     .wrapping_add(row as u64),
             );
             for col in 0..width {
-                let dir = rotation_w_c * rays[row * width + col];
+                let dir = rotation_w_c * unit(&rays_c[row * width + col]);
                 let (colour, id, dist) = shade(scene, position, &dir, albedo, lighting, &sun);
                 id_row[col] = id;
                 depth_row[col] = dist as f32;
@@ -260,7 +260,7 @@ fn shade(
         let mut direct = normal.dot(sun).max(0.0);
         if direct > 0.0 && lighting.shadows {
             let point = origin + dir * hit.distance + normal * SHADOW_OFFSET;
-            if scene.cast_one(&point, sun, lighting.max_range).is_some() {
+            if scene.occluded(&point, sun, lighting.max_range) {
                 direct = 0.0;
             }
         }

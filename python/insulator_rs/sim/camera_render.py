@@ -20,6 +20,7 @@ calibration file, read as any real rig is): 1280x960 with a wide lens, fx = fy =
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import cv2
@@ -170,14 +171,12 @@ class Camera:
         if self.model.width <= 0 or self.model.height <= 0:
             raise ValueError(f"model: image size must be positive, got {self.model.width}x{self.model.height}")
         self.T_b_c = check_pose("T_b_c", default_T_b_c() if T_b_c is None else T_b_c)
-        self._rays_c: np.ndarray | None = None
 
     @property
     def rays_c(self) -> np.ndarray:
-        """(H*W, 3) float64 unit rays in C through every pixel centre, row-major (cached)."""
-        if self._rays_c is None:
-            self._rays_c = pixel_rays(self.model)
-        return self._rays_c
+        """(H*W, 3) float64 unit rays in C through every pixel centre, row-major (read-only,
+        shared by the cameras of one lens: see :func:`cached_pixel_rays`)."""
+        return cached_pixel_rays(self.model)
 
     def render(self, mesh: Mesh, T_w_b: ArrayLike, *, lighting: Lighting | None = None,
                seed: int = 0, time: float = 0.0, min_box_pixels: int = MIN_BOX_PIXELS,
@@ -202,6 +201,27 @@ class Camera:
         )
         return CameraFrame(time=time, rgb=rgb, instance_id=ids, depth=depth, T_w_c=T_w_c,
                            boxes=boxes, visible_pixels=counts)
+
+
+#: Ray tables kept by :func:`cached_pixel_rays` (a 12 MP table is 288 MB).
+RAY_TABLES_KEPT = 2
+_ray_tables: dict[tuple[float, ...], np.ndarray] = {}
+_ray_tables_lock = threading.Lock()  # the SITL sensor head renders from its own thread
+
+
+def cached_pixel_rays(model: CameraModel) -> np.ndarray:
+    """:func:`pixel_rays` of ``model``, computed once per lens (read-only). The simulator makes a
+    ``Camera`` per photo, and the 12 MP table costs 0.75 s of CPU to build."""
+    key = (model.width, model.height, model.fx, model.fy, model.cx, model.cy, *model.dist)
+    with _ray_tables_lock:
+        rays = _ray_tables.get(key)
+        if rays is None:
+            rays = pixel_rays(model)
+            rays.flags.writeable = False
+            while len(_ray_tables) >= RAY_TABLES_KEPT:
+                del _ray_tables[next(iter(_ray_tables))]
+            _ray_tables[key] = rays
+        return rays
 
 
 def pixel_rays(model: CameraModel) -> np.ndarray:

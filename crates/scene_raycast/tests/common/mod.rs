@@ -1,6 +1,8 @@
 //! Analytic shapes as triangle meshes, shared by the tests and the bench.
 #![allow(dead_code)]
 
+pub mod parry_reference;
+
 use std::f64::consts::PI;
 
 /// A triangle soup: vertices, triangles, instance ids.

@@ -1,0 +1,635 @@
+//! The scene's bounding volume hierarchy: a binned-SAH BVH2 over triangle pieces,
+//! collapsed into a 4-wide BVH (the four children's boxes of a node side by side,
+//! 128 bytes, tested in one pass of 4-lane SIMD slab tests), traversed nearest
+//! child first, and closed by exact f64 Moeller-Trumbore triangle tests.
+//!
+//! Precision: node boxes are f32, relative to the centre of the scene's bounds,
+//! and padded outward ([`BOX_MARGIN`], [`BOX_RELATIVE_MARGIN`]) so that no
+//! rounding in the slab test can cull a box the exact ray meets. Before the
+//! traversal the ray's origin is moved (in f64) to where the ray enters the
+//! scene's bounds, so the f32 origin is never far from the boxes whatever the
+//! camera's distance. The boxes only cull: every candidate triangle is
+//! intersected in f64 from the original vertices, so the distances are those of
+//! an exact f64 Moeller-Trumbore over every triangle.
+//!
+//! Long thin triangles (the sides of diagonal lattice members) get one box per
+//! piece (see [`SPLIT_EDGE`]); the triangle itself is never cut, so the surface
+//! stays exactly the input's, without cracks.
+
+use nalgebra::{Point3, Vector3};
+use wide::{f32x4, CmpLe};
+
+/// Triangles get one BVH box per piece (longest edge halved, recursively) while
+/// their longest edge exceeds this many metres and is also more than
+/// [`SPLIT_ASPECT`] times the triangle's height over it: the single box of a long
+/// thin facet is mostly empty space.
+pub const SPLIT_EDGE: f64 = 1.0;
+/// See [`SPLIT_EDGE`].
+pub const SPLIT_ASPECT: f64 = 4.0;
+/// Absolute outward padding of the f32 node boxes, m.
+const BOX_MARGIN: f64 = 1e-5;
+/// Relative outward padding of the f32 node boxes (per unit of coordinate, m/m):
+/// covers f32 rounding of the box corners, the ray's origin and its direction.
+const BOX_RELATIVE_MARGIN: f64 = 2e-6;
+/// |det| below this (relative to the edge lengths) is a ray in the triangle's plane.
+const PARALLEL_DETERMINANT: f64 = 1e-14;
+/// SAH bins per axis.
+const BINS: usize = 16;
+/// Cost of one node visit relative to one triangle test (the f64 triangle test
+/// costs about two f32 box pairs).
+const TRAVERSAL_COST: f64 = 0.5;
+/// Leaves never hold more pieces than this, whatever the SAH says.
+const MAX_LEAF: usize = 8;
+/// Below this depth the SAH chooses the splits; deeper, the median does, which
+/// bounds the depth (and so the traversal stack) on any input.
+const SAH_DEPTH: usize = 40;
+/// Traversal stack entries: at most 3 per level of the 4-wide tree (each visit
+/// pushes at most 4 and pops 1), whose depth is at most the BVH2's
+/// ([`SAH_DEPTH`] plus the 34 median levels of 2^32 pieces), plus the root.
+const STACK: usize = 3 * (SAH_DEPTH + 34) + 4;
+/// Relative slack on f32 slab distances (PBRT's 1 + 2 gamma(3) and more).
+const SLAB_SLACK: f32 = 1.0 + 1e-6;
+
+/// A node of the binary tree the build makes: its box and either its children
+/// (`count == 0`: at `first` and `first + 1`) or its leaf pieces
+/// (`first..first + count` of [`Bvh::leaves`]).
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    lo: [f32; 3],
+    first: u32,
+    hi: [f32; 3],
+    count: u32,
+}
+
+/// A node of the traversed 4-wide tree: the boxes of its (up to) four children,
+/// one lane each, and per child either a node (`count == 0`: `child` indexes
+/// [`Bvh::nodes`]) or a leaf (`child..child + count` of [`Bvh::leaves`]).
+/// An unused lane has the box lo = hi = +inf, which every ray misses.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Node4 {
+    lo: [[f32; 4]; 3],
+    hi: [[f32; 4]; 3],
+    child: [u32; 4],
+    count: [u32; 4],
+}
+
+impl Node4 {
+    const EMPTY: Self = Self {
+        lo: [[f32::INFINITY; 4]; 3],
+        hi: [[f32::INFINITY; 4]; 3],
+        child: [0; 4],
+        count: [0; 4],
+    };
+}
+
+/// One leaf piece's triangle, ready for the f64 Moeller-Trumbore test.
+#[derive(Clone, Copy, Debug)]
+struct LeafTriangle {
+    a: Point3<f64>,
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+    /// |det| below this is a ray in the triangle's plane.
+    parallel: f64,
+    triangle: u32,
+}
+
+/// A box-bounded piece of a triangle during the build.
+#[derive(Clone, Copy)]
+struct Piece {
+    lo: Vector3<f64>,
+    hi: Vector3<f64>,
+    triangle: u32,
+}
+
+impl Piece {
+    fn centroid(&self, axis: usize) -> f64 {
+        0.5 * (self.lo[axis] + self.hi[axis])
+    }
+}
+
+/// Axis-aligned box in f64 during the build.
+#[derive(Clone, Copy)]
+struct Bounds {
+    lo: Vector3<f64>,
+    hi: Vector3<f64>,
+}
+
+impl Bounds {
+    const EMPTY: Self = Self {
+        lo: Vector3::new(f64::INFINITY, f64::INFINITY, f64::INFINITY),
+        hi: Vector3::new(f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY),
+    };
+
+    fn grow(&mut self, lo: &Vector3<f64>, hi: &Vector3<f64>) {
+        self.lo = self.lo.inf(lo);
+        self.hi = self.hi.sup(hi);
+    }
+
+    fn join(mut self, other: &Bounds) -> Self {
+        self.grow(&other.lo, &other.hi);
+        self
+    }
+
+    /// Half the surface area (the SAH only compares ratios); 0 when empty.
+    fn half_area(&self) -> f64 {
+        let d = self.hi - self.lo;
+        if d.x < 0.0 {
+            return 0.0;
+        }
+        d.x * d.y + d.y * d.z + d.z * d.x
+    }
+}
+
+/// The BVH of a scene.
+pub(crate) struct Bvh {
+    nodes: Vec<Node4>,
+    leaves: Vec<LeafTriangle>,
+    /// W coordinates of the origin of the f32 node frame.
+    center: Vector3<f64>,
+    /// The scene's bounds in W, padded (the root's box in f64).
+    bounds_lo: Vector3<f64>,
+    bounds_hi: Vector3<f64>,
+}
+
+impl Bvh {
+    /// Builds the BVH over validated input (every index in range, every
+    /// triangle of positive area).
+    pub(crate) fn build(points: &[Point3<f64>], triangles: &[[u32; 3]]) -> Self {
+        let mut scene = Bounds::EMPTY;
+        for p in points {
+            scene.grow(&p.coords, &p.coords);
+        }
+        let center = 0.5 * (scene.lo + scene.hi);
+        let mut pieces = triangle_pieces(points, triangles);
+        let mut nodes = Vec::with_capacity(2 * pieces.len());
+        nodes.push(Node {
+            lo: [0.0; 3],
+            first: 0,
+            hi: [0.0; 3],
+            count: 0,
+        });
+        // (node index, pieces range, depth)
+        let mut work = vec![(0usize, 0usize, pieces.len(), 0usize)];
+        while let Some((index, start, end, depth)) = work.pop() {
+            let bounds = pieces[start..end].iter().fold(Bounds::EMPTY, |mut b, p| {
+                b.grow(&p.lo, &p.hi);
+                b
+            });
+            let (lo, hi) = padded_f32(&bounds, &center);
+            let node = &mut nodes[index];
+            node.lo = lo;
+            node.hi = hi;
+            match split(&mut pieces[start..end], &bounds, depth) {
+                Some(mid) => {
+                    let left = nodes.len();
+                    for _ in 0..2 {
+                        nodes.push(Node {
+                            lo: [0.0; 3],
+                            first: 0,
+                            hi: [0.0; 3],
+                            count: 0,
+                        });
+                    }
+                    nodes[index].first = left as u32;
+                    nodes[index].count = 0;
+                    work.push((left, start, start + mid, depth + 1));
+                    work.push((left + 1, start + mid, end, depth + 1));
+                }
+                None => {
+                    let node = &mut nodes[index];
+                    node.first = start as u32;
+                    node.count = (end - start) as u32;
+                }
+            }
+        }
+        let leaves = pieces
+            .iter()
+            .map(|piece| leaf_triangle(points, triangles, piece.triangle))
+            .collect();
+        let pad = |v: &Vector3<f64>| v.map(|x| BOX_MARGIN + BOX_RELATIVE_MARGIN * x.abs());
+        Self {
+            nodes: collapse(&nodes),
+            leaves,
+            center,
+            bounds_lo: scene.lo - pad(&scene.lo),
+            bounds_hi: scene.hi + pad(&scene.hi),
+        }
+    }
+
+    /// The nearest triangle the ray from `origin` along the unit `direction` meets
+    /// within [0, `max_range`]: (distance, triangle). With `any`, the first
+    /// triangle found within range instead (an occlusion test).
+    #[inline]
+    pub(crate) fn cast(
+        &self,
+        origin: &Point3<f64>,
+        direction: &Vector3<f64>,
+        max_range: f64,
+        any: bool,
+    ) -> Option<(f64, u32)> {
+        let (enter, exit) = self.scene_span(origin, direction)?;
+        if enter > max_range {
+            return None;
+        }
+        let ray = SlabRay::new(
+            &(origin.coords + direction * enter - self.center),
+            direction,
+        );
+        // Node distances are measured from the moved origin, `enter` along the ray.
+        let limit_of = |t: f64| ((t.min(exit) - enter) as f32 + 1e-4) * SLAB_SLACK;
+        let mut limit = limit_of(max_range);
+        let mut best: Option<(f64, u32)> = None;
+        // (child, count, entry distance): a node when count == 0, else a leaf.
+        let mut stack = [(0u32, 0u32, 0.0f32); STACK];
+        let mut depth = 0usize;
+        // The next node or leaf to visit: the nearest child met, without a trip
+        // through the stack; None pops the stack.
+        let mut next = Some((0u32, 0u32));
+        loop {
+            let (child, count) = match next.take() {
+                Some(visit) => visit,
+                None => loop {
+                    if depth == 0 {
+                        return best;
+                    }
+                    depth -= 1;
+                    let (child, count, t_enter) = stack[depth];
+                    // Skipped when a nearer hit was found since the push.
+                    if t_enter <= limit {
+                        break (child, count);
+                    }
+                },
+            };
+            if count > 0 {
+                let first = child as usize;
+                for leaf in &self.leaves[first..first + count as usize] {
+                    if let Some(t) = intersect(leaf, origin, direction) {
+                        if t <= max_range && best.is_none_or(|(b, _)| t < b) {
+                            best = Some((t, leaf.triangle));
+                            if any {
+                                return best;
+                            }
+                            limit = limit_of(t);
+                        }
+                    }
+                }
+                continue;
+            }
+            let node = &self.nodes[child as usize];
+            let (t_in, mut mask) = ray.entries(node, limit);
+            if mask == 0 {
+                continue;
+            }
+            if mask & (mask - 1) == 0 {
+                let lane = mask.trailing_zeros() as usize;
+                next = Some((node.child[lane], node.count[lane]));
+                continue;
+            }
+            // Several met: visit the nearest next, push the others farthest first.
+            let mut order = [(0usize, 0.0f32); 4];
+            let mut n = 0;
+            while mask != 0 {
+                let lane = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let t = t_in[lane];
+                let mut k = n;
+                while k > 0 && order[k - 1].1 < t {
+                    order[k] = order[k - 1];
+                    k -= 1;
+                }
+                order[k] = (lane, t);
+                n += 1;
+            }
+            for &(lane, t) in &order[..n - 1] {
+                // Cannot overflow (see STACK); a guard instead of a panic all the same.
+                if depth < STACK {
+                    stack[depth] = (node.child[lane], node.count[lane], t);
+                    depth += 1;
+                }
+            }
+            let nearest = order[n - 1].0;
+            next = Some((node.child[nearest], node.count[nearest]));
+        }
+    }
+
+    /// Where the ray enters and leaves the scene's (padded) bounds, in f64:
+    /// (max(entry, 0), exit), or None when it misses them.
+    #[inline]
+    fn scene_span(&self, origin: &Point3<f64>, direction: &Vector3<f64>) -> Option<(f64, f64)> {
+        let mut enter = 0.0f64;
+        let mut exit = f64::INFINITY;
+        for k in 0..3 {
+            let (o, d) = (origin[k], direction[k]);
+            if d == 0.0 {
+                if o < self.bounds_lo[k] || o > self.bounds_hi[k] {
+                    return None;
+                }
+                continue;
+            }
+            let inv = 1.0 / d;
+            let t1 = (self.bounds_lo[k] - o) * inv;
+            let t2 = (self.bounds_hi[k] - o) * inv;
+            enter = enter.max(t1.min(t2));
+            exit = exit.min(t1.max(t2));
+        }
+        // Moving the origin to the entry is exact to f64 rounding; step back a
+        // hair so that rounding never puts it past a surface on the boundary.
+        let enter = (enter - BOX_MARGIN).max(0.0);
+        (enter <= exit).then_some((enter, exit + BOX_MARGIN))
+    }
+}
+
+/// The ray in the f32 node frame, ready for 4-lane slab tests.
+struct SlabRay {
+    origin: [f32x4; 3],
+    inv_dir: [f32x4; 3],
+}
+
+impl SlabRay {
+    fn new(local_origin: &Vector3<f64>, direction: &Vector3<f64>) -> Self {
+        // A zero component becomes a tiny one of the same sign: the slab test then
+        // needs no special case (the padded boxes absorb the difference).
+        let inv = |c: f64| {
+            let c = c as f32;
+            let c = if c.abs() < 1e-30 {
+                1e-30f32.copysign(c)
+            } else {
+                c
+            };
+            f32x4::splat(1.0 / c)
+        };
+        Self {
+            origin: [0, 1, 2].map(|k| f32x4::splat(local_origin[k] as f32)),
+            inv_dir: [inv(direction.x), inv(direction.y), inv(direction.z)],
+        }
+    }
+
+    /// Distances at which the ray enters the boxes of `node`'s four children (0
+    /// from inside), and the bit mask of those it meets no farther than `limit`.
+    #[inline(always)]
+    fn entries(&self, node: &Node4, limit: f32) -> ([f32; 4], u32) {
+        let slab = |k: usize| {
+            let t1 = (f32x4::new(node.lo[k]) - self.origin[k]) * self.inv_dir[k];
+            let t2 = (f32x4::new(node.hi[k]) - self.origin[k]) * self.inv_dir[k];
+            (t1.fast_min(t2), t1.fast_max(t2))
+        };
+        let (x_in, x_out) = slab(0);
+        let (y_in, y_out) = slab(1);
+        let (z_in, z_out) = slab(2);
+        let t_in = x_in.fast_max(y_in).fast_max(z_in).fast_max(f32x4::ZERO);
+        let t_out = x_out.fast_min(y_out).fast_min(z_out) * f32x4::splat(SLAB_SLACK);
+        let met = t_in.cmp_le(t_out) & t_in.cmp_le(f32x4::splat(limit));
+        (t_in.to_array(), met.move_mask() as u32)
+    }
+}
+
+/// Distance along the unit `direction` at which the ray meets `leaf`'s triangle
+/// (either side), f64 Moeller-Trumbore; None if it does not.
+#[inline(always)]
+fn intersect(leaf: &LeafTriangle, origin: &Point3<f64>, direction: &Vector3<f64>) -> Option<f64> {
+    let p = direction.cross(&leaf.e2);
+    let det = leaf.e1.dot(&p);
+    if det.abs() < leaf.parallel {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = origin - leaf.a;
+    let u = s.dot(&p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(&leaf.e1);
+    let v = direction.dot(&q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let distance = leaf.e2.dot(&q) * inv;
+    (distance >= 0.0).then_some(distance)
+}
+
+/// The 4-wide tree of the binary tree `nodes` (root at 0): each 4-wide node
+/// takes the children of a binary node and opens the largest of them that are
+/// interior until it holds four.
+fn collapse(nodes: &[Node]) -> Vec<Node4> {
+    let mut out = vec![Node4::EMPTY];
+    let root = nodes[0];
+    if root.count > 0 {
+        set_lane(&mut out[0], 0, &root, root.first);
+        return out;
+    }
+    // (binary node whose children fill it, 4-wide node to fill)
+    let mut work = vec![(0usize, 0usize)];
+    while let Some((binary, wide_index)) = work.pop() {
+        let first = nodes[binary].first as usize;
+        let mut lanes: Vec<usize> = vec![first, first + 1];
+        while lanes.len() < 4 {
+            let widest = lanes
+                .iter()
+                .enumerate()
+                .filter(|(_, &b)| nodes[b].count == 0)
+                .max_by(|(_, &a), (_, &b)| half_area(&nodes[a]).total_cmp(&half_area(&nodes[b])));
+            let Some((slot, &open)) = widest else { break };
+            let children = nodes[open].first as usize;
+            lanes[slot] = children;
+            lanes.push(children + 1);
+        }
+        for (lane, &b) in lanes.iter().enumerate() {
+            let node = nodes[b];
+            let child = if node.count > 0 {
+                node.first
+            } else {
+                out.push(Node4::EMPTY);
+                work.push((b, out.len() - 1));
+                (out.len() - 1) as u32
+            };
+            set_lane(&mut out[wide_index], lane, &node, child);
+        }
+    }
+    out
+}
+
+fn set_lane(wide: &mut Node4, lane: usize, node: &Node, child: u32) {
+    for k in 0..3 {
+        wide.lo[k][lane] = node.lo[k];
+        wide.hi[k][lane] = node.hi[k];
+    }
+    wide.child[lane] = child;
+    wide.count[lane] = node.count;
+}
+
+fn half_area(node: &Node) -> f32 {
+    let d = [0, 1, 2].map(|k| node.hi[k] - node.lo[k]);
+    d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+}
+
+fn leaf_triangle(points: &[Point3<f64>], triangles: &[[u32; 3]], t: u32) -> LeafTriangle {
+    let [ia, ib, ic] = triangles[t as usize];
+    let a = points[ia as usize];
+    let e1 = points[ib as usize] - a;
+    let e2 = points[ic as usize] - a;
+    LeafTriangle {
+        a,
+        e1,
+        e2,
+        parallel: PARALLEL_DETERMINANT * e1.norm() * e2.norm(),
+        triangle: t,
+    }
+}
+
+/// The f32 box of `bounds` relative to `center`, padded outward.
+fn padded_f32(bounds: &Bounds, center: &Vector3<f64>) -> ([f32; 3], [f32; 3]) {
+    let lo = bounds.lo - center;
+    let hi = bounds.hi - center;
+    let pad = |x: f64| BOX_MARGIN + BOX_RELATIVE_MARGIN * x.abs();
+    (
+        [0, 1, 2].map(|k| (lo[k] - pad(lo[k])) as f32),
+        [0, 1, 2].map(|k| (hi[k] + pad(hi[k])) as f32),
+    )
+}
+
+/// Partitions `pieces` for a node with `bounds` at `depth`: Some(number of
+/// pieces on the left), or None to make a leaf.
+fn split(pieces: &mut [Piece], bounds: &Bounds, depth: usize) -> Option<usize> {
+    let n = pieces.len();
+    if n <= 1 {
+        return None;
+    }
+    let mut centroids = Bounds::EMPTY;
+    for p in pieces.iter() {
+        let c = 0.5 * (p.lo + p.hi);
+        centroids.grow(&c, &c);
+    }
+    let extent = centroids.hi - centroids.lo;
+    let axis = extent.imax();
+    if extent[axis] <= 0.0 {
+        // Every centroid in one point: no plane separates them.
+        return (n > MAX_LEAF).then_some(n / 2);
+    }
+    if depth >= SAH_DEPTH {
+        return Some(median_split(pieces, axis));
+    }
+    let leaf_cost = n as f64;
+    let parent_area = bounds.half_area();
+    let mut best: Option<(f64, usize, f64)> = None; // (cost, axis, plane)
+    for axis in 0..3 {
+        let (lo, width) = (centroids.lo[axis], extent[axis]);
+        if width <= 0.0 {
+            continue;
+        }
+        let scale = BINS as f64 / width;
+        let bin_of = |c: f64| (((c - lo) * scale) as usize).min(BINS - 1);
+        let mut boxes = [Bounds::EMPTY; BINS];
+        let mut counts = [0usize; BINS];
+        for p in pieces.iter() {
+            let b = bin_of(p.centroid(axis));
+            boxes[b].grow(&p.lo, &p.hi);
+            counts[b] += 1;
+        }
+        // Sweep from the right, then from the left, evaluating each plane.
+        let mut right_area = [0.0f64; BINS];
+        let mut right_count = [0usize; BINS];
+        let mut acc = Bounds::EMPTY;
+        let mut count = 0;
+        for b in (1..BINS).rev() {
+            acc = acc.join(&boxes[b]);
+            count += counts[b];
+            right_area[b] = acc.half_area();
+            right_count[b] = count;
+        }
+        let mut acc = Bounds::EMPTY;
+        let mut count = 0;
+        for b in 0..BINS - 1 {
+            acc = acc.join(&boxes[b]);
+            count += counts[b];
+            let (rc, ra) = (right_count[b + 1], right_area[b + 1]);
+            if count == 0 || rc == 0 {
+                continue;
+            }
+            let cost = TRAVERSAL_COST
+                + (acc.half_area() * count as f64 + ra * rc as f64)
+                    / parent_area.max(f64::MIN_POSITIVE);
+            if best.is_none_or(|(c, _, _)| cost < c) {
+                best = Some((cost, axis, lo + (b + 1) as f64 / scale));
+            }
+        }
+    }
+    match best {
+        Some((cost, axis, plane)) if cost < leaf_cost || n > MAX_LEAF => {
+            let scale = BINS as f64 / extent[axis];
+            let lo = centroids.lo[axis];
+            let bin_of = |c: f64| (((c - lo) * scale) as usize).min(BINS - 1);
+            let plane_bin = ((plane - lo) * scale).round() as usize;
+            let mid = partition(pieces, |p| bin_of(p.centroid(axis)) < plane_bin);
+            if mid == 0 || mid == n {
+                return Some(median_split(pieces, axis));
+            }
+            Some(mid)
+        }
+        Some(_) => None,
+        None => (n > MAX_LEAF).then(|| median_split(pieces, axis)),
+    }
+}
+
+/// Splits at the median centroid along `axis`; returns the left count (n / 2).
+fn median_split(pieces: &mut [Piece], axis: usize) -> usize {
+    let mid = pieces.len() / 2;
+    pieces.select_nth_unstable_by(mid, |a, b| a.centroid(axis).total_cmp(&b.centroid(axis)));
+    mid
+}
+
+/// Moves the pieces for which `left` holds to the front; returns their count.
+fn partition(pieces: &mut [Piece], left: impl Fn(&Piece) -> bool) -> usize {
+    let mut mid = 0;
+    for i in 0..pieces.len() {
+        if left(&pieces[i]) {
+            pieces.swap(i, mid);
+            mid += 1;
+        }
+    }
+    mid
+}
+
+/// One piece per triangle, or several for a long thin one (see [`SPLIT_EDGE`]).
+fn triangle_pieces(points: &[Point3<f64>], triangles: &[[u32; 3]]) -> Vec<Piece> {
+    let mut pieces = Vec::with_capacity(triangles.len());
+    let mut stack: Vec<[Point3<f64>; 3]> = Vec::new();
+    for (t, tri) in triangles.iter().enumerate() {
+        stack.push(tri.map(|i| points[i as usize]));
+        while let Some(c) = stack.pop() {
+            if needs_split(&c) {
+                // Halve the longest edge (a, b); o is the corner opposite it.
+                let k = (0..3)
+                    .max_by(|&i, &j| edge(&c, i).total_cmp(&edge(&c, j)))
+                    .unwrap_or(0);
+                let (a, b, o) = (c[(k + 1) % 3], c[(k + 2) % 3], c[k]);
+                let m = Point3::from((a.coords + b.coords) * 0.5);
+                stack.push([o, a, m]);
+                stack.push([o, m, b]);
+            } else {
+                let mut bounds = Bounds::EMPTY;
+                for p in &c {
+                    bounds.grow(&p.coords, &p.coords);
+                }
+                pieces.push(Piece {
+                    lo: bounds.lo,
+                    hi: bounds.hi,
+                    triangle: t as u32,
+                });
+            }
+        }
+    }
+    pieces
+}
+
+/// Length of the edge opposite corner `k`.
+fn edge(c: &[Point3<f64>; 3], k: usize) -> f64 {
+    (c[(k + 1) % 3] - c[(k + 2) % 3]).norm()
+}
+
+fn needs_split(c: &[Point3<f64>; 3]) -> bool {
+    let longest = (0..3).map(|k| edge(c, k)).fold(0.0, f64::max);
+    let twice_area = (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
+    let height = twice_area / longest;
+    longest > SPLIT_EDGE && longest > SPLIT_ASPECT * height
+}
