@@ -148,6 +148,7 @@ def test_the_tilt_never_passes_px4s_limit() -> None:
     assert max(tilts) > math.radians(40.0)
 
 
+@pytest.mark.slow
 def test_turbulence_is_seeded_and_has_drydens_intensity() -> None:
     """Same seed, same wind history; the gusts' standard deviation within 25 % of MIL-F-8785C's
     sigma_u at 20 m over a long run (a 116 m correlation length at 8 m/s: 14 s)."""
@@ -169,6 +170,7 @@ def test_turbulence_is_seeded_and_has_drydens_intensity() -> None:
 
 # -- the done-when: localizations in wind and braking ------------------------------------------
 
+@pytest.mark.slow
 def test_localizations_in_8_mps_wind_and_3_mps2_braking_need_the_full_attitude(capsys) -> None:
     """The airframe study's cell (evaluation/airframe_study.py): tower A, w = 8 m, 8 m/s wind,
     braking at 3 m/s^2, the bounded method (the product's). The same frames and scans through

@@ -138,6 +138,7 @@ def test_simulated_px4_sends_battery_remaining_as_px4_does():
 
 # -- the simulated pack -------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_simulated_pack_drains_with_time_and_distance():
     """Reference: the drain law written out (hover power per s plus a term per metre flown)."""
     v = KinematicVehicle(params=AutopilotParameters(battery_drain_per_s=1e-3, battery_drain_per_m=1e-3))

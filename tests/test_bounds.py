@@ -254,6 +254,7 @@ def _cli_cases(tmp_path: Path) -> dict[str, tuple[list[str], list[str]]]:
     }
 
 
+@pytest.mark.slow
 def test_cli_refuses_hostile_options_and_files_before_flight(tmp_path):
     """``insulator-rs inspect`` as a subprocess (concurrently, each under a timeout): status 2,
     the flag or the file and field named on stderr, no traceback, no report folder."""

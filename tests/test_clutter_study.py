@@ -24,6 +24,7 @@ def records() -> list[cs.SceneRecord]:
     return cs.run_clutter_study(SCENES, SEED)
 
 
+@pytest.mark.slow
 def test_no_gross_localization_in_clutter(records):
     errors = np.array([r.error for r in records if r.outcome == "localized"])
     # measured: 16 localized, 3 refused, 1 without an attempt; mean 0.057 m, max 0.093 m

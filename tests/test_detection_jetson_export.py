@@ -29,6 +29,7 @@ PHOTOS = Path(__file__).parent / "data" / "photos"
 MIN_IOU = 0.85
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(available_models()))
 def test_fp16_export_matches_the_float32_model(name: str, tmp_path: Path) -> None:
     half_path = export_fp16(model_path(name), tmp_path / f"{name}-fp16.onnx")

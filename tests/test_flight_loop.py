@@ -26,6 +26,7 @@ def _run(tmp_path, *extra):
     return rc, out, json.loads((out / "summary.json").read_text())
 
 
+@pytest.mark.slow
 def test_a_refused_arm_aborts_before_take_off_without_a_traceback(tmp_path, monkeypatch, capsys):
     made = []
     original = inspect_command.kinematic_vehicle
@@ -45,6 +46,7 @@ def test_a_refused_arm_aborts_before_take_off_without_a_traceback(tmp_path, monk
     assert "aborted: vehicle command failed: arm refused by the vehicle" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_refused_mode_change_after_take_off_aborts_and_lands(tmp_path, monkeypatch):
     made = []
     original = inspect_command.kinematic_vehicle
@@ -90,6 +92,7 @@ def test_sensor_errors_cost_events_not_the_flight(tmp_path, monkeypatch):
     assert s["insulators_found"] >= 1
 
 
+@pytest.mark.slow
 def test_a_planning_failure_mid_flight_aborts_and_lands(tmp_path, monkeypatch, capsys):
     """From the third leg on nothing can be planned (as when the vehicle cannot stop before a
     safety volume): the mission aborts with the planner's reason and lands, no traceback. (An
@@ -122,6 +125,7 @@ def test_a_planning_failure_mid_flight_aborts_and_lands(tmp_path, monkeypatch, c
     assert "planning failed" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(tmp_path, monkeypatch):
     """The first inspection waypoint cannot be planned to (as a find inside a safety volume): it is
     dropped and reported (``inspections_skipped``, its insulator not inspected), and the flight
@@ -153,6 +157,7 @@ def test_an_unreachable_inspection_waypoint_is_skipped_and_the_mission_goes_on(t
     assert s["insulators_found"] == 2 and s["insulators_inspected"] == 1
 
 
+@pytest.mark.slow
 def test_a_find_as_the_leg_passes_a_waypoint_is_flown_to_not_counted_done(tmp_path, monkeypatch):
     """A string localized in the very tick that passes an exploration waypoint puts its
     inspection waypoints at the plan's head; the loop then reached "the head" and so counted the

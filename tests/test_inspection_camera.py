@@ -180,6 +180,7 @@ def test_the_gimbal_keeps_the_target_at_the_centre_while_the_body_tilts():
     assert GimbalLimits((-1.0, 0.5), (0.0, 0.0)).clamp(0.8, 0.2) == (0.5, 0.0)
 
 
+@pytest.mark.slow
 def test_the_simulator_renders_the_zoom_at_the_photo_scale(tmp_path):
     """A photo at 3.72x zoom rendered at scale 0.2: the frame's intrinsics are the zoom's scaled
     (800x600), and the string's rendered pixels match cv2.projectPoints of its true ends."""

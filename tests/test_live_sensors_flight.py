@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import socket
 import time
+
+import pytest
 from pathlib import Path
 
 import cv2
@@ -152,6 +154,7 @@ def test_flight_with_live_sensor_adapters(tmp_path: Path) -> None:
     assert checked > 40_000
 
 
+@pytest.mark.slow
 def test_wire_lidar_serves_whole_sensor_windows_on_request() -> None:
     """Requests once a simulated second while hovering, then one after a 3 s silence: each
     answer (after the first two, while the clock estimate settles) is one whole 100 ms

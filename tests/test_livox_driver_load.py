@@ -27,6 +27,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 import numpy as np
 
 from insulator_rs.drivers.livox import LivoxMid360, wait_for
@@ -37,6 +39,7 @@ DRIFT = 25e-6
 OFFSET_S = 5000.0
 
 
+@pytest.mark.slow
 def test_every_datagram_and_a_true_clock_fit_while_threads_hold_the_gil() -> None:
     driver = LivoxMid360(now=time.monotonic, T_b_l=np.eye(4), host_ip="127.0.0.1", point_port=0, imu_port=None,
                          keep_scans=1000, arrival_stamps=True).start()

@@ -14,6 +14,7 @@ from insulator_rs.evaluation import study_scenes as scenes
 from insulator_rs.evaluation.localization_study import EventResult, StudyConfig
 
 
+@pytest.mark.slow
 def test_study_command_runs_on_a_small_sample(tmp_path, capsys):
     out = tmp_path / "loc"
     code = main(["eval", "localization", "--events", "3", "--standoffs", "8", "--out", str(out),
@@ -60,6 +61,7 @@ def test_cells_are_deterministic_under_a_seed():
     assert len(a) == 2
 
 
+@pytest.mark.slow
 def test_the_flying_pipeline_puts_the_accumulated_points_on_the_target_insulator():
     """With exact odometry, exact boxes and a hovering UAV, the flight's PerceptionPipeline (the
     study's localizer) accumulates points of which a good share lies inside the target's true
@@ -139,6 +141,7 @@ def test_bad_rates_are_refused(tmp_path):
         main(["eval", "localization", "--box-jitter", "-0.1", "--out", str(tmp_path)])
 
 
+@pytest.mark.slow
 def test_missed_detections_are_skipped_until_three_accumulate():
     """With half the boxes missed, an event still gathers its 3 detection events from the
     later images (up to MAX_IMAGES_PER_EVENT), so the cell completes."""

@@ -81,6 +81,7 @@ def test_client_implements_the_vehicle_protocol(vehicle: MavlinkVehicle) -> None
     assert (state.mode, state.armed, state.landed) == ("HOLD", False, True)
 
 
+@pytest.mark.slow
 def test_connect_arm_offboard_fly_a_trajectory_and_land(vehicle: MavlinkVehicle) -> None:
     """Reference: the simulator's true state (read under its lock). MAVLink carries
     positions as float32, so the client's view must match to 1e-3 m."""

@@ -179,6 +179,7 @@ def test_a_foreign_local_position_does_not_move_the_client(vehicle: MavlinkVehic
     assert vehicle.link_stats.foreign_source == 5
 
 
+@pytest.mark.slow
 def test_a_flood_of_truncated_headers_starves_nothing() -> None:
     """~900 datagrams/s of truncated 10-byte MAVLink 2 headers for 4 s, from the autopilot's own
     address and from a stranger, against a ``udpin`` client (PX4 SITL's layout: the autopilot

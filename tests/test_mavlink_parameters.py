@@ -186,6 +186,7 @@ def test_the_simulated_px4_refuses_to_arm_with_a_datalink_action_and_no_ground_s
         assert vehicle.state().armed
 
 
+@pytest.mark.slow
 def test_a_parameter_px4_lacks_stops_the_mission_before_arming(tmp_path, monkeypatch) -> None:
     """An old value that cannot be read: nothing is set, nothing arms, the report names the
     parameter (status aborted, exit code 1, no traceback)."""

@@ -30,6 +30,7 @@ def test_visibility_needs_the_camera_to_face_the_insulator():
     assert not vis.visible(ins.center + 30.0 * side, yaw)[0]  # out of range
 
 
+@pytest.mark.slow
 def test_eval_efficiency_writes_table_csv_and_plot(tmp_path, capsys):
     rc = main(["eval", "efficiency", "--towers", "tower_b", "--n", "4", "--out", str(tmp_path)])
     assert rc == 0

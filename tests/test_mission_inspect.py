@@ -78,6 +78,7 @@ def test_bad_arguments_are_named(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.slow
 def test_unknown_or_broken_detector_is_refused_before_flying(tmp_path, capsys):
     out = tmp_path / "report"
     assert main(["inspect", "--detector", "no-such-model", "--out", str(out)]) == 2

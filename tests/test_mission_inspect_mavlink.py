@@ -178,6 +178,7 @@ def test_pilot_takeover_aborts_and_nothing_more_is_sent(tmp_path, monkeypatch):
     assert sim.vehicle.mode.value == "POSCTL"  # still the pilot's
 
 
+@pytest.mark.slow
 def test_in_process_failsafe_aborts_the_same_way(tmp_path, monkeypatch):
     """The in-process KinematicVehicle raises VehicleFailsafe from advance() as the MAVLink
     client does: position loss -> its LAND failsafe -> the mission aborts, keeps its findings,
@@ -212,6 +213,7 @@ def test_vehicle_options_are_checked(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.slow
 def test_a_given_connection_flies_in_the_towers_frame(tmp_path):
     """``--connection`` to an autopilot this run did not start (here a SimulatedPx4 standing in
     for a SITL, with its local frame 12 m east / 5 m south of the tower base): W's origin is put
@@ -247,6 +249,7 @@ def test_a_given_connection_flies_in_the_towers_frame(tmp_path):
     assert sitl.stats.commands.get("MAV_CMD_NAV_LAND") == 1 and landed
 
 
+@pytest.mark.slow
 def test_signed_link(tmp_path, capsys):
     """--signing-key: both ends sign (the simulated PX4 ignores unsigned commands), so a take-off
     shows the signed exchange works; a malformed key file is refused before anything flies."""
@@ -266,6 +269,7 @@ def test_signed_link(tmp_path, capsys):
     assert "signing key file" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_far_side_finds_owed_on_the_landing_side_are_inspected_before_landing(tmp_path, monkeypatch):
     """An insulator of the landing side localized from the far side during the last pass is
     deferred; the state machine releases it on arrival on that side, which used to be the
@@ -320,6 +324,7 @@ def test_far_side_finds_owed_on_the_landing_side_are_inspected_before_landing(tm
     ("MAV_CMD_COMPONENT_ARM_DISARM", "MAV_RESULT_DENIED",
      "MAV_CMD_COMPONENT_ARM_DISARM (arm) refused by the vehicle: MAV_RESULT_DENIED"),
 ])
+@pytest.mark.slow
 def test_a_refused_or_unanswered_command_aborts_cleanly_with_the_reason(tmp_path, monkeypatch, capsys,
                                                                         command, result, expected):
     """The simulated PX4 refuses (or, as PX4 does with gimbal commands, never answers) the

@@ -177,6 +177,7 @@ def _refused_in_process(loop, vehicle, name: str) -> str:
     return _reason(summary, name)
 
 
+@pytest.mark.slow
 def test_a_silent_lidar_and_no_camera_are_refused_before_arming(tmp_path):
     loop, vehicle, sensors = _loop_in_process(tmp_path, silent_lidar=True)
     try:

@@ -230,6 +230,7 @@ class _Statustexts:
                 self.texts.append((msg.severity, msg.text))
 
 
+@pytest.mark.slow
 def test_with_no_route_it_holds_and_hands_over_without_descending(tmp_path):
     """The position estimate jumps into the tower's safety box (a GPS glitch) just before the
     flight-time limit: no route out can be planned from there, so the vehicle holds in HOLD,
@@ -272,6 +273,7 @@ def test_with_no_route_it_holds_and_hands_over_without_descending(tmp_path):
     assert math.isfinite(z_abort) and z_abort > 2.0
 
 
+@pytest.mark.slow
 def test_low_battery_aborts_by_the_safe_route_and_lands(tmp_path, monkeypatch):
     """The battery falls below the mission's reserve mid-flight (small scene; a charge that
     jumps down, faster than any fit: the reserve itself is the last check): the abort names it,

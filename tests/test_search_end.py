@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from helpers.flights import small_scene
 
 from insulator_rs.app.inspect_command import kinematic_vehicle
@@ -54,6 +55,7 @@ class LaggingLidar:
         return self._scan
 
 
+@pytest.mark.slow
 def test_the_search_ends_once_every_frame_of_the_last_pass_is_paired(tmp_path, monkeypatch):
     scene, mission_path = small_scene(tmp_path)
     tower = load_tower(str(scene))

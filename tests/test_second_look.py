@@ -96,6 +96,7 @@ def test_looks_are_bounded_per_flight():
     assert len(looked) == MAX_LOOKS
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("side, first_view_blind", [("first", False), ("last", False), ("last", True)])
 def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_path, monkeypatch, side,
                                                                           first_view_blind):
@@ -165,6 +166,7 @@ def test_a_string_the_passes_saw_once_gets_a_second_look_and_is_inspected(tmp_pa
     assert s["insulators_found"] == 2
 
 
+@pytest.mark.slow
 def test_a_string_whose_every_localization_is_refused_gets_a_look_at_its_track(tmp_path, monkeypatch):
     """Session 21's live miss, in process with the ground-truth stand-in: the take-off side's
     string is boxed with confidence in its side's passes but the gates refuse every localization
