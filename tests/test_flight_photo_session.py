@@ -19,6 +19,7 @@ from insulator_rs.flight.photo_session import (PHOTO_SETTLE_TIMEOUT, PHOTO_SPEED
 from insulator_rs.flight.pilot import CONTROL_PERIOD
 from insulator_rs.mission.state_machine import State
 from insulator_rs.perception.photo_check import PhotoCheck
+from insulator_rs.perception.photo_verdict import PhotoVerdict, Reason
 from insulator_rs.planning.waypoints import InspectionWaypoint
 from insulator_rs.ports.vehicle import VehicleState
 
@@ -108,7 +109,7 @@ def _scripted(pilot, checks, *, inspection, retakes=2):
 
 
 def _check(fit):
-    return PhotoCheck(fit=fit, reasons=[] if fit else ["cut at the top"])
+    return PhotoCheck(PhotoVerdict.passed() if fit else PhotoVerdict.unfit([Reason.CUT], "cut at the top"))
 
 
 def test_an_unfit_photo_is_retaken_up_to_the_limit_with_an_inspection_camera():
