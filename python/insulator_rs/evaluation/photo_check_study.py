@@ -242,21 +242,43 @@ def localized_centers(folder: Path) -> dict[int, np.ndarray]:
         return {int(r["id"]): np.array([float(r["x_m"]), float(r["y_m"]), float(r["z_m"])]) for r in csv.DictReader(f)}
 
 
+def scaled_to_width(camera: ir.CameraModel, width: int) -> ir.CameraModel:
+    """``camera`` resampled to ``width`` px wide (focal lengths, principal point and height scaled)."""
+    if width < 1:
+        raise ValueError(f"width: must be >= 1, got {width}")
+    k = width / camera.width
+    return ir.CameraModel(camera.fx * k, camera.fy * k, (camera.cx + 0.5) * k - 0.5, (camera.cy + 0.5) * k - 0.5,
+                          width, round(camera.height * k), dist=list(camera.dist))
+
+
 def study_flight(folder: Path, tower: str, truths: Sequence[StringTruth], length: float, detector: Detector,
-                 *, render: Renderer | None = None, limit: int | None = None,
-                 progress: Callable[[str], None] | None = None) -> list[StudyRow]:
-    """The rows of every single-shot photo of the flight in ``folder`` (the first ``limit``)."""
+                 *, render: Renderer | None = None, limit: int | None = None, stride: int = 1,
+                 photo_width: int | None = None, progress: Callable[[str], None] | None = None) -> list[StudyRow]:
+    """The rows of every ``stride``-th single-shot photo of the flight in ``folder`` (at most
+    ``limit``). ``photo_width``: render each photo again at its recorded pose at this width
+    (``render`` or the caller's renderer must be given) instead of reading the flight's file (a
+    flight flown at a reduced --photo-scale gives the poses of the full-size photos)."""
+    if stride < 1:
+        raise ValueError(f"stride: must be >= 1, got {stride}")
     summary = json.loads((folder / "summary.json").read_text())
     centers = localized_centers(folder)
     photos = [p for p in summary.get("photos", []) if p.get("tiles", 1) == 1 and p.get("T_w_c") is not None
               and p.get("insulator_id") in centers]
     rows: list[StudyRow] = []
-    for p in photos[:limit]:
-        image = cv2.imread(str(folder / p["file"]), cv2.IMREAD_COLOR)
-        if image is None:
-            raise ValueError(f"flight: cannot read {folder / p['file']}")
-        rows += study_photo(detector, tower, p["file"], image, camera_from_record(p["camera"]), photo_pose(p),
-                            centers[p["insulator_id"]], length, truths, render=render)
+    for p in photos[::stride][:limit]:
+        camera = camera_from_record(p["camera"])
+        if photo_width is not None:
+            if render is None:
+                raise ValueError("photo_width: needs a renderer")
+            camera = scaled_to_width(camera, photo_width)
+            image = render(camera, photo_pose(p))
+        else:
+            read = cv2.imread(str(folder / p["file"]), cv2.IMREAD_COLOR)
+            if read is None:
+                raise ValueError(f"flight: cannot read {folder / p['file']}")
+            image = read
+        rows += study_photo(detector, tower, p["file"], image, camera, photo_pose(p),
+                            centers[p["insulator_id"]], length, truths, render=render if photo_width is None else None)
         if progress is not None:
             progress(f"{tower} {p['file']}: checked with its variants")
     return rows
@@ -336,6 +358,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--render", action="store_true",
                         help="render the gimbal and zoom variants with the ray caster instead of warping the photo")
     parser.add_argument("--limit", type=int, default=None, help="at most this many photos per flight")
+    parser.add_argument("--stride", type=int, default=1, help="every this many-th photo of a flight")
+    parser.add_argument("--photo-width", type=int, default=None,
+                        help="render each photo again at its recorded pose, this many px wide (a flight flown at "
+                             "--photo-scale 0.2 gives the full-size photos' poses: 4000); the variants are warped")
     parser.add_argument("--out", type=Path, default=Path("results/photo_check"), help="folder for the table")
 
 
@@ -353,6 +379,6 @@ def run(args: argparse.Namespace) -> int:
         mission = Path(args.mission[i]) if args.mission else missions_dir / f"{Path(scene).stem}.toml"
         truths, mesh = tower_truths(scene)
         rows += study_flight(folder, Path(scene).stem, truths, load_mission(mission).inspection.insulator_length,
-                             detector, render=ray_cast_renderer(mesh) if args.render else None, limit=args.limit,
-                             progress=print)
+                             detector, render=ray_cast_renderer(mesh) if args.render or args.photo_width else None,
+                             limit=args.limit, stride=args.stride, photo_width=args.photo_width, progress=print)
     return write_study(args.out, "photo_check_study", rows, format_table(rows))

@@ -8,8 +8,8 @@ close-up is the detector's weak spot (the shipped ``insulator-sim`` network, tra
 detection camera's far views, boxes single sheds of a close-up at low scores), so its box no
 longer measures the string:
 
-* **cut**: the string (its rims) reaches the border (:data:`BORDER_MARGIN` of the dimension, at
-  least :data:`BORDER_MARGIN_PX`). A tile of a long string is planned to leave the frame: there a
+* **cut**: the string's axis reaches the border (:data:`BORDER_MARGIN` of the dimension, at least
+  :data:`BORDER_MARGIN_PX`), or, on a single shot, its rims leave the frame (``whole_in_frame``). A tile of a long string is planned to leave the frame: there a
   side where the projected string runs out of the frame is open, not cut (a single shot has no
   open side: the whole string belongs inside);
 * **too small**: the part in the frame spans less than ``min_span`` of the long side: the
@@ -17,7 +17,7 @@ longer measures the string:
   what the whole projected string spans where the shot cannot give that much (a fixed lens, a
   viewpoint pushed out by a safety volume: a retake would not make it bigger);
 * **off centre**: the part in the frame has its centre more than :data:`MAX_OFFSET` of the
-  width (height) from the image centre, on an axis whose both sides are closed;
+  width (height) from the image centre, on an axis whose both sides are closed.
 
 The GSD (mm/px at the string's far end) is recorded (``gsd_mm``), not judged: the framing chose
 it, and a retake at the same framing would not make it finer.
@@ -27,9 +27,12 @@ the network gives reliably on a close-up, its boxes in pieces:
 
 * **not where planned**: the detector's boxes (any score it returns; the flight's photo detector
   runs at :data:`PHOTO_DETECT_CONF`), each widened by :data:`COVER_TOLERANCE` of the long side,
-  cover less than :data:`MIN_COVERAGE` of the projected string's samples inside the frame. A
-  gimbal that is off, a wrong zoom, a string elsewhere than localized: the pieces lie elsewhere
-  than the projection. No box at all is **no insulator detected**;
+  cover less than :data:`MIN_COVERAGE` of the projected string's samples inside the frame, from
+  the first covered to the last (:func:`coverage`). A gimbal that is off, a zoom wider than
+  recorded, a string elsewhere or shorter than localized: the pieces lie elsewhere than the
+  projection, or end short of it. No box at all is **no insulator detected**. A zoom *narrower*
+  than recorded is not caught: the string, planned to fill ~90 % of the frame, then runs past the
+  border, and the pieces can reach no farther than the border (the study's known gap);
 * **blurred**: the blur extent (:func:`blur_extent`, a no-reference measure after Crete-Roffet et
   al.) of the projected string's region, at the photo's own pixels, is over
   :data:`MAX_BLUR_EXTENT` (see there for the figures it was set on, and why not the Laplacian
@@ -314,20 +317,6 @@ def coverage(boxes: np.ndarray, view: ExpectedView) -> float:
     return float((idx[-1] - idx[0] + 1) / hit.shape[0])
 
 
-def _cut_in_image(part: np.ndarray, view: ExpectedView) -> list[str]:
-    """The sides where a piece of the string (a box in the corridor) reaches the border although
-    the projection ends inside the frame there (with more than twice the border margin to spare):
-    the photo holds more string than planned, or holds it elsewhere (a zoom, a gimbal off)."""
-    clip = view.in_frame()
-    if clip is None or len(part) == 0:
-        return []
-    w, h = view.width, view.height
-    mx, my = max(BORDER_MARGIN_PX, BORDER_MARGIN * w), max(BORDER_MARGIN_PX, BORDER_MARGIN * h)
-    reach = (part[:, 0].min() <= mx, part[:, 1].min() <= my, part[:, 2].max() >= w - mx, part[:, 3].max() >= h - my)
-    inside = (clip[0] > 2 * mx, clip[1] > 2 * my, clip[2] < w - 2 * mx, clip[3] < h - 2 * my)
-    return [n for n, r, i in zip(("left", "top", "right", "bottom"), reach, inside) if r and i]
-
-
 def _framing(view: ExpectedView) -> tuple[list[Unfit], list[str], float, list[float | None]]:
     """The framing's reasons, cut sides, span share and offset, from the projection alone."""
     clip = view.in_frame()
@@ -368,10 +357,6 @@ def check_boxes(image: np.ndarray, boxes: np.ndarray, view: ExpectedView) -> Pho
     clip = view.in_frame()
     part = _in_corridor(b, view)
     if clip is not None:
-        image_cut = [side for side in _cut_in_image(part, view) if side not in cut]
-        if image_cut and Unfit.CUT not in reasons:
-            reasons.append(Unfit.CUT)
-        cut = cut + image_cut
         cover = coverage(b, view)
         if len(b) == 0:
             reasons.append(Unfit.NOT_DETECTED)
