@@ -19,6 +19,8 @@ STUDIES: tuple[tuple[str, str, str], ...] = (
      "localization error under motion distortion, with and without deskew"),
     ("faults", "insulator_rs.evaluation.fault_matrix",
      "the fault matrix: every fault at every moment of the flight, clearance to the true tower"),
+    ("photo-check", "insulator_rs.evaluation.photo_check_study",
+     "the photo check against the ground truth: good photos called unfit, gimbal/zoom/blur ones fit"),
 )
 
 

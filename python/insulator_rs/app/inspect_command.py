@@ -38,6 +38,7 @@ from insulator_rs.app import live_options as cli_options
 from insulator_rs.evaluation.scoring import score_flight, write_score
 from insulator_rs.perception.photo_verdict import fit_tally
 from insulator_rs.exceptions import ConfigError, SensorError, VehicleError
+from insulator_rs.perception.photo_check import PHOTO_DETECT_CONF
 from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, default_model, open_network_detector
 from insulator_rs.flight.loop import FlightSettings
 from insulator_rs.report.run_status import RunOutcome, RunStatus
@@ -365,9 +366,13 @@ def run(args: argparse.Namespace) -> int:
             # what the frames' stamps already carry: a replay applies a later calibration's difference
             camera_latency_s=repr(rig.camera_latency_s if live else 0.0)).as_record())
     try:
+        # the photo check reads the network's pieces of a close-up, low scores included, only where
+        # the geometry puts the string (perception/photo_check.py PHOTO_DETECT_CONF)
+        photo_detector = (None if network is None
+                          else open_network_detector(str(network.network.path), conf=PHOTO_DETECT_CONF))
         flight = assemble_flight(mission, vehicle, sensors, detector, args.out, rig=rig, settings=settings,
                                  photo_camera=photo_camera, recorder=recorder, observer=observer,
-                                 overwrite=args.overwrite)
+                                 overwrite=args.overwrite, photo_detector=photo_detector)
         loop, vehicle, sensors = flight.loop, flight.vehicle, flight.sensors
         if mavlink:  # an outside autopilot fails safe when our setpoint thread stalls: watch for it
             stall_watch = loop.stall_watch = StallWatch(dump=Path(args.out) / STALL_STACKS).start()

@@ -1,30 +1,47 @@
-"""Is the photo just taken usable, judged on the photo itself? The check after every shot.
+"""Is the photo just taken usable? The check after every shot: its framing from the geometry,
+its image from the photo.
 
-:mod:`~insulator_rs.perception.photo_quality` gives a photo's figures from the pose and the
-localized string (what the photo should hold); this module looks at what it does hold: the
-detector is run on the photo once and, from its boxes, the insulator's box is measured:
+**Framing** (where the string lies in the photo, how big, how fine) is judged from the localized
+string projected through the photo's own pose and intrinsics (:func:`expected_view`; the GSD and
+"whole in frame" are :func:`~insulator_rs.perception.photo_quality.photo_quality`'s figures): a
+close-up is the detector's weak spot (the shipped ``insulator-sim`` network, trained on the
+detection camera's far views, boxes single sheds of a close-up at low scores), so its box no
+longer measures the string:
 
-* **which box**: the one nearest the planned target's projection through the photo's own pose
-  and intrinsics (distance from the point to the box, 0 inside; ties by centre distance);
-* **cut**: the box reaches the image border (within :data:`BORDER_MARGIN` of the dimension, at
-  least :data:`BORDER_MARGIN_PX`). A tile of a long string is planned to leave the frame: there a
-  side where the localized string, projected through the photo's pose, runs out of the frame is
-  open, not cut (a single shot has no open side: the whole string belongs inside);
-* **too small**: the box's longer side spans less than ``min_span`` of the frame's long side:
-  the required fill (the loop gives the planned framing's ``MIN_FILL``), or :data:`PLANNED_SHARE`
-  of what the projected string spans where the shot cannot give that much (a fixed lens, a
+* **cut**: the string's axis reaches the border (:data:`BORDER_MARGIN` of the dimension, at least
+  :data:`BORDER_MARGIN_PX`), or, on a single shot, its rims leave the frame (``whole_in_frame``). A tile of a long string is planned to leave the frame: there a
+  side where the projected string runs out of the frame is open, not cut (a single shot has no
+  open side: the whole string belongs inside);
+* **too small**: the part in the frame spans less than ``min_span`` of the long side: the
+  required fill (the loop gives the planned framing's ``MIN_FILL``), or :data:`PLANNED_SHARE` of
+  what the whole projected string spans where the shot cannot give that much (a fixed lens, a
   viewpoint pushed out by a safety volume: a retake would not make it bigger);
-* **off centre**: the box's centre is more than :data:`MAX_OFFSET` of the frame's width (height)
-  from the image centre, judged on an axis whose both sides are closed (on an open axis the box
-  ends at the border by design);
-* **not sharp**: the variance of the Laplacian (``cv2.Laplacian``, 3x3, on the grey image inside
-  the box, shrunk to at most :data:`ANALYSIS_PX`) is below :data:`MIN_SHARPNESS` (see there for
-  the figures it was set on).
+* **off centre**: the part in the frame has its centre more than :data:`MAX_OFFSET` of the
+  width (height) from the image centre, on an axis whose both sides are closed.
+* **not sharp**: the blur extent of the string's region (:func:`blur_extent`) is above
+  :data:`MAX_BLUR_EXTENT` (see there for the figures it was set on).
 
-A string the detector sees in pieces (the shipped ``insulator-sim`` network, trained on the
-detection camera's far views, boxes the sheds of a close-up one by one) is one insulator: the
-box nearest the target is merged with every box that meets the projected string's box widened
-by :data:`MAX_OFFSET` of the frame (the corridor where the plan puts it).
+The GSD (mm/px at the string's far end) is recorded (``gsd_mm``), not judged: the framing chose
+it, and a retake at the same framing would not make it finer.
+
+**Image** (does the photo hold what the geometry says, and is it sharp there), from the evidence
+the network gives reliably on a close-up, its boxes in pieces:
+
+* **not where planned**: the detector's boxes (any score it returns; the flight's photo detector
+  runs at :data:`PHOTO_DETECT_CONF`), each widened by :data:`COVER_TOLERANCE` of the long side,
+  cover less than :data:`MIN_COVERAGE` of the projected string's samples inside the frame, from
+  the first covered to the last (:func:`coverage`). A gimbal that is off, a zoom wider than
+  recorded, a string elsewhere or shorter than localized: the pieces lie elsewhere than the
+  projection, or end short of it. No box at all is **no insulator detected**. A zoom *narrower*
+  than recorded is not caught: the string, planned to fill ~90 % of the frame, then runs past the
+  border, and the pieces can reach no farther than the border (the study's known gap);
+* **blurred**: the blur extent (:func:`blur_extent`, a no-reference measure after Crete-Roffet et
+  al.) of the projected string's region, at the photo's own pixels, is over
+  :data:`MAX_BLUR_EXTENT` (see there for the figures it was set on, and why not the Laplacian
+  variance, which the check still records as ``sharpness``).
+
+The check's ``box`` is the union of the boxes that meet the projected string's corridor (its box
+widened by :data:`MAX_OFFSET` of the frame): the string as the detector saw it, for the record.
 
 The verdict is a :class:`~insulator_rs.perception.photo_verdict.PhotoVerdict` (each reason
 above a :class:`~insulator_rs.perception.photo_verdict.Reason`): the one the flight writes into
@@ -32,6 +49,8 @@ above a :class:`~insulator_rs.perception.photo_verdict.Reason`): the one the fli
 
 A detector that raises is recorded as the check's ``error`` and the photo is unfit (retaken);
 it never ends the flight. The detector runs once per call (``detect_s`` says what it cost).
+The rates this rule gives against the ground truth: ``insulator-rs eval photo-check``
+(:mod:`~insulator_rs.evaluation.photo_check_study`).
 """
 
 from __future__ import annotations
@@ -46,6 +65,7 @@ import cv2
 import numpy as np
 
 import insulator_rs as ir
+from insulator_rs.perception.photo_quality import STRING_DIAMETER, photo_quality
 from insulator_rs.perception.photo_verdict import PhotoVerdict, Reason
 
 #: Share of the frame's width (height) the box centre may stray from the image centre. The
@@ -59,32 +79,54 @@ BORDER_MARGIN_PX = 2.0
 #: The projected string must end this far inside the frame (share of the dimension) for a side to
 #: be closed: a string planned to reach the border (a tile) leaves that side open.
 OPEN_MARGIN = 0.01
-#: A box this share of the projected string's span is as big as the shot was planned (the
-#: detector's box and the localized length err by a few per cent).
+#: A string in the frame this share of its whole projection is as big as the shot can give (the
+#: localized length errs by a few per cent).
 PLANNED_SHARE = 0.90
-#: Variance of the 3x3 Laplacian (8-bit counts^2) of the box's crop (at ANALYSIS_PX) below which
-#: a photo is not sharp. Measured on the simulator's renders of the zoomed string: sharp, 1250-2200
-#: at the tests' 0.2 photo scale (the string ~550 px long; small scene) and 416 at the full 12 MP
-#: (tower B, the crop shrunk to 1000 px); the full-resolution photo after cv2.GaussianBlur sigma
-#: 2.5 px (1.4 mm on the string) 47, sigma 5 px 8; the 0.2-scale ones after sigma 1.5-3 px stay
-#: under it (tests/test_photo_check.py). The image noise alone (2 counts, white) gives
-#: 20 sigma^2 = 80. 150 sits above the noise floor, a factor ~3 over the blurred 12 MP figure and
-#: under the sharp one. Camera-dependent (contrast, noise, optics): set it on the camera's photos.
-MIN_SHARPNESS = 150.0
-#: px: the box's crop is judged at most this long (area-averaged down to it): the figure then
-#: depends little on the photo's resolution (a 12 MP photo's string spans ~2700 px, the 0.2
-#: scale render's ~550 px), and 1000 px along a 2 m string is the 2 mm/px an inspection needs,
-#: so a blur that spoils that detail still shows. Also bounds the cost on a 12 MP photo.
+#: The blur extent (:func:`blur_extent`, Crete-Roffet et al. 2007: how little a further 9-px box
+#: blur changes the image's neighbour differences, 0 sharp .. 1 flat) above which the photo is
+#: blurred. Measured on tower B's 12 MP photos (the string's region at full resolution): sharp
+#: 0.163-0.176; a linear motion blur of 2 px across the string 0.25, 4 px 0.40, 8 px 0.58. The
+#: figure is a ratio, so it depends little on the string's contrast and the photo's scale (the
+#: Laplacian variance of the same photos: sharp 200-320 at 12 MP, 800-1000 at 0.3 scale, a 4 px
+#: blur 220-390 at 0.3 scale: no one threshold serves both). Set on the simulator's pixel-sharp
+#: renders: a real lens's softness raises the sharp figure; set it on the camera's photos.
+MAX_BLUR_EXTENT = 0.21
+#: px: the Crete-Roffet re-blur length (the paper's 9).
+REBLUR_PX = 9
+#: px: the Laplacian variance (the record's ``sharpness``) is taken on the crop shrunk to at most
+#: this long (area-averaged): comparable across photo sizes, and a bounded cost on 12 MP.
 ANALYSIS_PX = 1000
+
+
+#: Confidence threshold of the network run on a photo. The shipped ``insulator-sim`` boxes a
+#: 12 MP close-up's sheds at 0.05-0.5: at the detection threshold (0.25) 5 of tower B's 23 good
+#: photos held no box and the rest covered 0-95 % of the string; at 0.05 every one covered
+#: 95-100 % (``insulator-rs eval photo-check``). A low-score box only counts where the geometry
+#: puts the string (:data:`MIN_COVERAGE`), so the low threshold admits no far false box.
+PHOTO_DETECT_CONF = 0.05
+#: Share of the projected string (its samples in the frame, first to last covered, :func:`coverage`)
+#: the detector's boxes must cover. Tower B's 12 MP photos: good 0.93-1.0; the gimbal 2 degrees
+#: off in pitch (the string ~380 px along itself) 0.85-0.88; the focal 0.8x the recorded (the string
+#: shorter than planned) 0.66-0.90; a yaw of 3 degrees 0-0.07 (``insulator-rs eval photo-check``).
+MIN_COVERAGE = 0.92
+#: Share of the long side a box is widened by before it covers a sample: the projection of the
+#: axis runs down the string's middle, a shed's box may end a little short of it (the
+#: localization error: 5 cm ~ 90 px of 4000 at 0.56 mm/px, mostly along the line of sight).
+COVER_TOLERANCE = 0.01
+#: Samples along the projected string (end to end) for the coverage.
+STRING_SAMPLES = 41
 
 
 @dataclass(frozen=True)
 class ExpectedView:
     """Where the plan puts the string in the photo: ``target_px`` (u, v) the planned target's
     projection (None: behind the camera); ``string_box`` (x1, y1, x2, y2) of the localized string
-    projected, unclipped (None: not wholly in front of the camera); ``width``/``height`` of the
-    image; ``min_span`` the share of the long side the box must span; ``tiled``: the shot is one
-    of a long string's tiles (the string is planned to run out of the frame)."""
+    projected, unclipped (its axis; None: not wholly in front of the camera);
+    ``width``/``height`` of the image; ``min_span`` the share of the long side the string must
+    span; ``tiled``: the shot is one of a long string's tiles (the string is planned to run out of
+    the frame); ``string_px``: the axis's :data:`STRING_SAMPLES` projected points ((u, v), end to
+    end; empty when not all in front of the camera); ``gsd_mm``: mm/px at the string's far end
+    (inf behind the camera); ``whole``: the string with its rims inside the frame."""
 
     target_px: tuple[float, float] | None
     string_box: tuple[float, float, float, float] | None
@@ -92,6 +134,9 @@ class ExpectedView:
     height: int
     min_span: float
     tiled: bool = False
+    string_px: tuple[tuple[float, float], ...] = ()
+    gsd_mm: float = 0.0
+    whole: bool = True
 
     def open_sides(self) -> tuple[bool, bool, bool, bool]:
         """(left, top, right, bottom): the string is planned to leave the frame there (a tile only)."""
@@ -100,6 +145,17 @@ class ExpectedView:
         x1, y1, x2, y2 = self.string_box
         mx, my = OPEN_MARGIN * self.width, OPEN_MARGIN * self.height
         return (x1 < mx, y1 < my, x2 > self.width - mx, y2 > self.height - my)
+
+    def in_frame(self) -> tuple[float, float, float, float] | None:
+        """The projected string's box widened by its rims (half the shed diameter at the GSD)
+        and clipped to the frame: the region the string covers; None when it lies outside."""
+        if self.string_box is None:
+            return None
+        rim = 0.5 * STRING_DIAMETER / (1e-3 * self.gsd_mm) if 0 < self.gsd_mm < math.inf else 0.0
+        x1, y1, x2, y2 = self.string_box
+        x1, y1, x2, y2 = x1 - rim, y1 - rim, x2 + rim, y2 + rim
+        c = (max(0.0, x1), max(0.0, y1), min(float(self.width), x2), min(float(self.height), y2))
+        return c if c[2] > c[0] and c[3] > c[1] else None
 
 
 def expected_view(camera: ir.CameraModel, T_c_w: np.ndarray, target: np.ndarray, center: np.ndarray,
@@ -116,28 +172,34 @@ def expected_view(camera: ir.CameraModel, T_c_w: np.ndarray, target: np.ndarray,
     u = np.asarray(axis, dtype=np.float64).reshape(3)
     u = u / np.linalg.norm(u)
     c = np.asarray(center, dtype=np.float64).reshape(3)
-    ends = np.linspace(-0.5, 0.5, 9)[:, None] * length * u + c  # along the string: distortion bends it
+    T = np.asarray(T_c_w, dtype=np.float64)
+    ends = np.linspace(-0.5, 0.5, STRING_SAMPLES)[:, None] * length * u + c  # distortion bends it
     pts = np.vstack([np.asarray(target, dtype=np.float64).reshape(1, 3), ends])
-    uv, valid = ir.project_points(pts, np.asarray(T_c_w, dtype=np.float64), camera)
-    target_px = (float(uv[0, 0]), float(uv[0, 1])) if valid[0] else None
-    box = None
+    uv, _ = ir.project_points(pts, T, camera)
+    target_px = (float(uv[0, 0]), float(uv[0, 1])) if np.all(np.isfinite(uv[0])) else None
+    geometry = photo_quality(camera, T, c, u, length=length)
     w, h = int(camera.width), int(camera.height)
-    min_span = float(required_span)
-    if np.all(valid[1:]):
-        lo, hi = uv[1:].min(axis=0), uv[1:].max(axis=0)
-        box = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
-        clo, chi = np.clip(lo, 0, [w, h]), np.clip(hi, 0, [w, h])
-        min_span = min(min_span, PLANNED_SHARE * float(np.max(chi - clo)) / max(w, h))
-    return ExpectedView(target_px, box, w, h, min_span, bool(tiled))
+    if not np.all(np.isfinite(uv[1:])):  # NaN: a point behind the camera
+        return ExpectedView(target_px, None, w, h, float(required_span), bool(tiled), (), math.inf, False)
+    lo, hi = uv[1:].min(axis=0), uv[1:].max(axis=0)
+    box = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    span = float(np.max(uv[1:].max(axis=0) - uv[1:].min(axis=0))) / max(w, h)
+    min_span = min(float(required_span), PLANNED_SHARE * span)
+    samples = tuple((float(a), float(b)) for a, b in uv[1:])
+    return ExpectedView(target_px, box, w, h, min_span, bool(tiled), samples, float(geometry.gsd_mm_px),
+                        bool(geometry.whole_in_frame))
 
 
 @dataclass(frozen=True)
 class PhotoCheck:
-    """The verdict on one photo and the figures it was decided on (module docstring). ``box``: the
-    insulator's (x1, y1, x2, y2, score) in the photo's pixels, None when none was detected;
-    ``detections``: boxes the detector gave; ``span_share``: the box's longer side over the
-    frame's long side; ``offset``: (dx, dy) of the box centre from the image centre over the
-    width and height (None on an open axis); ``sharpness``: see :data:`MIN_SHARPNESS`;
+    """The figures measured on one photo and its verdict (module docstring). ``box``: the
+    detector's boxes in the projected string's corridor united, (x1, y1, x2, y2, best score) in
+    the photo's pixels, None when none; ``detections``: boxes the detector gave; ``span_share``:
+    the projected string's part in the frame over the frame's long side; ``offset``: (dx, dy) of
+    that part's centre from the image centre over the width and height (None on an open axis);
+    ``coverage``: the share of the projected string the boxes cover (:data:`MIN_COVERAGE`);
+    ``gsd_mm``: mm/px at the string's far end; ``blur_extent``: see :data:`MAX_BLUR_EXTENT`
+    (the verdict's); ``sharpness``: the Laplacian variance of the same region (:func:`sharpness`);
     ``detect_s``/``check_s``: wall seconds of the detector and of the measurements."""
 
     verdict: PhotoVerdict
@@ -151,6 +213,9 @@ class PhotoCheck:
     error: str | None = None
     detect_s: float = 0.0
     check_s: float = 0.0
+    coverage: float | None = None
+    blur_extent: float | None = None
+    gsd_mm: float | None = None
 
     @property
     def fit(self) -> bool:
@@ -168,27 +233,25 @@ class PhotoCheck:
         return {"verdict": self.verdict.to_json(), "fit": self.fit, "reasons": self.reasons, **out}
 
 
-def _pick(boxes: np.ndarray, target: tuple[float, float] | None, width: int, height: int) -> int:
-    """The index of the box nearest ``target`` (the image centre when None)."""
-    tx, ty = target if target is not None else (0.5 * width, 0.5 * height)
-    dx = np.maximum(np.maximum(boxes[:, 0] - tx, tx - boxes[:, 2]), 0.0)
-    dy = np.maximum(np.maximum(boxes[:, 1] - ty, ty - boxes[:, 3]), 0.0)
-    centre = np.hypot(0.5 * (boxes[:, 0] + boxes[:, 2]) - tx, 0.5 * (boxes[:, 1] + boxes[:, 3]) - ty)
-    return int(np.lexsort((centre, np.hypot(dx, dy)))[0])
-
-
-def sharpness(image: np.ndarray, box: tuple[float, float, float, float] | None = None) -> float:
-    """The variance of the 3x3 Laplacian of ``image`` (BGR or grey uint8) inside ``box`` (pixels;
-    None: the whole image), the crop first shrunk (area-averaged) to at most
-    :data:`ANALYSIS_PX` along its longer side. 0 for a crop under 3x3 pixels."""
+def _crop_grey(image: np.ndarray, box: tuple[float, float, float, float] | None) -> np.ndarray:
     h, w = image.shape[:2]
     if box is not None:
         x1, y1 = max(0, int(math.floor(box[0]))), max(0, int(math.floor(box[1])))
         x2, y2 = min(w, int(math.ceil(box[2]))), min(h, int(math.ceil(box[3])))
         image = image[y1:y2, x1:x2]
-    if image.shape[0] < 3 or image.shape[1] < 3:
+    if image.ndim == 2 or image.shape[0] < 3 or image.shape[1] < 3:
+        return image
+    return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
+
+
+def sharpness(image: np.ndarray, box: tuple[float, float, float, float] | None = None) -> float:
+    """The variance of the 3x3 Laplacian of ``image`` (BGR or grey uint8) inside ``box`` (pixels;
+    None: the whole image), the crop first shrunk (area-averaged) to at most
+    :data:`ANALYSIS_PX` along its longer side. 0 for a crop under 3x3 pixels. A figure for the
+    record: the verdict is :func:`blur_extent`'s."""
+    grey = _crop_grey(image, box)
+    if grey.shape[0] < 3 or grey.shape[1] < 3:
         return 0.0
-    grey = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
     k = ANALYSIS_PX / max(grey.shape[:2])
     if k < 1.0:
         grey = cv2.resize(grey, (max(3, round(grey.shape[1] * k)), max(3, round(grey.shape[0] * k))),
@@ -196,19 +259,94 @@ def sharpness(image: np.ndarray, box: tuple[float, float, float, float] | None =
     return float(cv2.Laplacian(grey, cv2.CV_64F, ksize=1).var())
 
 
-def _merged(boxes: np.ndarray, k: int, view: ExpectedView) -> np.ndarray:
-    """Box ``k`` united with the boxes that meet the projected string's box widened by
-    MAX_OFFSET of the frame (a string boxed in pieces); box ``k`` alone without a projection."""
-    box = boxes[k, :4].copy()
-    if view.string_box is None:
-        return box
+def blur_extent(image: np.ndarray, box: tuple[float, float, float, float] | None = None) -> float:
+    """The no-reference blur of ``image`` (BGR or grey uint8) inside ``box`` (pixels; None: the
+    whole image) at the photo's own pixels, after Crete-Roffet, Dolmiere, Ladret, Nicolas, "The
+    blur effect" (SPIE 2007): per direction, the share of the neighbour differences a further
+    REBLUR_PX box blur leaves (a sharp edge loses most, a blurred one little); the worse of rows
+    and columns (a motion blur smears one direction). 1 for a flat crop or one under 3x3 pixels."""
+    grey = _crop_grey(image, box)
+    if grey.shape[0] < 3 or grey.shape[1] < 3:
+        return 1.0
+    f = grey.astype(np.float64)
+    worst = 0.0
+    for ksize, axis in (((REBLUR_PX, 1), 1), ((1, REBLUR_PX), 0)):
+        d_f = np.abs(np.diff(f, axis=axis))
+        d_b = np.abs(np.diff(cv2.blur(f, ksize), axis=axis))
+        total = float(d_f.sum())
+        if total <= 0.0:
+            return 1.0
+        worst = max(worst, (total - float(np.maximum(0.0, d_f - d_b).sum())) / total)
+    return worst
+
+
+def _in_corridor(boxes: np.ndarray, view: ExpectedView) -> np.ndarray:
+    """The boxes that meet the projected string's box widened by MAX_OFFSET of the frame."""
+    if view.string_box is None or len(boxes) == 0:
+        return boxes[:0]
     mx, my = MAX_OFFSET * view.width, MAX_OFFSET * view.height
     x1, y1, x2, y2 = view.string_box
     meets = (boxes[:, 0] <= x2 + mx) & (boxes[:, 2] >= x1 - mx) & (boxes[:, 1] <= y2 + my) & (boxes[:, 3] >= y1 - my)
-    if not meets[k]:
-        return box
-    part = boxes[meets, :4]
-    return np.array([part[:, 0].min(), part[:, 1].min(), part[:, 2].max(), part[:, 3].max()])
+    return boxes[meets]
+
+
+def _united(part: np.ndarray) -> list[float] | None:
+    """``part`` united (x1, y1, x2, y2, best score); None when empty."""
+    if len(part) == 0:
+        return None
+    score = float(part[:, 4].max()) if part.shape[1] > 4 else 1.0
+    return [float(part[:, 0].min()), float(part[:, 1].min()), float(part[:, 2].max()), float(part[:, 3].max()), score]
+
+
+def coverage(boxes: np.ndarray, view: ExpectedView) -> float:
+    """The share of the projected string's samples inside the frame from the first to the last
+    that lies in a box of ``boxes`` ((M, 4|5) pixels) widened by COVER_TOLERANCE of the long side;
+    0 without samples in the frame or none in a box."""
+    if not view.string_px:
+        return 0.0
+    uv = np.asarray(view.string_px, dtype=np.float64)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < view.width) & (uv[:, 1] >= 0) & (uv[:, 1] < view.height)
+    if not inside.any() or len(boxes) == 0:
+        return 0.0
+    uv = uv[inside]
+    tol = COVER_TOLERANCE * max(view.width, view.height)
+    b = boxes[:, :4]
+    hit = ((uv[:, None, 0] >= b[None, :, 0] - tol) & (uv[:, None, 0] <= b[None, :, 2] + tol)
+           & (uv[:, None, 1] >= b[None, :, 1] - tol) & (uv[:, None, 1] <= b[None, :, 3] + tol))
+    hit = np.asarray(hit.any(axis=1), dtype=bool)
+    if not hit.any():
+        return 0.0
+    # end to end: a shed the network missed between two it boxed is still the string where planned
+    idx = np.flatnonzero(hit)
+    return float((idx[-1] - idx[0] + 1) / hit.shape[0])
+
+
+def _framing(view: ExpectedView) -> tuple[list[Reason], list[str], float, list[float | None]]:
+    """The framing's reasons, cut sides, span share and offset, from the projection alone."""
+    clip = view.in_frame()
+    if view.string_box is None or clip is None:
+        return [Reason.NOT_IN_VIEW], [], 0.0, [None, None]
+    w, h = view.width, view.height
+    reasons: list[Reason] = []
+    x1, y1, x2, y2 = view.string_box
+    mx, my = max(BORDER_MARGIN_PX, BORDER_MARGIN * w), max(BORDER_MARGIN_PX, BORDER_MARGIN * h)
+    touches = (x1 <= mx, y1 <= my, x2 >= w - mx, y2 >= h - my)
+    is_open = view.open_sides()
+    cut = [n for n, t, o in zip(("left", "top", "right", "bottom"), touches, is_open) if t and not o]
+    if cut or (not view.tiled and not view.whole):
+        reasons.append(Reason.CUT)
+    uv = np.asarray(view.string_px, dtype=np.float64)
+    lo = np.clip(uv.min(axis=0), 0, [w, h])
+    hi = np.clip(uv.max(axis=0), 0, [w, h])
+    span = float(np.max(hi - lo)) / max(w, h)
+    if span < view.min_span:
+        reasons.append(Reason.TOO_SMALL)
+    cx, cy = 0.5 * (clip[0] + clip[2]), 0.5 * (clip[1] + clip[3])
+    off_x = None if (is_open[0] or is_open[2]) else (cx - 0.5 * w) / w
+    off_y = None if (is_open[1] or is_open[3]) else (cy - 0.5 * h) / h
+    if any(o is not None and abs(o) > MAX_OFFSET for o in (off_x, off_y)):
+        reasons.append(Reason.OFF_CENTRE)
+    return reasons, cut, span, [off_x, off_y]
 
 
 def check_boxes(image: np.ndarray, boxes: np.ndarray, view: ExpectedView) -> PhotoCheck:
@@ -216,34 +354,26 @@ def check_boxes(image: np.ndarray, boxes: np.ndarray, view: ExpectedView) -> Pho
     t0 = time.perf_counter()
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, boxes.shape[1] if np.ndim(boxes) == 2 else 5)
     h, w = image.shape[:2]
-    if len(b) == 0:
-        return PhotoCheck(PhotoVerdict.unfit([Reason.NOT_DETECTED]), min_span=view.min_span,
-                          check_s=time.perf_counter() - t0)
-    k = _pick(b, view.target_px, w, h)
-    x1, y1, x2, y2 = (float(v) for v in _merged(b, k, view))
-    score = float(b[k, 4]) if b.shape[1] > 4 else 1.0
-    reasons: list[Reason] = []
-    mx, my = max(BORDER_MARGIN_PX, BORDER_MARGIN * w), max(BORDER_MARGIN_PX, BORDER_MARGIN * h)
-    touches = (x1 <= mx, y1 <= my, x2 >= w - mx, y2 >= h - my)
-    is_open = view.open_sides()
-    names = ("left", "top", "right", "bottom")
-    cut = [n for n, t, o in zip(names, touches, is_open) if t and not o]
-    if cut:
-        reasons.append(Reason.CUT)
-    span = max(x2 - x1, y2 - y1) / max(w, h)
-    if span < view.min_span:
-        reasons.append(Reason.TOO_SMALL)
-    off_x = None if (is_open[0] or is_open[2]) else (0.5 * (x1 + x2) - 0.5 * w) / w
-    off_y = None if (is_open[1] or is_open[3]) else (0.5 * (y1 + y2) - 0.5 * h) / h
-    if any(o is not None and abs(o) > MAX_OFFSET for o in (off_x, off_y)):
-        reasons.append(Reason.OFF_CENTRE)
-    sharp = sharpness(image, (x1, y1, x2, y2))
-    if sharp < MIN_SHARPNESS:
-        reasons.append(Reason.NOT_SHARP)
+    if (w, h) != (view.width, view.height):
+        raise ValueError(f"image: {w}x{h} px, the view was projected for {view.width}x{view.height}")
+    reasons, cut, span, offset = _framing(view)
+    cover, sharp, blur = None, None, None
+    clip = view.in_frame()
+    part = _in_corridor(b, view)
+    if clip is not None:
+        cover = coverage(b, view)
+        if len(b) == 0:
+            reasons.append(Reason.NOT_DETECTED)
+        elif cover < MIN_COVERAGE:
+            reasons.append(Reason.NOT_WHERE_PLANNED)
+        sharp = sharpness(image, clip)
+        blur = blur_extent(image, clip)
+        if blur > MAX_BLUR_EXTENT:
+            reasons.append(Reason.NOT_SHARP)
     verdict = PhotoVerdict.unfit(reasons) if reasons else PhotoVerdict.passed()
-    return PhotoCheck(verdict, box=[x1, y1, x2, y2, score], detections=len(b),
-                      cut_sides=cut, span_share=float(span), min_span=view.min_span, offset=[off_x, off_y],
-                      sharpness=sharp, check_s=time.perf_counter() - t0)
+    return PhotoCheck(verdict, box=_united(part), detections=len(b),
+                      cut_sides=cut, span_share=span, min_span=view.min_span, offset=offset, sharpness=sharp,
+                      coverage=cover, blur_extent=blur, gsd_mm=view.gsd_mm, check_s=time.perf_counter() - t0)
 
 
 def check_photo(detector: Callable[[np.ndarray], np.ndarray], image: np.ndarray, view: ExpectedView) -> PhotoCheck:
@@ -261,5 +391,9 @@ def check_photo(detector: Callable[[np.ndarray], np.ndarray], image: np.ndarray,
         error = f"boxes: expected (M, 4|5), got shape {boxes.shape}"
         return PhotoCheck(PhotoVerdict.unfit([Reason.DETECTOR_ERROR], error), min_span=view.min_span,
                           error=error, detect_s=detect_s)
-    check = check_boxes(image, boxes, view)
+    try:
+        check = check_boxes(image, boxes, view)
+    except ValueError as exc:  # an image not of the camera the view was projected for: unfit, said
+        return PhotoCheck(PhotoVerdict.unfit([Reason.DETECTOR_ERROR], str(exc)), min_span=view.min_span,
+                          error=str(exc), detect_s=detect_s)
     return replace(check, detect_s=detect_s)

@@ -33,10 +33,12 @@ class Reason(str, Enum):
 
     PASSED = "insulator detected whole, centred, big enough and sharp"
     NOT_DETECTED = "no insulator detected"
+    NOT_WHERE_PLANNED = "string not where planned"
+    NOT_IN_VIEW = "string not in front of the camera"
     CUT = "cut by the border"
     TOO_SMALL = "too small"
     OFF_CENTRE = "off centre"
-    NOT_SHARP = "not sharp (Laplacian variance too low)"
+    NOT_SHARP = "not sharp (the string's region is blurred)"
     DETECTOR_ERROR = "detector failed"
 
     @property
@@ -46,7 +48,7 @@ class Reason(str, Enum):
 
 
 #: Texts an older summary wrote for a reason whose words have changed since.
-_OLD_TEXTS = {"blurred": Reason.NOT_SHARP}
+_OLD_TEXTS = {"blurred": Reason.NOT_SHARP, "not sharp (Laplacian variance too low)": Reason.NOT_SHARP}
 
 
 @dataclass(frozen=True)

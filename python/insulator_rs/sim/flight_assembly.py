@@ -73,17 +73,19 @@ def assemble_flight(mission: Mission, vehicle: Vehicle, sensors: Sensors, detect
                     rig: SensorRig, settings: FlightSettings, photo_camera: Any = None,
                     recorder: McapRecorder | None = None, observer: FlightObserver | None = None,
                     overwrite: bool = False,
-                    outer_vehicle: Callable[[Vehicle], Vehicle] | None = None) -> AssembledFlight:
+                    outer_vehicle: Callable[[Vehicle], Vehicle] | None = None,
+                    photo_detector: BoxDetector | None = None) -> AssembledFlight:
     """The flight of ``mission`` on these ports, its report into ``out``: recorded into
     ``recorder`` when given (the pose stream and every frame and scan the flight asks for, with
     ``rig``'s T_b_l), the recorded vehicle wrapped by ``outer_vehicle`` when given (what it adds,
-    a fault, stays out of the recording); ``photo_camera``, ``observer``, ``overwrite`` and
-    ``settings`` as :class:`~insulator_rs.flight.loop.FlightLoop`'s."""
+    a fault, stays out of the recording); ``photo_camera``, ``observer``, ``overwrite``,
+    ``photo_detector`` (what checks each photo; default ``detector``) and ``settings`` as
+    :class:`~insulator_rs.flight.loop.FlightLoop`'s."""
     if recorder is not None:
         vehicle = RecordingVehicle(vehicle, recorder)
         sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
     if outer_vehicle is not None:
         vehicle = outer_vehicle(vehicle)
     loop = FlightLoop(mission, vehicle, sensors, detector, out, rig=rig, settings=settings, overwrite=overwrite,
-                      photo_camera=photo_camera, observer=observer)
+                      photo_camera=photo_camera, observer=observer, photo_detector=photo_detector)
     return AssembledFlight(loop, vehicle, sensors)
