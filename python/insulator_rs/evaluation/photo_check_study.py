@@ -358,11 +358,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the mission of each flight (its insulator_length; default: the scene's example)")
     parser.add_argument("--render", action="store_true",
                         help="render the gimbal and zoom variants with the ray caster instead of warping the photo")
-    parser.add_argument("--limit", type=int, default=None, help="at most this many photos per flight")
+    parser.add_argument("--limit", type=int, default=None, help="at most this many photos per flight (default: every photo)")
     parser.add_argument("--stride", type=int, default=1, help="every this many-th photo of a flight")
     parser.add_argument("--photo-width", type=int, default=None,
                         help="render each photo again at its recorded pose, this many px wide (a flight flown at "
-                             "--photo-scale 0.2 gives the full-size photos' poses: 4000); the variants are warped")
+                             "--photo-scale 0.2 gives the full-size photos' poses: 4000); the variants are warped (default: "
+                             "the photos as the flight wrote them)")
     parser.add_argument("--out", type=Path, default=Path("results/photo_check"), help="folder for the table")
 
 

@@ -38,7 +38,7 @@ class Reason(str, Enum):
     CUT = "cut by the border"
     TOO_SMALL = "too small"
     OFF_CENTRE = "off centre"
-    NOT_SHARP = "not sharp (the string's region is blurred)"
+    NOT_SHARP = "not sharp (the string's region lacks fine detail)"
     DETECTOR_ERROR = "detector failed"
 
     @property
