@@ -177,3 +177,33 @@ def sensors_name(sensors: object) -> str:
     if isinstance(name, str) and name:
         return name
     return type(sensors).__name__.lstrip("_")
+
+
+class SensorsDecorator:
+    """A :class:`Sensors` adapter round ``inner`` that passes every call of the port on as it is: a
+    decorator (the recording's, the fault matrix's) subclasses it and overrides what it watches or
+    changes. Of the optional capabilities (:mod:`insulator_rs.ports.capabilities`) it offers
+    ``streams`` when ``inner`` has it, and only then, so the pre-flight gate finds the same through
+    it; ``name`` is ``inner``'s in words (:func:`sensors_name`), so the report names the sensor,
+    never the decorator. Anything else of the adapter is ``inner``'s, reached there."""
+
+    def __init__(self, inner: Sensors) -> None:
+        self.inner = inner
+        self.name = sensors_name(inner)
+        if isinstance(inner, ReportsStreams):
+            self.streams = inner.streams
+
+    def detection_frame(self, now: float) -> CameraFrame | None:
+        return self.inner.detection_frame(now)
+
+    def lidar_scan(self, now: float) -> LidarScan | None:
+        return self.inner.lidar_scan(now)
+
+    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
+        return self.inner.photo(now, T_b_c, camera)
+
+    def health(self) -> dict[str, object]:
+        return self.inner.health()
+
+    def close(self) -> None:
+        self.inner.close()

@@ -18,11 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import BagError
 from insulator_rs.recording import convert as C
 from insulator_rs.recording import types as T
-from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, ScanIntake, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, PoseStamped, ScanIntake, Sensors, SensorsDecorator
 from insulator_rs.ports.vehicle import Vehicle, VehicleDecorator, VehicleState
 
 # Topic the recorder writes nav_msgs/Odometry on (the replay finds it by default).
@@ -162,7 +161,7 @@ class McapRecorder:
             self._file.close()
 
 
-class RecordingSensors:
+class RecordingSensors(SensorsDecorator):
     """A :class:`~insulator_rs.ports.sensors.Sensors` decorator that records what ``inner``
     delivers (every detection frame and every scan the flight asks for), wired by the
     composition root: the flight does not know it is recorded. ``T_b_l``: the rig's LiDAR
@@ -176,7 +175,7 @@ class RecordingSensors:
     same part of each scan, so the replay sees what the flight saw."""
 
     def __init__(self, inner: Sensors, recorder: McapRecorder, *, T_b_l: np.ndarray | None = None) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.recorder = recorder
         self._T_b_c: np.ndarray | None = None
         self._T_b_l = None if T_b_l is None else np.asarray(T_b_l, dtype=np.float64)
@@ -198,17 +197,8 @@ class RecordingSensors:
                 self.recorder.scan(new, self._T_b_c)
         return scan
 
-    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
-        return self.inner.photo(now, T_b_c, camera)
-
     def health(self) -> dict[str, object]:
         return {**self.inner.health(), "recorded_messages": dict(self.recorder.counts)}
-
-    def close(self) -> None:
-        self.inner.close()
-
-    def __getattr__(self, name: str) -> Any:  # anything else an adapter offers (pose_at, ...)
-        return getattr(self.inner, name)
 
 
 class RecordingVehicle(VehicleDecorator):

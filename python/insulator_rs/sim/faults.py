@@ -31,10 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from insulator_rs._core import CameraModel
 from insulator_rs.exceptions import ClientKilled
 from insulator_rs.ports.detector import BoxDetector, detector_name
-from insulator_rs.ports.sensors import CameraFrame, LidarScan, Sensors
+from insulator_rs.ports.sensors import CameraFrame, LidarScan, Sensors, SensorsDecorator
 from insulator_rs.ports.vehicle import Vehicle, VehicleDecorator, VehicleState
 
 
@@ -60,14 +59,14 @@ def _moment(at: float | None, name: str) -> float:
     return float(at)
 
 
-class FaultySensors:
+class FaultySensors(SensorsDecorator):
     """The ``Sensors`` port with the LiDAR silent from ``lidar_silent_at`` and/or the camera frozen
     from ``camera_frozen_at`` (flight s on ``clock``; None: that sensor stays healthy). Photos and
     everything else pass through."""
 
     def __init__(self, inner: Sensors, clock: FaultClock, *, lidar_silent_at: float | None = None,
                  camera_frozen_at: float | None = None) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.clock = clock
         self.lidar_silent_at = _moment(lidar_silent_at, "lidar_silent_at")
         self.camera_frozen_at = _moment(camera_frozen_at, "camera_frozen_at")
@@ -89,17 +88,8 @@ class FaultySensors:
             return None
         return self.inner.lidar_scan(now)
 
-    def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
-        return self.inner.photo(now, T_b_c, camera)
-
     def health(self) -> dict[str, object]:
         return {**self.inner.health(), "fault_withheld": dict(self.withheld)}
-
-    def close(self) -> None:
-        self.inner.close()
-
-    def __getattr__(self, name: str) -> Any:  # what else the adapter offers (streams, ground truth)
-        return getattr(self.inner, name)
 
 
 class FailingDetector:
