@@ -14,6 +14,9 @@
 # pyproject.toml [tool.pytest.ini_options] and described in docs/guide/testing.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+t0=$SECONDS
+# Each step's start, in seconds since the command began: where a tier's minutes go.
+step() { echo "== [$((SECONDS - t0)) s] $*"; }
 
 tier="quick"
 case "${1:-}" in
@@ -28,12 +31,12 @@ esac
 
 # The Rust crates, the stubs and mypy: in the quick tier and --all (--slow is what they leave out).
 static_checks() {
-  echo "== cargo test (fusion_core, scene_raycast, livox_mid360)"
+  step "cargo test (fusion_core, scene_raycast, livox_mid360)"
   cargo test --quiet --release -p fusion_core -p scene_raycast -p livox_mid360
-  echo "== stub check (_core.pyi against the compiled module)"
+  step "stub check (_core.pyi against the compiled module)"
   python -m mypy.stubtest insulator_rs._core --allowlist scripts/stubtest_allowlist.txt
   if [ "${INSULATOR_RS_MYPY:-1}" = "1" ]; then
-    echo "== mypy (python/insulator_rs; settings: pyproject.toml [tool.mypy])"
+    step "mypy (python/insulator_rs; settings: pyproject.toml [tool.mypy])"
     python -m mypy
   else
     # numpy's stubs differ between the numpy pip picks for 3.10 and for 3.11 (the same code types
@@ -42,7 +45,7 @@ static_checks() {
   fi
 }
 if [ "$tier" != "slow" ]; then static_checks; fi
-echo "== pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci})"
+step "pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci})"
 # The gate draws the same examples on every run (tests/conftest.py, profile "ci");
 # HYPOTHESIS_PROFILE=dev explores new ones.
 if [ -n "$marker" ]; then
@@ -50,3 +53,4 @@ if [ -n "$marker" ]; then
 else
   HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q "$@"
 fi
+step "done, the ${tier} tier"
