@@ -36,6 +36,10 @@ LOCALIZATION_ERROR = np.array([0.03, -0.02, 0.04])  # m: the flight's localized 
 ZOOMED_IN = {f"focal x{f:g}" for f in ZOOM_FACTORS if f > 1}
 
 
+# A study (renders and the network on each variant): the --all tier.
+pytestmark = pytest.mark.slow
+
+
 @pytest.fixture(scope="module")
 def shots(tmp_path_factory):
     scene, _ = small_scene(tmp_path_factory.mktemp("scene"))
