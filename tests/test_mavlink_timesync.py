@@ -10,6 +10,7 @@ from __future__ import annotations
 import socket
 import time
 
+import numpy as np
 import pytest
 
 from insulator_rs.mavlink.timesync import READY_EXCHANGES, REQUEST_HZ, WINDOW, MavlinkTimesync
@@ -129,7 +130,8 @@ def test_hostile_timesync_on_the_link_changes_nothing() -> None:
             pass
         assert answers == []  # nothing to the stranger
         assert vehicle.link_stats.foreign_address >= 20
-        assert -0.005 < _lag(vehicle) < CLOCK_LAG_MAX
+        lags = [_lag(vehicle) for _ in range(11) if time.sleep(0.05) is None]
+        assert -0.005 < float(np.median(lags)) < CLOCK_LAG_MAX, lags  # median: see the test below
     finally:
         stranger.close()
         vehicle.close()
@@ -143,10 +145,17 @@ def test_an_autopilot_that_never_answers_falls_back_to_telemetry_stamps() -> Non
     try:
         time.sleep(1.5)
         assert not vehicle.timesync.ready()
-        lag = clock.now() - vehicle.state().time
+        # The median of 11 reads over 0.5 s: one read is the map against one telemetry stamp, and
+        # a stamp is stale by however long a loaded box kept the simulator's thread from running
+        # (CI measured 0.11 s once); the map's own error is what is left when that is taken out.
+        lags = []
+        for _ in range(11):
+            lags.append(clock.now() - vehicle.state().time)
+            time.sleep(0.05)
+        lag = float(np.median(lags))
         record = clock.record()
         assert record.source == "telemetry" and record.exchanges > 10, record
-        assert -0.005 < lag < CLOCK_LAG_MAX
+        assert -0.005 < lag < CLOCK_LAG_MAX, lags
     finally:
         clock.close()
         vehicle.close()
