@@ -2,7 +2,8 @@
 # The project's test command (README). Run from the repository root inside the venv.
 #
 #   bash scripts/test.sh          the quick tier, before every commit (at most 5 minutes on a
-#                                 2-core machine): the Rust crates' tests, the stub check, mypy, and
+#                                 2-core machine): the Rust crates' tests (beside the rest), the
+#                                 stub check, mypy, and
 #                                 the pytest tests not marked slow (unit, parity, property) plus the
 #                                 one small-scene flight marked smoke
 #   bash scripts/test.sh --all    everything: the same, and every test marked slow
@@ -29,10 +30,40 @@ case "$tier" in
   *) marker="" ;;
 esac
 
-# The Rust crates, the stubs and mypy: in the quick tier and --all (--slow is what they leave out).
-static_checks() {
-  step "cargo test (fusion_core, scene_raycast, livox_mid360)"
-  cargo test --quiet --release -p fusion_core -p scene_raycast -p livox_mid360
+# pytest-xdist workers (PYTEST_WORKERS, default 3; 0: none). Most tests wait on sockets and
+# simulated clocks, not on the CPU: on this 2-core kind three workers take the quick tier's pytest
+# from 4.4 to 1.5 minutes. tests/conftest.py keeps a module on one worker (its fixtures are built
+# once) and the tests marked xdist_group together.
+workers="${PYTEST_WORKERS:-3}"
+xdist=()
+if [ "$workers" != "0" ]; then xdist=(-n "$workers" --dist loadgroup); fi
+
+# The Rust crates' tests compile for minutes on a clean clone, on the CPU the waiting pytest
+# workers leave idle: they build and run beside the stub check, mypy and pytest, their output in
+# a log printed at the end (the quick tier and --all; --slow is what they leave out).
+cargo_log=""
+cargo_pid=""
+if [ "$tier" != "slow" ]; then
+  cargo_log=$(mktemp)
+  step "cargo test (fusion_core, scene_raycast, livox_mid360), beside the rest: output at the end"
+  cargo test --quiet --release -p fusion_core -p scene_raycast -p livox_mid360 >"$cargo_log" 2>&1 &
+  cargo_pid=$!
+fi
+cargo_wait() {
+  [ -n "$cargo_pid" ] || return 0
+  local rc=0
+  wait "$cargo_pid" || rc=$?
+  cargo_pid=""
+  step "cargo test: exit $rc"
+  grep -E "^test result|FAILED|panicked|error(\[|:)" "$cargo_log" || true
+  if [ "$rc" -ne 0 ]; then tail -60 "$cargo_log"; fi
+  rm -f "$cargo_log"
+  return "$rc"
+}
+# a failure below still reports (and stops) cargo's run
+trap 'if [ -n "$cargo_pid" ]; then kill "$cargo_pid" 2>/dev/null || true; fi' EXIT
+
+if [ "$tier" != "slow" ]; then
   step "stub check (_core.pyi against the compiled module)"
   python -m mypy.stubtest insulator_rs._core --allowlist scripts/stubtest_allowlist.txt
   if [ "${INSULATOR_RS_MYPY:-1}" = "1" ]; then
@@ -43,14 +74,20 @@ static_checks() {
     # differently): CI gates mypy once, in its 3.11 venv
     echo "== mypy: not in this venv (INSULATOR_RS_MYPY=0)"
   fi
-}
-if [ "$tier" != "slow" ]; then static_checks; fi
-step "pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci})"
+fi
+step "pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci}; workers: ${workers})"
 # The gate draws the same examples on every run (tests/conftest.py, profile "ci");
 # HYPOTHESIS_PROFILE=dev explores new ones.
+pytest_rc=0
 if [ -n "$marker" ]; then
-  HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q -m "$marker" "$@"
+  HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q "${xdist[@]}" -m "$marker" "$@" || pytest_rc=$?
 else
-  HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q "$@"
+  HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q "${xdist[@]}" "$@" || pytest_rc=$?
+fi
+cargo_rc=0
+cargo_wait || cargo_rc=$?
+if [ "$pytest_rc" -ne 0 ] || [ "$cargo_rc" -ne 0 ]; then
+  step "failed: pytest exit $pytest_rc, cargo test exit $cargo_rc"
+  exit 1
 fi
 step "done, the ${tier} tier"

@@ -15,6 +15,8 @@ import pytest
 from helpers.flights import small_scene
 
 from insulator_rs.exceptions import PlanningError
+from insulator_rs.flight.energy_budget import EnergyBudget
+from insulator_rs.flight.reserve import ESTIMATE_MARGIN, ReserveEstimate
 from insulator_rs.flight import second_look
 from insulator_rs.flight.pilot import CONTROL_PERIOD
 from insulator_rs.flight.second_look import REFUSED_TRACK_MIN_CONFIDENT, SecondLookFlight
@@ -22,6 +24,7 @@ from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import PlanItem, State
 from insulator_rs.perception.pairing import PAIRING_WAIT
+from insulator_rs.planning.energy import ConsumptionFit, RouteDemand, route_demand
 from insulator_rs.planning.exploration import PlanKind
 from insulator_rs.tracking.registry import Insulator
 
@@ -77,11 +80,25 @@ def parts(tmp_path):
     return mission, MissionGeometry.from_mission(mission)
 
 
-def _looks(pilot, runner, parts, registry=None):
+def _energy(geom, *, available=None, needed_finish=0.0):
+    """The mission's energy budget; with ``available``, as weighed once: a pack that uses 0.1 %
+    a second hovering and 0.01 % a metre (a 1000 s hover), ``available`` above the reserve and
+    ``needed_finish`` for the rest of the plan."""
+    energy = EnergyBudget(geom, v_max=np.array([3.0, 3.0, 1.5]), a_max=np.array([2.0, 2.0, 1.0]), reserve=0.25,
+                          crossing_clearance=3.0, way_out=lambda here: None)
+    if available is not None:
+        fit = ConsumptionFit(per_s=0.001, per_m=0.0001, start=1.0, samples=100, span_s=100.0, rms=0.0)
+        energy.battery.estimate = ReserveEstimate(
+            time_s=100.0, fraction=0.25 + available, available=available, needed_finish=needed_finish,
+            needed_return=0.01, rest_of_plan=RouteDemand(0.0, 0.0), way_out=RouteDemand(0.0, 0.0), fit=fit)
+    return energy
+
+
+def _looks(pilot, runner, parts, registry=None, energy=None):
     mission, geom = parts
     registry = registry or SimpleNamespace(candidates=[], insulators=[], gate=1.0)
     return SecondLookFlight(pilot, legs=None, registry=registry, runner=runner, geom=geom, mission=mission,
-                            detect_period=0.5)
+                            detect_period=0.5, energy=energy or _energy(geom))
 
 
 ITEM = PlanItem(PlanKind.CROSS, np.array([0.0, 0.0, 20.0]), 0.0, 0)
@@ -149,3 +166,46 @@ def test_a_look_with_no_clear_viewpoint_is_recorded_as_not_flown(parts, monkeypa
     assert record["note"] == "not flown: no viewpoint clear of the safety volumes"
     assert record["observations_before"] == record["observations_after"] == 2 and not record["confirmed"]
     assert record["views"] == 0 and record["source"] == "candidate"
+
+
+def _views(center, line, volumes, *, min_height):
+    return [(np.array([7.0, 3.0, 8.0]), 0.0), (np.array([7.0, 6.5, 8.0]), 0.0)]
+
+
+@pytest.mark.parametrize("spare_s", [-5.0, 5.0])
+def test_a_look_the_battery_cannot_spare_is_recorded_as_not_flown(parts, monkeypatch, spare_s):
+    """The look's cost (there through its views and back, each view's settle and watch at their
+    limits, with the reserve's ESTIMATE_MARGIN) against what the latest weighing leaves after the
+    rest of the plan: short by 5 s of hover, not flown and said why; 5 s to spare, flown."""
+    monkeypatch.setattr(second_look, "look_viewpoints", _views)
+    monkeypatch.setattr(SecondLookFlight, "watch_from", lambda self, view, candidate, version: None)
+    mission, geom = parts
+    pilot = Pilot()
+    candidate = Insulator(id=0, center=np.array([0.0, 3.0, 10.0]), axis=np.zeros(3), observations=2, side=1)
+    probe = _looks(pilot, Runner(pilot, lag=0.0), parts)
+    views = [p for p, _ in _views(None, None, None, min_height=0.0)]
+    demand = route_demand(np.vstack([np.zeros(3), *views, np.zeros(3)]), probe.energy.limits[0],
+                          probe.energy.limits[1], stops=2, stop_time=probe.view_time(candidate))
+    fit = ConsumptionFit(per_s=0.001, per_m=0.0001, start=1.0, samples=100, span_s=100.0, rms=0.0)
+    cost = ESTIMATE_MARGIN * fit.consumed(demand.time_s, demand.distance_m)
+    energy = _energy(geom, available=0.30, needed_finish=0.30 - cost - ESTIMATE_MARGIN * fit.per_s * spare_s)
+    looks = _looks(pilot, Runner(pilot, lag=0.0), parts, energy=energy)
+    looks.look(candidate)
+    record = looks.looks[-1].as_record()
+    if spare_s < 0:
+        assert record["note"].startswith("not flown: the battery keeps it for the plan (short by 0.6%)"), record
+        assert record["views"] == 0 and "the battery keeps 0.6% too little" in pilot.said[-1]
+    else:
+        assert record["note"] is None and record["views"] == 2, record
+
+
+def test_a_look_before_the_first_weighing_is_flown(parts, monkeypatch):
+    """No consumption fit yet (the first minutes, or a vehicle reporting no charge): the look
+    is flown, as the reserve's own check waits for a fit too."""
+    monkeypatch.setattr(second_look, "look_viewpoints", _views)
+    monkeypatch.setattr(SecondLookFlight, "watch_from", lambda self, view, candidate, version: None)
+    pilot = Pilot()
+    looks = _looks(pilot, Runner(pilot, lag=0.0), parts)
+    assert looks.energy.battery.estimate is None
+    looks.look(Insulator(id=0, center=np.array([0.0, 3.0, 10.0]), axis=np.zeros(3), observations=2, side=1))
+    assert looks.looks[-1].as_record()["views"] == 2

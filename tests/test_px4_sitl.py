@@ -160,6 +160,8 @@ def test_px4_timesync_agrees_with_the_simulated_px4s(px4) -> None:
         assert abs(f["drift_ppm"]) < 5e4 and f["rejected"] <= 2, (name, f)
 
 
+# one worker flies the session's reference flight for all three tests that read it (conftest.py)
+@pytest.mark.xdist_group("sitl_reference_flight")
 def test_small_scene_inspection_against_px4_sitl(reference_flight) -> None:
     """The whole inspection through PX4 itself: take-off, offboard exploration, every
     insulator localized, inspected and photographed, landed; PX4's log shows no failsafe.

@@ -200,6 +200,8 @@ def test_gcs_on_px4_sitl_gets_statustext_and_every_photo_marker():
     assert len(gcs.of("HEARTBEAT", CAMERA_COMPONENT)) >= 2  # 1 Hz, forwarded
 
 
+# one worker flies the session's reference flight for all three tests that read it (conftest.py)
+@pytest.mark.xdist_group("sitl_reference_flight")
 def test_small_scene_flight_against_px4_sitl_shows_every_photo_on_its_gcs(reference_flight):
     """The small-scene inspection flown through PX4 (``inspect --connection ... --sim-sensors``;
     the session's one reference flight, ``sitl_reference_flight``) with a ground station on PX4's

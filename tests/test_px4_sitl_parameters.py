@@ -148,6 +148,8 @@ def _inspect_args(tmp_path, px4) -> tuple[list[str], object]:
              "--connection", px4.connection, "--sim-sensors", "--time-scale", f"{SPEED:g}"], load_mission(mission))
 
 
+# one worker flies the session's reference flight for all three tests that read it (conftest.py)
+@pytest.mark.xdist_group("sitl_reference_flight")
 def test_sitl_flight_sets_verifies_and_restores_the_parameters(reference_flight) -> None:
     """The session's one reference flight (``sitl_reference_flight``: a ground station on PX4's
     data link); PX4's values read back through a fresh connection once it has landed."""

@@ -86,6 +86,14 @@ class EnergyBudget:
                    home + np.array([0.0, 0.0, LAND_HEIGHT])]
         return route_demand(np.array(way), *self.limits) + TOUCHDOWN
 
+    def spare_after_detour(self, here: np.ndarray, via: Sequence[np.ndarray], stop_time: float) -> float | None:
+        """What the latest weighing leaves above the reserve after the rest of the plan and a
+        detour not in it: from ``here`` through ``via`` and back, standing ``stop_time`` s at
+        each (fractions of the pack; negative: the detour would cost the plan its end). None
+        before the first weighing."""
+        points = np.vstack([np.asarray(here, dtype=np.float64), *via, np.asarray(here, dtype=np.float64)])
+        return self.battery.spare_after(route_demand(points, *self.limits, stops=len(via), stop_time=stop_time))
+
     def observe(self, st: VehicleState) -> None:
         """One tick's state (the battery's time, distance and charge)."""
         self.battery.observe(st)

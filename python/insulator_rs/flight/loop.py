@@ -118,7 +118,7 @@ class FlightLoop:
                                    way_out=self.exit.route_from, **limits)
         self.abort_policy = AbortPolicy(self, self.runner, self.energy, max_flight_time=settings.max_flight_time)
         self.looks = SecondLookFlight(self, self.legs, registry=self.registry, runner=self.runner, geom=geom,
-                                      mission=mission, detect_period=settings.detect_period)
+                                      mission=mission, detect_period=settings.detect_period, energy=self.energy)
         # what checks each photo (perception/photo_check.py): the flight's detector unless the
         # composition root gives another (the simulator's stand-in on photos)
         self.shots = PhotoSession(self, geom, sensors=sensors, rig=rig, registry=self.registry, photos=self.photos,

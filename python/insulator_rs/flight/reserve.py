@@ -170,6 +170,16 @@ class BatteryReserve:
                             f"{est.needed_finish:.1%}, the way out {est.needed_return:.1%}, "
                             f"{est.available:.1%} above the {self.reserve:.0%} reserve)")
 
+    def spare_after(self, extra: RouteDemand) -> float | None:
+        """What the latest weighing leaves above the reserve once the rest of the plan and
+        ``extra`` (a detour not in the plan, with ESTIMATE_MARGIN, as the plan is weighed) are
+        paid for: a fraction of the pack, negative where the detour would cost the plan its end.
+        None before the first weighing (no consumption fit yet)."""
+        est = self.estimate
+        if est is None:
+            return None
+        return est.available - est.needed_finish - ESTIMATE_MARGIN * est.fit.consumed(extra.time_s, extra.distance_m)
+
     def _decide(self, reason: str) -> str:
         if self.reason is None:
             self.reason = reason

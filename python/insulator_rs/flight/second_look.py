@@ -38,6 +38,13 @@ its 10 m, its strings from 0.42; the small scene's peak at 0.07-0.15 of its 6 m,
 0.5. A body wider near the ground than the fraction (a tower's legs spread to its base) still
 offers its lowest steel to a look. At most :data:`MAX_LOOKS` a flight, the most seen first: a view is about
 15 s of flight, a look at most :data:`LOOK_VIEWS` of them.
+
+Only what the battery spares: a look is flown where the latest weighing of the reserve still
+covers the look (there and back, each view watched to its limit), then the rest of the plan
+and the reserve. A look is a chance at a string the passes may have missed; the plan's
+inspections and the search's end are not traded for it. Tower A's default flight drew three
+looks at refused tracks on its cross-arms and conductors (3 views each, nothing new found), and
+the reserve then turned it back with every string inspected and the search's last 56 m unflown.
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError
+from insulator_rs.flight.energy_budget import EnergyBudget
 from insulator_rs.flight.leg_follower import LegFollower
 from insulator_rs.flight.photo_session import PHOTO_SETTLE_TIMEOUT, settle
 from insulator_rs.flight.pilot import CONTROL_PERIOD, Pilot
@@ -218,6 +226,7 @@ class SecondLookFlight:
     geom: MissionGeometry
     mission: Mission
     detect_period: float  # s between detection events
+    energy: EnergyBudget  # weighs a look against the rest of the plan and the reserve
     looks: list[SecondLook] = field(default_factory=list, init=False)
     looked: list[Insulator] = field(default_factory=list, init=False)  # the candidates looked at (the records)
     # look targets made for the pipeline's refused tracks, one per track (``looked`` holds them)
@@ -287,6 +296,15 @@ class SecondLookFlight:
             self.looks.append(SecondLook(candidate.id, candidate.center.copy(), before, before,
                                          candidate.confirmed, f"not flown: {exc}", source=source))
             return
+        dwell = self.view_time(candidate)
+        spare = self.energy.spare_after_detour(pilot.vehicle.state().position, [p for p, _ in views], dwell)
+        if spare is not None and spare < 0.0:
+            self.looks.append(SecondLook(candidate.id, candidate.center.copy(), before, before, candidate.confirmed,
+                                         f"not flown: the battery keeps it for the plan (short by {-spare:.1%})",
+                                         source=source))
+            pilot.say(f"[{pilot.now():7.1f} s] no second look at a {source} at "
+                      f"{np.round(candidate.center, 2).tolist()}: the battery keeps {-spare:.1%} too little")
+            return
         seen = (f"seen {before} times" if source == "candidate"
                 else "boxed with confidence, every localization refused")
         pilot.say(f"[{pilot.now():7.1f} s] a second look at a {source} ({seen}) at "
@@ -347,13 +365,23 @@ class SecondLookFlight:
         events0 = self.runner.counts.events
         budget = look_events(self.mission.inspection.confirmations, candidate.observations)
         st = pilot.vehicle.state()
-        limit = st.time + budget * max(self.detect_period, CONTROL_PERIOD) + PHOTO_SETTLE_TIMEOUT
+        limit = st.time + self.watch_time(candidate)
         while pilot.sm.plan_version == version and st.time < limit and self.runner.counts.events - events0 < budget:
             st = pilot.tick(view.position, None, view.yaw)
             note = self._cut_short(version)
             if note is not None:
                 return note
         return None
+
+    def watch_time(self, candidate: Insulator) -> float:
+        """s a view watches ``candidate`` at most once settled: its detection events, and the
+        photo settle's timeout for a detector that falls behind."""
+        events = look_events(self.mission.inspection.confirmations, candidate.observations)
+        return events * max(self.detect_period, CONTROL_PERIOD) + PHOTO_SETTLE_TIMEOUT
+
+    def view_time(self, candidate: Insulator) -> float:
+        """s a view stands at most: the settle (PHOTO_SETTLE_TIMEOUT), then the watch."""
+        return PHOTO_SETTLE_TIMEOUT + self.watch_time(candidate)
 
     def wait_for_perception(self, item: PlanItem, arrival: float) -> None:
         """Hover at ``item`` until perception has handed on every frame taken up to ``arrival``,
