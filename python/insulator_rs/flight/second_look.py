@@ -97,10 +97,14 @@ LOOK_SHIFT = 3.5
 #: every localization it tried. Session 21's live miss: the small scene's first-side string
 #: boxed 4 times at 0.5 or more (best 0.78), all 5 attempts refused (box fragments of 15x19 and
 #: 5x25 px: the scale check; "not linear"), so it never reached the registry and got no look;
-#: the track's anchor lay 0.10 m from the string. On tower A's default flight (its replay) the
-#: tracks so refused that lie off the body had at most 2 confident boxes (the body's own, at the
-#: cross-arms' roots, up to 29, are left out by BODY_FRACTION): 3 looks at none of them.
-REFUSED_TRACK_MIN_CONFIDENT = 3
+#: the track's anchor lay 0.10 m from the string. On tower A's default flight the tracks so
+#: refused that lie off the body (the body's own, at the cross-arms' roots, up to 29, are left
+#: out by BODY_FRACTION) had at most 2 confident boxes while the pipeline refused an ambiguous
+#: box only after its other gates; with the bounded method refusing it first (in the core), 3
+#: such tracks had 3: on a cross-arm and on a conductor past a strain string. They drew three
+#: looks of 3 views that found nothing, and the battery reserve ended the flight with the
+#: search's last 56 m unflown. Between the two: 4.
+REFUSED_TRACK_MIN_CONFIDENT = 4
 #: m from a known string (a registry record's segment, its centre +- half the mission's string
 #: length along its axis) within which a refused track's anchor is taken for that string and not
 #: looked at. Tower A with the ground-truth stand-in at detect scale 0.2 (session 23): two such
