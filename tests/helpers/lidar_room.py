@@ -1,5 +1,6 @@
 """A room for the simulated Mid-360 to scan (a floor and four walls, ``half`` m from the centre)
-and a level body pose in it: the live LiDAR path's tests fly there."""
+and a level body pose (position and yaw): the scene and the poses the simulated sensors' tests
+(the live LiDAR path, the Livox driver, the camera render) use."""
 
 from __future__ import annotations
 
