@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,6 +37,21 @@ def reference_flight(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201 
     from helpers.sitl_reference_flight import fly_once_for_the_session
 
     return fly_once_for_the_session(tmp_path_factory)
+
+
+@pytest.fixture
+def px4(tmp_path: Path):  # noqa: ANN201 (a generator fixture)
+    """A fresh PX4 SITL (``helpers.px4_sitl.Px4Sitl``), ready for take-off; killed (process group)
+    however the test ends. For the SITL modules, which are skipped where the folder is absent
+    (``helpers.sitl_suite``)."""
+    from helpers.px4_sitl import Px4Sitl
+    from helpers.sitl_suite import FOLDER, SPEED
+
+    sitl = Px4Sitl(FOLDER, speed=SPEED, workdir=tmp_path / "px4")
+    try:
+        yield sitl.start()
+    finally:
+        sitl.stop()
 
 
 def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, ANN201 (xdist's hook)

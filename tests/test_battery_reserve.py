@@ -14,9 +14,9 @@ import json
 
 import numpy as np
 import pytest
-from test_mission_config import GOOD
+from helpers.mission_files import GOOD_MISSION
 from helpers.flights import ARGS, small_scene
-from test_safe_abort import footprint_distance, inside_any
+from helpers.reference_safety import footprint_distance, inside_any
 
 from insulator_rs.app import inspect_command
 from insulator_rs.app.cli import main
@@ -164,8 +164,8 @@ def test_simulated_pack_is_a_25_minute_hover_class():
 # -- the mission setting ----------------------------------------------------------------------------
 
 def test_battery_reserve_is_a_mission_field_with_a_default():
-    assert parse_mission(copy.deepcopy(GOOD), "m.toml").inspection.battery_reserve == 0.25
-    d = copy.deepcopy(GOOD)
+    assert parse_mission(copy.deepcopy(GOOD_MISSION), "m.toml").inspection.battery_reserve == 0.25
+    d = copy.deepcopy(GOOD_MISSION)
     d["inspection"]["battery_reserve"] = 0.3
     assert parse_mission(d, "m.toml").inspection.battery_reserve == 0.3
 
@@ -178,7 +178,7 @@ def test_battery_reserve_is_a_mission_field_with_a_default():
     (True, "inspection.battery_reserve: expected a number"),
 ])
 def test_bad_battery_reserve_is_named(value, message):
-    d = copy.deepcopy(GOOD)
+    d = copy.deepcopy(GOOD_MISSION)
     d["inspection"]["battery_reserve"] = value
     with pytest.raises(ConfigError, match=f"^m.toml: {message}"):
         parse_mission(d, "m.toml")

@@ -9,7 +9,6 @@ mid-flight, a take-off point 111 km away crashed after take-off, ``--v-max 1e6``
 
 from __future__ import annotations
 
-import copy
 import os
 import re
 import subprocess

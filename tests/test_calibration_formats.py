@@ -7,7 +7,6 @@ written; tolerance 1e-6 px (the same numbers, carried through our loader)."""
 from __future__ import annotations
 
 import math
-import warnings
 
 import cv2
 import numpy as np

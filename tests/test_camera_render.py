@@ -12,6 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from helpers.lidar_room import body_pose
 
 from insulator_rs._core import CameraModel, project_points
 from insulator_rs.sim.camera_render import Camera, Lighting, boxes_from_instance_image, pixel_rays
@@ -21,14 +22,6 @@ from insulator_rs.sim.towers import load_tower
 
 SMALL = CameraModel(350.0, 350.0, 319.5, 239.5, 640, 480, dist=(-0.12, 0.03, 0.001, -0.001, 0.0))
 PINHOLE = CameraModel(400.0, 400.0, 199.5, 149.5, 400, 300)
-
-
-def body_pose(position, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-    T[:3, 3] = position
-    return T
 
 
 @pytest.mark.parametrize("model", [SMALL, PINHOLE], ids=["distorted", "pinhole (closed form)"])

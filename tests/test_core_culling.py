@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_core_projection import cv2_project, random_camera, random_rigid
+from helpers.reference_projection import cv2_project, random_camera, random_rigid
 
 import insulator_rs as ir
 from insulator_rs.synthetic import lidar_frame

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_core_dbscan import assert_same_as_sklearn
+from helpers.reference_dbscan import assert_same_as_sklearn
 
 import insulator_rs as ir
 from insulator_rs.synthetic import insulator_cloud, line_clusters

@@ -11,11 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.photos import PHOTOS
 
 from insulator_rs.app.cli import main
 from insulator_rs.detection.evaluate import coco_evaluate, load_split
-
-PHOTOS = Path(__file__).parent / "data" / "photos"
 
 
 def test_coco_evaluate_perfect_and_empty() -> None:

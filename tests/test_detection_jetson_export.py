@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers.photos import PHOTOS
 
 from insulator_rs.app.cli import main
 from insulator_rs.detection import detector as detector_mod
@@ -25,7 +26,6 @@ from insulator_rs.exceptions import ModelError
 from insulator_rs.models import available_models, model_path
 
 pytest.importorskip("onnx", reason="the FP16 export needs the onnx package (test and train extras)")
-PHOTOS = Path(__file__).parent / "data" / "photos"
 MIN_IOU = 0.85
 
 

@@ -10,12 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers.photos import PHOTOS
 
 from insulator_rs.app.cli import main
 from insulator_rs.detection.evaluate import LabelledImage
 from insulator_rs.detection.negatives import MARGIN_PX, count_negative_false_boxes, negative_tiles
-
-PHOTOS = Path(__file__).parent / "data" / "photos"  # committed real photos with VOC labels
 
 
 def _photo(tmp_path: Path, boxes: list[list[float]], w: int = 640, h: int = 480) -> LabelledImage:

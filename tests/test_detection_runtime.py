@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers.photos import PHOTOS
 
 from insulator_rs.detection.detector import Detector, as_bgr_uint8, select_providers
 from insulator_rs.detection.evaluate import load_split
@@ -20,7 +21,6 @@ from insulator_rs.exceptions import ModelError
 from insulator_rs.models import available_models, model_card, model_path
 
 FIXTURES = Path(__file__).parent / "fixtures" / "detection"
-PHOTOS = Path(__file__).parent / "data" / "photos"
 MATCH_IOU = 0.5
 
 

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from helpers.onnx_models import hostile_model
+from helpers.photos import PHOTOS
 from insulator_rs.detection.detector import Detector
 from insulator_rs.detection.sanitize import MIN_SIDE_PX, DroppedDetections, sanitize
 
@@ -63,7 +64,7 @@ def test_detector_on_a_real_model_drops_nothing() -> None:
     """Contrast: the shipped network on a real photo loses no detection to the sanitiser."""
     import cv2
 
-    photo = sorted((Path(__file__).parent / "data" / "photos").glob("*.jpg"))[0]
+    photo = sorted(PHOTOS.glob("*.jpg"))[0]
     det = Detector.from_name("insulator-real", conf=0.25, threads=1)(cv2.imread(str(photo)))
     assert len(det) > 0 and det.dropped.total == 0
 

@@ -17,11 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.photos import PHOTOS
 
 if importlib.util.find_spec("ultralytics") is None:  # not imported here: it must be configured offline first
     pytest.skip("the train extra (ultralytics) is not installed", allow_module_level=True)
-
-PHOTOS = Path(__file__).parent / "data" / "photos"
 
 NO_NETWORK_RUNNER = textwrap.dedent(
     """

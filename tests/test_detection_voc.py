@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from helpers.photos import PHOTOS
 
 from insulator_rs.detection.voc import (
     SPLITS,
@@ -24,8 +25,6 @@ from insulator_rs.detection.voc import (
     source_prefix,
     yolo_label_lines,
 )
-
-PHOTOS = Path(__file__).parent / "data" / "photos"
 
 
 def test_source_prefix() -> None:

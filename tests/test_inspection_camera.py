@@ -16,12 +16,12 @@ from insulator_rs.exceptions import ConfigError
 from insulator_rs.flight.gimbal import aim_at
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.inspection_camera import GimbalLimits
-from insulator_rs.planning.framing import MAX_FILL, MIN_FILL, frame_string
+from insulator_rs.planning.framing import MAX_FILL, MIN_FILL
 from insulator_rs.planning.safety import safety_volumes
 from insulator_rs.planning.waypoints import PUSH_CLEARANCE, inspection_waypoints
 from insulator_rs.rig import load_rig, scaled_camera, simulator_rig
 from insulator_rs.poses import pose_from_yaw
-from test_rig import T_B_C, T_B_L, write_opencv_calibration
+from helpers.rig_files import T_B_C, T_B_L, write_opencv_calibration
 
 ZOOM_CAL = Path(simulator_rig().source).parent / "simulator_inspection_camera.yaml"
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
-from test_live_sensors_flight import body_pose, room
+from helpers.lidar_room import body_pose, room
 
 from insulator_rs.sim.lidar import default_T_b_l
 from insulator_rs.sim.livox_emitter import SensorClock

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from helpers.lidar_room import body_pose, room
 from scipy.spatial import cKDTree
 
 from insulator_rs._core import CameraModel
@@ -33,26 +34,6 @@ from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.poses import interpolate_poses
 from insulator_rs.sim.lidar import Mid360, default_T_b_l
 from insulator_rs.sim.livox_emitter import LivoxEmitter, SensorClock, send
-from insulator_rs.sim.mesh import InstanceInfo, Mesh, plane
-
-
-def room(half: float = 12.0) -> Mesh:
-    walls = [
-        plane([half, 0, 10], [-1, 0, 0], (40, 40), instance_id=1),
-        plane([-half, 0, 10], [1, 0, 0], (40, 40), instance_id=2),
-        plane([0, half, 10], [0, -1, 0], (40, 40), instance_id=3),
-        plane([0, -half, 10], [0, 1, 0], (40, 40), instance_id=4),
-    ]
-    floor = plane([0, 0, 0], [0, 0, 1], (40, 40), instance_id=0, info=InstanceInfo("floor", "ground"))
-    return Mesh.concatenate([floor, *walls])
-
-
-def body_pose(position: np.ndarray, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-    T[:3, 3] = position
-    return T
 
 
 def test_flight_with_live_sensor_adapters(tmp_path: Path) -> None:

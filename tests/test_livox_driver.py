@@ -20,6 +20,7 @@ import zlib
 
 import numpy as np
 import pytest
+from helpers.lidar_room import room
 
 from insulator_rs._core import livox_decode_command, livox_encode_command
 from insulator_rs.drivers.livox import LivoxMid360, discover, parse_url, wait_for
@@ -33,20 +34,8 @@ from insulator_rs.sim.livox_emitter import (
     imu_datagram,
     send,
 )
-from insulator_rs.sim.mesh import InstanceInfo, Mesh, plane
 
 CLOCK = SensorClock(offset_s=5000.0, drift=30e-6)
-
-
-def room(half: float = 12.0) -> Mesh:
-    walls = [
-        plane([half, 0, 10], [-1, 0, 0], (40, 40), instance_id=1),
-        plane([-half, 0, 10], [1, 0, 0], (40, 40), instance_id=2),
-        plane([0, half, 10], [0, -1, 0], (40, 40), instance_id=3),
-        plane([0, -half, 10], [0, 1, 0], (40, 40), instance_id=4),
-    ]
-    floor = plane([0, 0, 0], [0, 0, 1], (40, 40), instance_id=0, info=InstanceInfo("floor", "ground"))
-    return Mesh.concatenate([floor, *walls])
 
 
 def frames(n: int, t0: float = 2.03) -> list[LidarFrame]:

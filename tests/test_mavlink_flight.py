@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers.simulated_px4 import DT, TIME_SCALE, connect_new_simulator, sim_of, take_off_into_offboard, wait_until
 
 from insulator_rs.exceptions import VehicleError
 from insulator_rs.mavlink import connect_vehicle
-from insulator_rs.sim.px4 import start_simulated_px4
 from insulator_rs.mavlink.client import CommandRejected, MavlinkVehicle, VehicleFailsafe
 from insulator_rs.sim.px4 import SimulatedPx4
 from insulator_rs.mavlink.signing import key_from_passphrase
@@ -29,50 +29,14 @@ from insulator_rs.mavlink.wire import mavlink2 as M
 from insulator_rs.mavlink.wire import mavutil
 from insulator_rs.ports.vehicle import Vehicle
 
-TIME_SCALE = 4.0
-DT = 0.05
-
 
 @pytest.fixture
 def vehicle() -> Iterator[MavlinkVehicle]:
-    client = _connect(time_scale=TIME_SCALE)
+    client = connect_new_simulator(time_scale=TIME_SCALE)
     try:
         yield client
     finally:
         client.close()
-
-
-_SIMULATORS: dict[int, SimulatedPx4] = {}
-
-
-def _connect(**options: Any) -> MavlinkVehicle:
-    """A client of a freshly started simulated PX4 (``start_simulated_px4``); ``sim_of`` finds it."""
-    sim, client = start_simulated_px4(**options)
-    _SIMULATORS[id(client)] = sim
-    return client
-
-
-def sim_of(client: MavlinkVehicle) -> SimulatedPx4:
-    return _SIMULATORS[id(client)]
-
-
-def wait_until(client: MavlinkVehicle, predicate, vehicle_seconds: float) -> None:
-    """Advance the vehicle clock until predicate(state) holds (fail after vehicle_seconds)."""
-    end = client.state().time + vehicle_seconds
-    while client.state().time < end:
-        if predicate(client.state()):
-            return
-        client.advance(DT)
-    raise AssertionError(f"condition not reached in {vehicle_seconds} s of vehicle time: {client.state()}")
-
-
-def take_off_into_offboard(client: MavlinkVehicle, altitude: float = 3.0) -> None:
-    client.arm()
-    client.takeoff(altitude)
-    wait_until(client, lambda s: s.mode == "HOLD" and abs(s.position[2] - altitude) < 0.1, 15.0)
-    client.send_setpoint(client.state().position)
-    client.advance(0.3)
-    client.start_offboard()
 
 
 def test_client_implements_the_vehicle_protocol(vehicle: MavlinkVehicle) -> None:
@@ -241,7 +205,7 @@ def test_link_loss_just_after_a_heartbeat_is_reported_as_link_loss(vehicle: Mavl
 
 def test_commands_survive_packet_loss_and_delay() -> None:
     """20 % loss each way and 30 ms latency: retransmission gets every command through."""
-    client = _connect(time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
+    client = connect_new_simulator(time_scale=TIME_SCALE, command_timeout=0.3, command_retries=10)
     try:
         sim = sim_of(client)
         sim.set_packet_loss(0.2)
@@ -287,7 +251,7 @@ def test_world_origin_from_geodetic_tower_position() -> None:
 
     tower = (47.3977, 8.5456, 500.0)
     px4_origin = pymap3d.enu2geodetic(30.0, 40.0, 0.0, *tower)
-    client = _connect(time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
+    client = connect_new_simulator(time_scale=TIME_SCALE, sim_options={"origin": px4_origin})
     try:
         np.testing.assert_allclose(client.state().position, [0.0, 0.0, 0.0], atol=1e-6)
         offset = client.set_world_origin(*tower)
@@ -314,7 +278,7 @@ def test_signing_rejects_unsigned_and_wrongly_signed_commands(tmp_path) -> None:
     key = key_from_passphrase("insulator tower 42")
     key_file = tmp_path / "mavlink.key"
     key_file.write_text(key.hex())
-    client = _connect(time_scale=TIME_SCALE, signing_key=str(key_file))
+    client = connect_new_simulator(time_scale=TIME_SCALE, signing_key=str(key_file))
     try:
         sim = sim_of(client)
         host, port = sim.address
@@ -485,7 +449,7 @@ def test_leaving_offboard_with_a_lost_command_never_trips_px4s_offboard_loss(lea
     offboard-loss fallback (PX4's default POSCTL), because the setpoint stream holds the last
     position until the heartbeat shows the new mode. The client before this kept that stream
     stopped from the first try on: PX4 SITL logged "Failsafe activated" and began its Return."""
-    client = _connect(time_scale=TIME_SCALE)
+    client = connect_new_simulator(time_scale=TIME_SCALE)
     try:
         sim = sim_of(client)
         take_off_into_offboard(client, 3.0)

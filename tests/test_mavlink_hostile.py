@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-from test_mavlink_flight import _connect, sim_of
+from helpers.simulated_px4 import connect_new_simulator, sim_of
 
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.link import AutopilotLink
@@ -74,7 +73,7 @@ def _fly_a_little(vehicle: MavlinkVehicle, seconds: float) -> None:
 
 @pytest.fixture
 def signed():
-    vehicle = _connect(time_scale=4.0, signing_key=KEY)
+    vehicle = connect_new_simulator(time_scale=4.0, signing_key=KEY)
     try:
         yield vehicle
     finally:
@@ -138,7 +137,7 @@ def test_signature_is_checked_before_the_stream_timestamp() -> None:
 
 @pytest.fixture
 def vehicle():
-    client = _connect(time_scale=4.0)
+    client = connect_new_simulator(time_scale=4.0)
     try:
         yield client
     finally:

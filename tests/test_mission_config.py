@@ -1,24 +1,13 @@
 """Mission files: TOML and YAML, errors that name the file and the field."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import yaml
+from helpers.flights import MISSIONS
+from helpers.mission_files import GOOD_MISSION
 
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.mission.config import load_mission, parse_mission
-
-MISSIONS = Path(__file__).resolve().parents[1] / "python" / "insulator_rs" / "missions"
-
-GOOD = {
-    "tower": {"lat": 50.0, "lon": 14.0, "alt": 300.0, "max_height": 25.0, "max_width": 10.0},
-    "neighbours": [{"lat": 50.0, "lon": 13.997, "alt": 300.0},
-                   {"lat": 50.0, "lon": 14.003, "alt": 301.0}],
-    "vehicle": {"v_max_horizontal": 1.0, "a_max_horizontal": 3.0,
-                "v_max_vertical": 1.0, "a_max_vertical": 3.0},
-    "inspection": {"standoff": 8.0, "safety_margin": 2.0},
-}
 
 TOML = """
 [tower]
@@ -53,8 +42,8 @@ def test_toml_and_yaml_give_the_same_mission(tmp_path):
     assert m.max_height == 25.0 and m.inspection.waypoints_per_insulator == 3
     assert m.vehicle.v_max_vertical == 1.0
     y = tmp_path / "m.yaml"
-    y.write_text(yaml.safe_dump({**GOOD, "neighbours": GOOD["neighbours"][:1],
-                                 "inspection": {**GOOD["inspection"], "waypoints_per_insulator": 3}}))
+    y.write_text(yaml.safe_dump({**GOOD_MISSION, "neighbours": GOOD_MISSION["neighbours"][:1],
+                                 "inspection": {**GOOD_MISSION["inspection"], "waypoints_per_insulator": 3}}))
     m2 = load_mission(y)
     assert m2.tower == m.tower and m2.neighbours == m.neighbours
     # the line runs west from the tower (the neighbour is west), so along is -x
@@ -62,7 +51,7 @@ def test_toml_and_yaml_give_the_same_mission(tmp_path):
 
 
 def test_default_takeoff_is_outside_the_safety_box():
-    m = parse_mission(GOOD)
+    m = parse_mission(GOOD_MISSION)
     t = m.takeoff_enu()
     assert abs(t @ m.line().lateral) == pytest.approx(5.0 + 8.0)
 
@@ -86,7 +75,7 @@ def test_default_takeoff_is_outside_the_safety_box():
 ])
 def test_bad_field_is_named_with_the_file(mutate, field):
     import copy
-    d = copy.deepcopy(GOOD)
+    d = copy.deepcopy(GOOD_MISSION)
     mutate(d)
     with pytest.raises(ConfigError, match=f"^mission.toml: {field}"):
         parse_mission(d, "mission.toml")

@@ -16,7 +16,7 @@ from insulator_rs.evaluation.two_flight import two_flight
 from insulator_rs.planning.routes import cost_matrix, route
 from insulator_rs.planning.waypoints import inspection_waypoints
 
-from test_mission_config import MISSIONS
+from helpers.flights import MISSIONS
 
 VM = np.array([3.0, 3.0, 3.0])
 AM = np.array([12.0, 12.0, 12.0])

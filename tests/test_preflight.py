@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers.flights import ARGS, small_scene
-from test_safe_abort import _Statustexts
+from helpers.statustexts import Statustexts
 
 from insulator_rs.app import inspect_command
 from insulator_rs.app.cli import main
@@ -72,7 +72,7 @@ def _fly_px4(tmp_path: Path, *, battery: float | None = None, answer_timesync: b
         sim.with_vehicle(lambda v: v.inject_position_loss())
     sensors = SimulatedSensors(tower.mesh, simulated_px4_true_pose(sim), rig, detect_scale=0.2, photo_scale=0.2,
                                seed=0)
-    sink = _Statustexts()
+    sink = Statustexts()
     gcs = MavlinkGcsObserver(sink, system_id=1)
     loop = FlightLoop(mission, vehicle, sensors, GroundTruthDetector(sensors, seed=0), tmp_path / "report", rig=rig,
                       settings=FlightSettings(detect_period=0.5, quiet=True), observer=gcs,

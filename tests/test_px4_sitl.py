@@ -33,41 +33,19 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import socket
 import time
 
 import pytest
 from helpers.live_sitl import fly_live
-from helpers.px4_sitl import FAILSAFE_LINE, Px4Sitl, companion_link, mission_at_home, sitl_folder
-from helpers.flights import small_scene
+from helpers.px4_sitl import FAILSAFE_LINE, companion_link, mission_at_home
+from helpers.flights import ARGS, small_scene
+from helpers.sitl_suite import SITL_MARKS, SPEED
 
 from insulator_rs.app.cli import main
 from insulator_rs.mission.config import load_mission
 from insulator_rs.sim.towers import load_tower
 
-FOLDER = sitl_folder()
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.sitl,
-    pytest.mark.skipif(FOLDER is None, reason="PX4 SITL folder absent: no ../shared/px4_sitl beside the "
-                                              "repository and INSULATOR_RS_PX4_SITL not set"),
-]
-SPEED = float(os.environ.get("INSULATOR_RS_PX4_SPEED", "1"))
-# Detection twice a second, as the simulated-PX4 flight of the same scene
-# (test_mission_inspect_mavlink): each insulator is in view for a few seconds only.
-ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
-        "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
-
-
-@pytest.fixture
-def px4(tmp_path):
-    """A fresh PX4 SITL, ready for take-off; killed (process group) however the test ends."""
-    sitl = Px4Sitl(FOLDER, speed=SPEED, workdir=tmp_path / "px4")
-    try:
-        yield sitl.start()
-    finally:
-        sitl.stop()
+pytestmark = SITL_MARKS
 
 
 def _ack(link, target: tuple[int, int], command: int, *params: float, timeout: float = 1.5) -> int | None:

@@ -21,8 +21,9 @@ import time
 
 import numpy as np
 import pytest
-from test_px4_sitl import SPEED, px4, pytestmark  # noqa: F401 (px4: the fixture, pytestmark: skip without it)
+from helpers.sitl_suite import SITL_MARKS, SPEED
 
+pytestmark = SITL_MARKS
 GCS_PORT = 18570  # PX4 SITL's GCS link listens on 18570 + instance
 DRAIN_S = 300.0  # SIM_BAT_DRAIN: the whole pack in 5 minutes, 20 % in the minute flown here
 MIN_PCT = 5.0  # SIM_BAT_MIN_PCT: well below what the flight reaches (PX4's 50 % would stop the drain)

@@ -27,19 +27,14 @@ from collections import Counter
 import numpy as np
 import pytest
 from helpers.gcs_listener import GcsListener, M
-from helpers.px4_sitl import Px4Sitl, sitl_folder
+from helpers.px4_sitl import Px4Sitl
+from helpers.sitl_suite import FOLDER, SITL_MARKS
 
 from insulator_rs.mavlink.client import MavlinkVehicle
 from insulator_rs.mavlink.gcs import CAMERA_COMPONENT, COMPANION_COMPONENT, MavlinkGcsObserver
 from insulator_rs.ports.observer import PhaseChange, PhotoTaken
 
-FOLDER = sitl_folder()
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.sitl,
-    pytest.mark.skipif(FOLDER is None, reason="PX4 SITL folder absent: no ../shared/px4_sitl beside the "
-                                              "repository and INSULATOR_RS_PX4_SITL not set"),
-]
+pytestmark = SITL_MARKS
 GCS_PORT = 18570
 OFFBOARD_LOCAL = 14580
 OFFBOARD_REMOTE = 14540

@@ -36,14 +36,12 @@ import numpy as np
 import pytest
 from helpers.gcs_listener import GcsListener
 from helpers.px4_sitl import FAILSAFE_LINE, REPO, companion_link, mission_at_home
-from helpers.flights import small_scene
-from test_px4_sitl import ARGS, SPEED, px4  # noqa: F401  (px4: the fixture)
-from test_px4_sitl import pytestmark as sitl_pytestmark
+from helpers.flights import ARGS, small_scene
+from helpers.sitl_suite import SITL_MARKS, SPEED
 
 import insulator_rs
 
-# the SITL tests' own marks, speed, flight arguments and fresh-PX4 fixture
-pytestmark = sitl_pytestmark
+pytestmark = SITL_MARKS
 GCS_PORT = 18570  # PX4 SITL's GCS link: udp 18570 + instance
 RETURN_TIMEOUT = 240.0  # wall s for PX4's own return and landing after the kill
 # m: PX4 may sag this much below the height it was killed at while it brakes into its Return

@@ -18,7 +18,7 @@ from insulator_rs.ports.detector import NetworkDetector, open_network_detector
 from insulator_rs.ports.sensors import CameraFrame, PoseStamped
 from insulator_rs.recording.reader import Item
 from insulator_rs.replay.lookahead import Lookahead, LookaheadDetector
-from test_detection_commands import PHOTOS
+from helpers.photos import PHOTOS
 
 BOX_TOL_PX = 1e-3  # a batched convolution may round differently from one image's (0 measured on x86-64)
 SCORE_TOL = 1e-5

@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers.rig_files import T_B_C, T_B_L, write_opencv_calibration
 
 import insulator_rs as ir
 from insulator_rs.exceptions import ConfigError
@@ -15,18 +16,6 @@ from insulator_rs.mission.config import load_mission
 from insulator_rs.rig import RIGS_DIR, load_rig, resolve_rig, scaled_camera, simulator_rig
 
 MISSIONS = Path(ir.__file__).resolve().parent / "missions"
-T_B_C = [[0.0, 0.0, 1.0, 0.05], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, -0.1], [0.0, 0.0, 0.0, 1.0]]
-T_B_L = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.12], [0.0, 0.0, 0.0, 1.0]]
-
-
-def write_opencv_calibration(path: Path) -> None:
-    """A real calibration's form: OpenCV FileStorage, principal point off the centre."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    fs.write("image_width", 1440)
-    fs.write("image_height", 1080)
-    fs.write("camera_matrix", np.array([[1100.0, 0, 731.2], [0, 1098.5, 528.9], [0, 0, 1]]))
-    fs.write("distortion_coefficients", np.array([[-0.21, 0.09, 0.0004, -0.0002, -0.01]]))
-    fs.release()
 
 
 def write_rig(folder: Path, *, calibration: str = "cam.yaml", T_b_c=T_B_C, T_b_l=T_B_L) -> Path:

@@ -25,6 +25,8 @@ import numpy as np
 import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
+from helpers.reference_safety import footprint_distance, inside_any
+from helpers.statustexts import Statustexts
 from pymavlink.dialects.v20 import common as M
 
 from insulator_rs.app import inspect_command
@@ -34,7 +36,7 @@ from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs.mavlink.gcs import MavlinkGcsObserver
 from insulator_rs.mission.config import load_mission
 from insulator_rs.planning.abort import LANDING_CLEARANCE, AbortCase, plan_abort_route
-from insulator_rs.planning.safety import GROUND_DEPTH, SafetyVolumes, safety_volumes
+from insulator_rs.planning.safety import SafetyVolumes, safety_volumes
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
 from insulator_rs.rig import simulator_rig
 from insulator_rs.sim.sensors import SimulatedSensors, kinematic_true_pose
@@ -57,36 +59,6 @@ def reference_volumes() -> SafetyVolumes:
     m = load_mission(MISSION)
     return safety_volumes(m.line(), max_width=m.max_width, max_height=m.max_height,
                           margin=m.inspection.safety_margin)
-
-
-def footprint_distance(volumes: SafetyVolumes, points: np.ndarray) -> np.ndarray:
-    """Horizontal distance of each point from the nearest box outline (0 over one), computed
-    here from the boxes' corners, not by the planner's method."""
-    best = np.full(len(points), np.inf)
-    for box in volumes.boxes:
-        a, b = box.half_extents[:2]
-        corners = np.array([[-a, -b], [a, -b], [a, b], [-a, b]])
-        ring = box.center[:2] + corners @ box.axes[:2, :2]
-        xy = points[:, :2]
-        # inside the (convex) outline: every cross product has the same sign
-        cross = []
-        for k in range(4):
-            e, d = ring[(k + 1) % 4] - ring[k], xy - ring[k]
-            cross.append(e[0] * d[:, 1] - e[1] * d[:, 0])
-        inside = np.all(np.array(cross) >= 0, axis=0) | np.all(np.array(cross) <= 0, axis=0)
-        dist = np.full(len(points), np.inf)
-        for k in range(4):
-            p, q = ring[k], ring[(k + 1) % 4]
-            t = np.clip(((xy - p) @ (q - p)) / ((q - p) @ (q - p)), 0.0, 1.0)
-            dist = np.minimum(dist, np.linalg.norm(xy - (p + t[:, None] * (q - p)), axis=1))
-        best = np.minimum(best, np.where(inside, 0.0, dist))
-    return best
-
-
-def inside_any(volumes: SafetyVolumes, points: np.ndarray) -> np.ndarray:
-    """Inside a box: over its footprint and below its top."""
-    return (footprint_distance(volumes, points) <= 0.0) & (points[:, 2] <= volumes.top) \
-        & (points[:, 2] >= -GROUND_DEPTH)
 
 
 def lateral_side(points: np.ndarray) -> np.ndarray:
@@ -217,19 +189,6 @@ def test_every_route_it_plans_stays_clear_and_never_descends_over_the_tower(a, l
 
 
 # -- no route: hold, tell the pilot, never descend -------------------------------------------
-class _Statustexts:
-    """The GCS observer's datagrams, parsed back with pymavlink."""
-
-    def __init__(self) -> None:
-        self.mav = M.MAVLink(None)
-        self.texts: list[tuple[int, str]] = []
-
-    def __call__(self, buf: bytes) -> None:
-        for msg in self.mav.parse_buffer(buf) or []:
-            if msg.get_type() == "STATUSTEXT":
-                self.texts.append((msg.severity, msg.text))
-
-
 @pytest.mark.slow
 def test_with_no_route_it_holds_and_hands_over_without_descending(tmp_path):
     """The position estimate jumps into the tower's safety box (a GPS glitch) just before the
@@ -241,7 +200,7 @@ def test_with_no_route_it_holds_and_hands_over_without_descending(tmp_path):
     rig = simulator_rig()
     sensors = SimulatedSensors(tower.mesh, kinematic_true_pose(vehicle), rig, detect_scale=0.2,
                                photo_scale=0.2, seed=0)
-    sink = _Statustexts()
+    sink = Statustexts()
     gcs = MavlinkGcsObserver(sink, system_id=1)
     cut = 30.0
     advance = vehicle.advance

@@ -9,12 +9,12 @@ in session 17's SITL flight)."""
 from __future__ import annotations
 
 import pytest
+from helpers.interpreter_stall import hold_the_interpreter  # a whole-process stall, as a long GIL hold makes
+from helpers.simulated_px4 import TIME_SCALE, connect_new_simulator, take_off_into_offboard
 
 from insulator_rs.exceptions import VehicleFailsafe
 from insulator_rs.mavlink.setpoint_gaps import LISTED_GAP_S, OFFBOARD_LOSS_TIMEOUT_S, SetpointGaps
 from insulator_rs.planning.px4_failsafes import OFFBOARD_LOSS_TIMEOUT
-from test_mavlink_flight import TIME_SCALE, _connect, take_off_into_offboard
-from test_stall_watch import _hold_the_interpreter  # a whole-process stall, as a long GIL hold makes
 
 
 def test_the_loss_timeout_is_the_one_the_mission_sets_on_px4():
@@ -49,14 +49,14 @@ def test_gaps_are_in_vehicle_seconds():
 
 
 def test_a_stalled_stream_against_the_simulated_px4_is_counted_past_the_loss_timeout():
-    client = _connect(time_scale=TIME_SCALE)
+    client = connect_new_simulator(time_scale=TIME_SCALE)
     try:
         take_off_into_offboard(client, 3.0)
         client.send_setpoint(client.state().position)
         client.advance(0.5)
         before = client.setpoint_gaps.record()
         assert before["sent"] > 0
-        _hold_the_interpreter(1.5 * OFFBOARD_LOSS_TIMEOUT_S / TIME_SCALE)  # 1.5 s of vehicle time
+        hold_the_interpreter(1.5 * OFFBOARD_LOSS_TIMEOUT_S / TIME_SCALE)  # 1.5 s of vehicle time
         try:
             client.advance(0.5)
         except VehicleFailsafe:  # the simulated PX4 failed safe on the gap, as PX4 does

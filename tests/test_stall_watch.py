@@ -12,6 +12,7 @@ import sys
 import time
 
 import pytest
+from helpers.interpreter_stall import hold_the_interpreter
 
 from insulator_rs.flight.gc_pauses import GcPauseLog, startup_heap_frozen
 from insulator_rs.flight.stall_watch import TICK_S, StallWatch
@@ -19,23 +20,12 @@ from insulator_rs.flight.stall_watch import TICK_S, StallWatch
 HELD_S = 1.2
 
 
-def _hold_the_interpreter(seconds: float) -> None:
-    old = sys.getswitchinterval()
-    sys.setswitchinterval(10.0)  # no other thread gets the GIL until this returns
-    try:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < seconds:
-            pass
-    finally:
-        sys.setswitchinterval(old)
-
-
 def test_a_held_interpreter_is_counted_and_its_stack_written(tmp_path):
     stacks = tmp_path / "stacks.txt"
     watch = StallWatch(dump=stacks).start()
     try:
         time.sleep(0.2)
-        _hold_the_interpreter(HELD_S)
+        hold_the_interpreter(HELD_S)
         time.sleep(0.2)
     finally:
         watch.stop()
@@ -47,13 +37,13 @@ def test_a_held_interpreter_is_counted_and_its_stack_written(tmp_path):
     assert record["longest"][0]["length_s"] == record["max_s"]
     assert record["stacks"] == str(stacks)
     text = stacks.read_text()
-    assert "_hold_the_interpreter" in text, text
+    assert hold_the_interpreter.__name__ in text, text
 
 
 def test_without_a_file_it_counts_and_writes_nothing(tmp_path):
     watch = StallWatch().start()
     try:
-        _hold_the_interpreter(HELD_S)
+        hold_the_interpreter(HELD_S)
         time.sleep(0.2)
     finally:
         watch.stop()

@@ -81,7 +81,8 @@ def fly(folder: Path, workdir: Path, speed: float, args: list[str]) -> Reference
 def fly_once_for_the_session(tmp_path_factory: pytest.TempPathFactory) -> ReferenceFlight:
     """The ``reference_flight`` fixture's body (the fixture lives in conftest.py: a session
     fixture imported into several modules is one fixture per module, and would fly once each)."""
-    from test_px4_sitl import ARGS, FOLDER, SPEED
+    from helpers.flights import ARGS
+    from helpers.sitl_suite import FOLDER, SPEED
 
     if FOLDER is None:
         pytest.skip("PX4 SITL folder absent")
