@@ -299,6 +299,7 @@ impl Bvh {
         } else {
             (1u64 << n) - 1
         };
+        let bounds = PacketBounds::new(rays);
         // (child, count, rays, the nearest of their entry distances).
         let mut stack = [(0u32, 0u32, 0u64, 0.0f32); STACK];
         let mut depth = 0usize;
@@ -338,6 +339,10 @@ impl Bvh {
                 continue;
             }
             let node = &self.nodes[child as usize];
+            // Rays from one point that all pass between the four boxes: one test, not one per ray.
+            if bounds.as_ref().is_some_and(|b| b.all_miss(node)) {
+                continue;
+            }
             // Per child: the rays that meet its box, and the nearest of their entries.
             let mut lane_rays = [0u64; 4];
             let mut lane_entry = f32x4::splat(f32::INFINITY);
@@ -391,6 +396,7 @@ impl Bvh {
             direction: *direction,
             max_range,
             slab,
+            local_origin: [0, 1, 2].map(|k| (origin[k] - self.center[k]) as f32),
             enter,
             exit,
             limit: 0.0,
@@ -480,6 +486,86 @@ impl SlabRay {
     }
 }
 
+/// Absolute padding (m) of the boxes in [`PacketBounds::all_miss`], on top of
+/// the boxes' own: covers the f32 rounding of a shared origin up to kilometres
+/// from the scene's centre together with [`PACKET_RELATIVE_MARGIN`].
+const PACKET_MARGIN: f32 = 1e-4;
+/// Relative padding of the same boxes, per metre of the origin's distance from
+/// the scene's centre (several f32 epsilons).
+const PACKET_RELATIVE_MARGIN: f32 = 1e-6;
+/// Relative widening of the packet's inverse-direction intervals and slack on
+/// its distances (far above f32 rounding).
+const PACKET_SLACK: f32 = 1e-5;
+
+/// The rays of a packet that share their origin, bounded together: per axis the
+/// interval of their inverse directions. A node's box that the whole bundle
+/// misses (interval arithmetic, padded) is missed by every ray of the packet,
+/// so the node needs no test per ray.
+struct PacketBounds {
+    origin: [f32x4; 3],
+    /// Interval of the rays' 1/d along each axis, widened outward.
+    inv_lo: [f32x4; 3],
+    inv_hi: [f32x4; 3],
+    /// Whether every ray's direction has the same sign along the axis (otherwise
+    /// the axis bounds nothing).
+    bounded: [bool; 3],
+    /// Whether the rays go toward +axis (on the bounded axes).
+    positive: [bool; 3],
+    margin: f32x4,
+}
+
+impl PacketBounds {
+    /// The bounds of `rays` when they all start at one point (None otherwise).
+    fn new(rays: &[RayQuery]) -> Option<Self> {
+        let first = rays.first()?;
+        if rays.iter().any(|r| r.origin != first.origin) {
+            return None;
+        }
+        let local = [0, 1, 2].map(|k| first.local_origin[k]);
+        let reach = local.iter().fold(0.0f32, |m, c| m.max(c.abs()));
+        let mut inv_lo = [f32::INFINITY; 3];
+        let mut inv_hi = [f32::NEG_INFINITY; 3];
+        for ray in rays {
+            for k in 0..3 {
+                let inv = ray.slab.inv_dir[k].to_array()[0];
+                inv_lo[k] = inv_lo[k].min(inv);
+                inv_hi[k] = inv_hi[k].max(inv);
+            }
+        }
+        let positive = [0, 1, 2].map(|k| inv_lo[k] > 0.0);
+        let bounded = [0, 1, 2].map(|k| positive[k] || inv_hi[k] < 0.0);
+        Some(Self {
+            origin: local.map(f32x4::splat),
+            inv_lo: [0, 1, 2].map(|k| f32x4::splat(inv_lo[k] - inv_lo[k].abs() * PACKET_SLACK)),
+            inv_hi: [0, 1, 2].map(|k| f32x4::splat(inv_hi[k] + inv_hi[k].abs() * PACKET_SLACK)),
+            bounded,
+            positive,
+            margin: f32x4::splat(PACKET_MARGIN + PACKET_RELATIVE_MARGIN * reach),
+        })
+    }
+
+    /// True when no ray of the packet can meet any of `node`'s four boxes.
+    #[inline(always)]
+    fn all_miss(&self, node: &Node4) -> bool {
+        let mut near = f32x4::ZERO;
+        let mut far = f32x4::splat(f32::INFINITY);
+        for k in 0..3 {
+            if !self.bounded[k] {
+                continue;
+            }
+            let lo = f32x4::new(node.lo[k]) - self.origin[k] - self.margin;
+            let hi = f32x4::new(node.hi[k]) - self.origin[k] + self.margin;
+            // A ray enters the slab at its near face and leaves at its far face;
+            // along 1/d in [inv_lo, inv_hi] those distances are linear in 1/d.
+            let (enter, leave) = if self.positive[k] { (lo, hi) } else { (hi, lo) };
+            near = near.fast_max((enter * self.inv_lo[k]).fast_min(enter * self.inv_hi[k]));
+            far = far.fast_min((leave * self.inv_lo[k]).fast_max(leave * self.inv_hi[k]));
+        }
+        let met = near.cmp_le(far * f32x4::splat(1.0 + PACKET_SLACK));
+        met.move_mask() == 0
+    }
+}
+
 /// One ray during a traversal: the ray in f64 for the triangle tests, in the f32
 /// node frame for the box tests, and the nearest hit found so far.
 #[derive(Clone, Copy)]
@@ -488,6 +574,8 @@ pub(crate) struct RayQuery {
     direction: Vector3<f64>,
     max_range: f64,
     slab: SlabRay,
+    /// The ray's origin in the f32 node frame (before the move to the scene's bounds).
+    local_origin: [f32; 3],
     /// The f32 frame's origin sits this far along the ray (where it enters the
     /// scene's bounds), m; node distances are measured from there.
     enter: f64,
