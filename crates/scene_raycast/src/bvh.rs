@@ -443,8 +443,9 @@ impl Bvh {
 /// The ray in the f32 node frame, ready for 4-lane slab tests.
 #[derive(Clone, Copy)]
 struct SlabRay {
-    origin: [f32x4; 3],
-    inv_dir: [f32x4; 3],
+    // Scalars, splat at each test: a packet holds 64 of these, copied in place.
+    origin: [f32; 3],
+    inv_dir: [f32; 3],
 }
 
 impl SlabRay {
@@ -458,10 +459,10 @@ impl SlabRay {
             } else {
                 c
             };
-            f32x4::splat(1.0 / c)
+            1.0 / c
         };
         Self {
-            origin: [0, 1, 2].map(|k| f32x4::splat(local_origin[k] as f32)),
+            origin: [0, 1, 2].map(|k| local_origin[k] as f32),
             inv_dir: [inv(direction.x), inv(direction.y), inv(direction.z)],
         }
     }
@@ -472,8 +473,9 @@ impl SlabRay {
     #[inline(always)]
     fn entries(&self, node: &Node4, limit: f32) -> (f32x4, f32x4) {
         let slab = |k: usize| {
-            let t1 = (f32x4::new(node.lo[k]) - self.origin[k]) * self.inv_dir[k];
-            let t2 = (f32x4::new(node.hi[k]) - self.origin[k]) * self.inv_dir[k];
+            let (origin, inv_dir) = (f32x4::splat(self.origin[k]), f32x4::splat(self.inv_dir[k]));
+            let t1 = (f32x4::new(node.lo[k]) - origin) * inv_dir;
+            let t2 = (f32x4::new(node.hi[k]) - origin) * inv_dir;
             (t1.fast_min(t2), t1.fast_max(t2))
         };
         let (x_in, x_out) = slab(0);
@@ -527,7 +529,7 @@ impl PacketBounds {
         let mut inv_hi = [f32::NEG_INFINITY; 3];
         for ray in rays {
             for k in 0..3 {
-                let inv = ray.slab.inv_dir[k].to_array()[0];
+                let inv = ray.slab.inv_dir[k];
                 inv_lo[k] = inv_lo[k].min(inv);
                 inv_hi[k] = inv_hi[k].max(inv);
             }
