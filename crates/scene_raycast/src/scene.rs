@@ -16,7 +16,7 @@ pub const MIN_TRIANGLE_AREA: f64 = 1e-14;
 const RAYS_PER_TASK: usize = 512;
 /// A batch's consecutive rays that share their origin (a camera's pixels, a LiDAR's
 /// shots) are cast in packets of this many ([`Scene::cast_packet`]).
-const BATCH_PACKET: usize = 16;
+const BATCH_PACKET: usize = 64;
 /// The result of one ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
