@@ -186,23 +186,9 @@ impl Scene {
         out: &mut [Option<Hit>],
     ) -> Result<(), RaycastError> {
         check_packet(origins, directions, out.len())?;
-        let mut rays = Vec::with_capacity(MAX_PACKET.min(origins.len()));
-        let mut slots = Vec::with_capacity(rays.capacity());
-        for start in (0..origins.len()).step_by(MAX_PACKET) {
-            let end = (start + MAX_PACKET).min(origins.len());
-            self.queries(
-                &origins[start..end],
-                &directions[start..end],
-                max_range,
-                &mut rays,
-                &mut slots,
-            );
-            self.bvh.cast_packet(&mut rays, false);
-            out[start..end].fill(None);
-            for (ray, &slot) in rays.iter().zip(&slots) {
-                out[start + slot] = ray.best().map(|hit| self.hit(hit));
-            }
-        }
+        self.each_packet(origins, directions, max_range, false, |slot, best| {
+            out[slot] = best.map(|hit| self.hit(hit));
+        });
         Ok(())
     }
 
@@ -217,6 +203,22 @@ impl Scene {
         out: &mut [bool],
     ) -> Result<(), RaycastError> {
         check_packet(origins, directions, out.len())?;
+        self.each_packet(origins, directions, max_range, true, |slot, best| {
+            out[slot] = best.is_some();
+        });
+        Ok(())
+    }
+
+    /// Casts the rays in packets of [`MAX_PACKET`] (with `any`, occlusion tests)
+    /// and hands `answer` each ray's index and BVH answer, misses included.
+    fn each_packet(
+        &self,
+        origins: &[Point3<f64>],
+        directions: &[Vector3<f64>],
+        max_range: f64,
+        any: bool,
+        mut answer: impl FnMut(usize, Option<(f64, u32)>),
+    ) {
         let mut rays = Vec::with_capacity(MAX_PACKET.min(origins.len()));
         let mut slots = Vec::with_capacity(rays.capacity());
         for start in (0..origins.len()).step_by(MAX_PACKET) {
@@ -228,13 +230,16 @@ impl Scene {
                 &mut rays,
                 &mut slots,
             );
-            self.bvh.cast_packet(&mut rays, true);
-            out[start..end].fill(false);
-            for (ray, &slot) in rays.iter().zip(&slots) {
-                out[start + slot] = ray.best().is_some();
+            self.bvh.cast_packet(&mut rays, any);
+            let mut cast = rays.iter().zip(&slots).peekable();
+            for slot in 0..end - start {
+                let best = match cast.next_if(|(_, &s)| s == slot) {
+                    Some((ray, _)) => ray.best(),
+                    None => None,
+                };
+                answer(start + slot, best);
             }
         }
-        Ok(())
     }
 
     /// Most rays one packet of [`Scene::cast_packet`] traverses together.

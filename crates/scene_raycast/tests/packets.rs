@@ -13,7 +13,7 @@
 
 mod common;
 
-use common::{brute_force, Soup};
+use common::{brute_force, random_unit as unit, Soup};
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -23,19 +23,6 @@ fn scene(soup: &Soup) -> Scene {
     match Scene::new(&soup.vertices, &soup.triangles, &soup.ids) {
         Ok(s) => s,
         Err(e) => panic!("{e}"),
-    }
-}
-
-fn unit(rng: &mut Pcg64Mcg) -> Vector3<f64> {
-    loop {
-        let v = Vector3::new(
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        );
-        if let Some(u) = v.try_normalize(1e-3) {
-            return u;
-        }
     }
 }
 

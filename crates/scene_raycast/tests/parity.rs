@@ -17,7 +17,7 @@
 mod common;
 
 use common::parry_reference::ParryScene;
-use common::{brute_force, Soup};
+use common::{brute_force, random_unit as unit, Soup};
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -29,19 +29,6 @@ fn scenes(soup: &Soup) -> (Scene, ParryScene) {
     match Scene::new(&soup.vertices, &soup.triangles, &soup.ids) {
         Ok(s) => (s, ParryScene::new(&soup.vertices, &soup.triangles)),
         Err(e) => panic!("test scene refused: {e}"),
-    }
-}
-
-fn unit(rng: &mut Pcg64Mcg) -> Vector3<f64> {
-    loop {
-        let v = Vector3::new(
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        );
-        if let Some(u) = v.try_normalize(1e-3) {
-            return u;
-        }
     }
 }
 

@@ -6,6 +6,8 @@ pub mod parry_reference;
 use std::f64::consts::PI;
 
 use nalgebra::{Point3, Vector3};
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
 
 /// A triangle soup: vertices, triangles, instance ids.
 #[derive(Default, Clone)]
@@ -276,4 +278,18 @@ pub fn brute_force(
         }
     }
     best
+}
+
+/// A random unit vector (rejection from the cube).
+pub fn random_unit(rng: &mut Pcg64Mcg) -> Vector3<f64> {
+    loop {
+        let v = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        if let Some(u) = v.try_normalize(1e-3) {
+            return u;
+        }
+    }
 }
