@@ -49,6 +49,8 @@ const SAH_DEPTH: usize = 40;
 const STACK: usize = 3 * (SAH_DEPTH + 34) + 4;
 /// Relative slack on f32 slab distances (PBRT's 1 + 2 gamma(3) and more).
 const SLAB_SLACK: f32 = 1.0 + 1e-6;
+/// Most rays in one packet of [`Bvh::cast_packet`] (one bit each of a mask).
+pub(crate) const MAX_PACKET: usize = 64;
 
 /// A node of the binary tree the build makes: its box and either its children
 /// (`count == 0`: at `first` and `first + 1`) or its leaf pieces
@@ -228,18 +230,7 @@ impl Bvh {
         max_range: f64,
         any: bool,
     ) -> Option<(f64, u32)> {
-        let (enter, exit) = self.scene_span(origin, direction)?;
-        if enter > max_range {
-            return None;
-        }
-        let ray = SlabRay::new(
-            &(origin.coords + direction * enter - self.center),
-            direction,
-        );
-        // Node distances are measured from the moved origin, `enter` along the ray.
-        let limit_of = |t: f64| ((t.min(exit) - enter) as f32 + 1e-4) * SLAB_SLACK;
-        let mut limit = limit_of(max_range);
-        let mut best: Option<(f64, u32)> = None;
+        let mut ray = self.query(origin, direction, max_range)?;
         // (child, count, entry distance): a node when count == 0, else a leaf.
         let mut stack = [(0u32, 0u32, 0.0f32); STACK];
         let mut depth = 0usize;
@@ -251,33 +242,25 @@ impl Bvh {
                 Some(visit) => visit,
                 None => loop {
                     if depth == 0 {
-                        return best;
+                        return ray.best;
                     }
                     depth -= 1;
                     let (child, count, t_enter) = stack[depth];
                     // Skipped when a nearer hit was found since the push.
-                    if t_enter <= limit {
+                    if t_enter <= ray.limit {
                         break (child, count);
                     }
                 },
             };
             if count > 0 {
-                let first = child as usize;
-                for leaf in &self.leaves[first..first + count as usize] {
-                    if let Some(t) = intersect(leaf, origin, direction) {
-                        if t <= max_range && best.is_none_or(|(b, _)| t < b) {
-                            best = Some((t, leaf.triangle));
-                            if any {
-                                return best;
-                            }
-                            limit = limit_of(t);
-                        }
-                    }
+                if ray.test_leaf(self.leaf(child, count), any) && any {
+                    return ray.best;
                 }
                 continue;
             }
             let node = &self.nodes[child as usize];
-            let (t_in, mut mask) = ray.entries(node, limit);
+            let (t_in, mask) = ray.slab.entries(node, ray.limit);
+            let mask = mask.move_mask() as u32;
             if mask == 0 {
                 continue;
             }
@@ -287,20 +270,7 @@ impl Bvh {
                 continue;
             }
             // Several met: visit the nearest next, push the others farthest first.
-            let mut order = [(0usize, 0.0f32); 4];
-            let mut n = 0;
-            while mask != 0 {
-                let lane = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let t = t_in[lane];
-                let mut k = n;
-                while k > 0 && order[k - 1].1 < t {
-                    order[k] = order[k - 1];
-                    k -= 1;
-                }
-                order[k] = (lane, t);
-                n += 1;
-            }
+            let (order, n) = farthest_first(mask, &t_in.to_array());
             for &(lane, t) in &order[..n - 1] {
                 // Cannot overflow (see STACK); a guard instead of a panic all the same.
                 if depth < STACK {
@@ -311,6 +281,136 @@ impl Bvh {
             let nearest = order[n - 1].0;
             next = Some((node.child[nearest], node.count[nearest]));
         }
+    }
+
+    /// Casts up to [`MAX_PACKET`] rays together (coherent ones: neighbouring pixels
+    /// of a camera, shadow rays toward the sun): each node is fetched and ordered
+    /// once for every ray that entered its box, which is what single rays spend
+    /// most of their time on. Each ray's answer (its `best`) is the one
+    /// [`Bvh::cast`] gives it: the nearest hit is decided by [`nearer`], which no
+    /// visiting order changes, and the boxes only cull. With `any`, a ray stops at
+    /// its first hit within range. Rays beyond [`MAX_PACKET`] are left untouched.
+    pub(crate) fn cast_packet(&self, rays: &mut [RayQuery], any: bool) {
+        let n = rays.len().min(MAX_PACKET);
+        let rays = &mut rays[..n];
+        // Rays still looking for a hit: an occlusion test drops a ray at its first.
+        let mut live: u64 = if n == MAX_PACKET {
+            u64::MAX
+        } else {
+            (1u64 << n) - 1
+        };
+        let bounds = PacketBounds::new(rays);
+        // (child, count, rays, the nearest of their entry distances).
+        let mut stack = [(0u32, 0u32, 0u64, 0.0f32); STACK];
+        let mut depth = 0usize;
+        let mut next = Some((0u32, 0u32, live));
+        loop {
+            let (child, count, mask) = match next.take() {
+                Some(visit) => visit,
+                None => loop {
+                    if depth == 0 {
+                        return;
+                    }
+                    depth -= 1;
+                    let (child, count, mask, t_enter) = stack[depth];
+                    // A ray that found a hit nearer than every ray's entry since the
+                    // push has nothing left to find there (its own entry is no nearer).
+                    let mut keep = 0u64;
+                    for r in bits(mask & live) {
+                        if t_enter <= rays[r].limit {
+                            keep |= 1 << r;
+                        }
+                    }
+                    if keep != 0 {
+                        break (child, count, keep);
+                    }
+                },
+            };
+            if count > 0 {
+                let leaf = self.leaf(child, count);
+                for r in bits(mask) {
+                    if rays[r].test_leaf(leaf, any) && any {
+                        live &= !(1u64 << r);
+                    }
+                }
+                if live == 0 {
+                    return;
+                }
+                continue;
+            }
+            let node = &self.nodes[child as usize];
+            // Rays from one point that all pass between the four boxes: one test, not one per ray.
+            if bounds.as_ref().is_some_and(|b| b.all_miss(node)) {
+                continue;
+            }
+            // Per child: the rays that meet its box, and the nearest of their entries.
+            let mut lane_rays = [0u64; 4];
+            let mut lane_entry = f32x4::splat(f32::INFINITY);
+            for r in bits(mask) {
+                let (t_in, met) = rays[r].slab.entries(node, rays[r].limit);
+                lane_entry = lane_entry.fast_min(met.blend(t_in, f32x4::splat(f32::INFINITY)));
+                let m = met.move_mask() as u64;
+                for (lane, lane_mask) in lane_rays.iter_mut().enumerate() {
+                    *lane_mask |= ((m >> lane) & 1) << r;
+                }
+            }
+            let met = lane_rays
+                .iter()
+                .enumerate()
+                .fold(0u32, |acc, (lane, &m)| acc | (u32::from(m != 0) << lane));
+            if met == 0 {
+                continue;
+            }
+            let (order, n) = farthest_first(met, &lane_entry.to_array());
+            for &(lane, t) in &order[..n - 1] {
+                // Cannot overflow (see STACK); a guard instead of a panic all the same.
+                if depth < STACK {
+                    stack[depth] = (node.child[lane], node.count[lane], lane_rays[lane], t);
+                    depth += 1;
+                }
+            }
+            let nearest = order[n - 1].0;
+            next = Some((node.child[nearest], node.count[nearest], lane_rays[nearest]));
+        }
+    }
+
+    /// The traversal state of the ray from `origin` along the unit `direction`,
+    /// hits within [0, `max_range`]; None when it cannot meet the scene.
+    #[inline]
+    pub(crate) fn query(
+        &self,
+        origin: &Point3<f64>,
+        direction: &Vector3<f64>,
+        max_range: f64,
+    ) -> Option<RayQuery> {
+        let (enter, exit) = self.scene_span(origin, direction)?;
+        if enter > max_range {
+            return None;
+        }
+        let slab = SlabRay::new(
+            &(origin.coords + direction * enter - self.center),
+            direction,
+        );
+        let mut ray = RayQuery {
+            origin: *origin,
+            direction: *direction,
+            max_range,
+            slab,
+            local_origin: [0, 1, 2].map(|k| (origin[k] - self.center[k]) as f32),
+            enter,
+            exit,
+            limit: 0.0,
+            best: None,
+        };
+        ray.limit = ray.limit_of(max_range);
+        Some(ray)
+    }
+
+    /// The pieces of the leaf at `first`, `count` of them.
+    #[inline(always)]
+    fn leaf(&self, first: u32, count: u32) -> &[LeafTriangle] {
+        let first = first as usize;
+        &self.leaves[first..first + count as usize]
     }
 
     /// Where the ray enters and leaves the scene's (padded) bounds, in f64:
@@ -341,9 +441,11 @@ impl Bvh {
 }
 
 /// The ray in the f32 node frame, ready for 4-lane slab tests.
+#[derive(Clone, Copy)]
 struct SlabRay {
-    origin: [f32x4; 3],
-    inv_dir: [f32x4; 3],
+    // Scalars, splat at each test: a packet holds 64 of these, copied in place.
+    origin: [f32; 3],
+    inv_dir: [f32; 3],
 }
 
 impl SlabRay {
@@ -357,21 +459,23 @@ impl SlabRay {
             } else {
                 c
             };
-            f32x4::splat(1.0 / c)
+            1.0 / c
         };
         Self {
-            origin: [0, 1, 2].map(|k| f32x4::splat(local_origin[k] as f32)),
+            origin: [0, 1, 2].map(|k| local_origin[k] as f32),
             inv_dir: [inv(direction.x), inv(direction.y), inv(direction.z)],
         }
     }
 
     /// Distances at which the ray enters the boxes of `node`'s four children (0
-    /// from inside), and the bit mask of those it meets no farther than `limit`.
+    /// from inside), and the lanes of those it meets no farther than `limit`
+    /// (all bits set in a lane met).
     #[inline(always)]
-    fn entries(&self, node: &Node4, limit: f32) -> ([f32; 4], u32) {
+    fn entries(&self, node: &Node4, limit: f32) -> (f32x4, f32x4) {
         let slab = |k: usize| {
-            let t1 = (f32x4::new(node.lo[k]) - self.origin[k]) * self.inv_dir[k];
-            let t2 = (f32x4::new(node.hi[k]) - self.origin[k]) * self.inv_dir[k];
+            let (origin, inv_dir) = (f32x4::splat(self.origin[k]), f32x4::splat(self.inv_dir[k]));
+            let t1 = (f32x4::new(node.lo[k]) - origin) * inv_dir;
+            let t2 = (f32x4::new(node.hi[k]) - origin) * inv_dir;
             (t1.fast_min(t2), t1.fast_max(t2))
         };
         let (x_in, x_out) = slab(0);
@@ -380,8 +484,183 @@ impl SlabRay {
         let t_in = x_in.fast_max(y_in).fast_max(z_in).fast_max(f32x4::ZERO);
         let t_out = x_out.fast_min(y_out).fast_min(z_out) * f32x4::splat(SLAB_SLACK);
         let met = t_in.cmp_le(t_out) & t_in.cmp_le(f32x4::splat(limit));
-        (t_in.to_array(), met.move_mask() as u32)
+        (t_in, met)
     }
+}
+
+/// Absolute padding (m) of the boxes in [`PacketBounds::all_miss`], on top of
+/// the boxes' own: covers the f32 rounding of a shared origin up to kilometres
+/// from the scene's centre together with [`PACKET_RELATIVE_MARGIN`].
+const PACKET_MARGIN: f32 = 1e-4;
+/// Relative padding of the same boxes, per metre of the origin's distance from
+/// the scene's centre (several f32 epsilons).
+const PACKET_RELATIVE_MARGIN: f32 = 1e-6;
+/// Relative widening of the packet's inverse-direction intervals and slack on
+/// its distances (far above f32 rounding).
+const PACKET_SLACK: f32 = 1e-5;
+
+/// The rays of a packet that share their origin, bounded together: per axis the
+/// interval of their inverse directions. A node's box that the whole bundle
+/// misses (interval arithmetic, padded) is missed by every ray of the packet,
+/// so the node needs no test per ray.
+struct PacketBounds {
+    origin: [f32x4; 3],
+    /// Interval of the rays' 1/d along each axis, widened outward.
+    inv_lo: [f32x4; 3],
+    inv_hi: [f32x4; 3],
+    /// Whether every ray's direction has the same sign along the axis (otherwise
+    /// the axis bounds nothing).
+    bounded: [bool; 3],
+    /// Whether the rays go toward +axis (on the bounded axes).
+    positive: [bool; 3],
+    margin: f32x4,
+}
+
+impl PacketBounds {
+    /// The bounds of `rays` when they all start at one point (None otherwise).
+    fn new(rays: &[RayQuery]) -> Option<Self> {
+        let first = rays.first()?;
+        if rays.iter().any(|r| r.origin != first.origin) {
+            return None;
+        }
+        let local = [0, 1, 2].map(|k| first.local_origin[k]);
+        let reach = local.iter().fold(0.0f32, |m, c| m.max(c.abs()));
+        let mut inv_lo = [f32::INFINITY; 3];
+        let mut inv_hi = [f32::NEG_INFINITY; 3];
+        for ray in rays {
+            for k in 0..3 {
+                let inv = ray.slab.inv_dir[k];
+                inv_lo[k] = inv_lo[k].min(inv);
+                inv_hi[k] = inv_hi[k].max(inv);
+            }
+        }
+        let positive = [0, 1, 2].map(|k| inv_lo[k] > 0.0);
+        let bounded = [0, 1, 2].map(|k| positive[k] || inv_hi[k] < 0.0);
+        Some(Self {
+            origin: local.map(f32x4::splat),
+            inv_lo: [0, 1, 2].map(|k| f32x4::splat(inv_lo[k] - inv_lo[k].abs() * PACKET_SLACK)),
+            inv_hi: [0, 1, 2].map(|k| f32x4::splat(inv_hi[k] + inv_hi[k].abs() * PACKET_SLACK)),
+            bounded,
+            positive,
+            margin: f32x4::splat(PACKET_MARGIN + PACKET_RELATIVE_MARGIN * reach),
+        })
+    }
+
+    /// True when no ray of the packet can meet any of `node`'s four boxes.
+    #[inline(always)]
+    fn all_miss(&self, node: &Node4) -> bool {
+        let mut near = f32x4::ZERO;
+        let mut far = f32x4::splat(f32::INFINITY);
+        for k in 0..3 {
+            if !self.bounded[k] {
+                continue;
+            }
+            let lo = f32x4::new(node.lo[k]) - self.origin[k] - self.margin;
+            let hi = f32x4::new(node.hi[k]) - self.origin[k] + self.margin;
+            // A ray enters the slab at its near face and leaves at its far face;
+            // along 1/d in [inv_lo, inv_hi] those distances are linear in 1/d.
+            let (enter, leave) = if self.positive[k] { (lo, hi) } else { (hi, lo) };
+            near = near.fast_max((enter * self.inv_lo[k]).fast_min(enter * self.inv_hi[k]));
+            far = far.fast_min((leave * self.inv_lo[k]).fast_max(leave * self.inv_hi[k]));
+        }
+        let met = near.cmp_le(far * f32x4::splat(1.0 + PACKET_SLACK));
+        met.move_mask() == 0
+    }
+}
+
+/// One ray during a traversal: the ray in f64 for the triangle tests, in the f32
+/// node frame for the box tests, and the nearest hit found so far.
+#[derive(Clone, Copy)]
+pub(crate) struct RayQuery {
+    origin: Point3<f64>,
+    direction: Vector3<f64>,
+    max_range: f64,
+    slab: SlabRay,
+    /// The ray's origin in the f32 node frame (before the move to the scene's bounds).
+    local_origin: [f32; 3],
+    /// The f32 frame's origin sits this far along the ray (where it enters the
+    /// scene's bounds), m; node distances are measured from there.
+    enter: f64,
+    /// Where the ray leaves the scene's bounds, m.
+    exit: f64,
+    /// Node boxes entered farther than this (f32 frame) hold no nearer hit.
+    limit: f32,
+    best: Option<(f64, u32)>,
+}
+
+impl RayQuery {
+    /// The nearest hit found: (distance, triangle).
+    pub(crate) fn best(&self) -> Option<(f64, u32)> {
+        self.best
+    }
+
+    /// The node-frame limit of a hit at distance `t` along the ray, padded.
+    #[inline(always)]
+    fn limit_of(&self, t: f64) -> f32 {
+        ((t.min(self.exit) - self.enter) as f32 + 1e-4) * SLAB_SLACK
+    }
+
+    /// Tests the pieces of a leaf, keeping the nearest hit within range; true when
+    /// one of them became the nearest (with `any`, stops there).
+    #[inline(always)]
+    fn test_leaf(&mut self, leaf: &[LeafTriangle], any: bool) -> bool {
+        let mut found = false;
+        for piece in leaf {
+            if let Some(t) = intersect(piece, &self.origin, &self.direction) {
+                let hit = (t, piece.triangle);
+                if t <= self.max_range && self.best.is_none_or(|best| nearer(hit, best)) {
+                    self.best = Some(hit);
+                    found = true;
+                    if any {
+                        return true;
+                    }
+                    self.limit = self.limit_of(t);
+                }
+            }
+        }
+        found
+    }
+}
+
+/// Whether hit `a` (distance, triangle) is nearer than `b`; at the same distance
+/// the lower triangle index is, so that the answer does not depend on the order in
+/// which the traversal meets them (single rays and packets agree exactly).
+#[inline(always)]
+fn nearer(a: (f64, u32), b: (f64, u32)) -> bool {
+    a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
+}
+
+/// The lanes set in `mask` (at least one), sorted by entry distance `t_in`,
+/// farthest first: (lane, entry) and their number.
+#[inline(always)]
+fn farthest_first(mut mask: u32, t_in: &[f32; 4]) -> ([(usize, f32); 4], usize) {
+    let mut order = [(0usize, 0.0f32); 4];
+    let mut n = 0;
+    while mask != 0 {
+        let lane = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let t = t_in[lane];
+        let mut k = n;
+        while k > 0 && order[k - 1].1 < t {
+            order[k] = order[k - 1];
+            k -= 1;
+        }
+        order[k] = (lane, t);
+        n += 1;
+    }
+    (order, n)
+}
+
+/// The indices of the bits set in `mask`, lowest first.
+#[inline(always)]
+fn bits(mut mask: u64) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let bit = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            bit
+        })
+    })
 }
 
 /// Distance along the unit `direction` at which the ray meets `leaf`'s triangle

@@ -8,11 +8,12 @@
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
+use rand_distr::StandardNormal;
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use crate::error::RaycastError;
-use crate::scene::{check_directions, check_finite_rows, unit, Scene};
+use crate::scene::{check_directions, check_finite_rows, unit, Hit, Scene};
 
 /// Shadow rays start this far (m) off the surface, along its normal, so that
 /// they do not hit the surface they leave.
@@ -198,33 +199,49 @@ pub fn render(
     let mut rgb = vec![0u8; n_pixels * 3];
     let mut ids = vec![-1i32; n_pixels];
     let mut depth = vec![f32::INFINITY; n_pixels];
-    rgb.par_chunks_mut(width * 3)
-        .zip(ids.par_chunks_mut(width))
-        .zip(depth.par_chunks_mut(width))
+    let camera = Camera {
+        scene,
+        rotation_w_c,
+        position,
+        rays_c,
+        width,
+        albedo,
+        lighting,
+        sun,
+    };
+    rgb.par_chunks_mut(width * 3 * TILE_ROWS)
+        .zip(ids.par_chunks_mut(width * TILE_ROWS))
+        .zip(depth.par_chunks_mut(width * TILE_ROWS))
         .enumerate()
-        .for_each(|(row, ((rgb_row, id_row), depth_row))| {
-            // One generator per row keeps the noise independent of the thread count.
-            let mut rng = Pcg64Mcg::seed_from_u64(
-                lighting
-                    .seed
-                    .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-                    .wrapping_add(row as u64),
-            );
-            for col in 0..width {
-                let dir = rotation_w_c * unit(&rays_c[row * width + col]);
-                let (colour, id, dist) = shade(scene, position, &dir, albedo, lighting, &sun);
-                id_row[col] = id;
-                depth_row[col] = dist as f32;
-                for k in 0..3 {
-                    let noise = if lighting.noise_sigma > 0.0 {
-                        lighting.noise_sigma * standard_normal(&mut rng)
-                    } else {
-                        0.0
-                    };
-                    rgb_row[col * 3 + k] = gamma.encode(colour[k], noise);
+        .try_for_each(|(band, ((rgb_band, id_band), depth_band))| {
+            let first_row = band * TILE_ROWS;
+            let rows = id_band.len() / width;
+            // One generator per row keeps the noise independent of the thread count
+            // and of the tiling: each row's pixels draw from it left to right.
+            let mut rngs: Vec<Pcg64Mcg> = (first_row..first_row + rows)
+                .map(|row| row_rng(lighting.seed, row))
+                .collect();
+            let mut tile = Tile::default();
+            for first_col in (0..width).step_by(TILE_COLS) {
+                let cols = first_col..(first_col + TILE_COLS).min(width);
+                camera.trace(&mut tile, first_row..first_row + rows, cols.clone())?;
+                for (k, (colour, id, dist)) in tile.shaded.iter().enumerate() {
+                    let (row, col) = (k / cols.len(), cols.start + k % cols.len());
+                    let pixel = row * width + col;
+                    id_band[pixel] = *id;
+                    depth_band[pixel] = *dist as f32;
+                    for (c, byte) in rgb_band[pixel * 3..pixel * 3 + 3].iter_mut().enumerate() {
+                        let noise = if lighting.noise_sigma > 0.0 {
+                            lighting.noise_sigma * rngs[row].sample::<f64, _>(StandardNormal)
+                        } else {
+                            0.0
+                        };
+                        *byte = gamma.encode(colour[c], noise);
+                    }
                 }
             }
-        });
+            Ok::<(), RaycastError>(())
+        })?;
     Ok(Image {
         width,
         height,
@@ -232,6 +249,130 @@ pub fn render(
         instance_id: ids,
         depth,
     })
+}
+
+/// Camera rays are cast in tiles of this many rows by [`TILE_COLS`] columns, one
+/// packet each ([`Scene::cast_packet`]): neighbouring pixels visit the same BVH
+/// nodes, and so do the shadow rays of their surface points.
+const TILE_ROWS: usize = 8;
+/// See [`TILE_ROWS`].
+const TILE_COLS: usize = 8;
+
+/// The noise generator of image row `row`.
+fn row_rng(seed: u64, row: usize) -> Pcg64Mcg {
+    Pcg64Mcg::seed_from_u64(
+        seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(row as u64),
+    )
+}
+
+/// One render's camera, scene and light, validated.
+struct Camera<'a> {
+    scene: &'a Scene,
+    rotation_w_c: &'a Matrix3<f64>,
+    position: &'a Point3<f64>,
+    rays_c: &'a [[f64; 3]],
+    width: usize,
+    albedo: &'a [[f64; 3]],
+    lighting: &'a Lighting,
+    /// Unit vector toward the sun, W.
+    sun: Vector3<f64>,
+}
+
+/// Scratch of one tile, kept from tile to tile.
+#[derive(Default)]
+struct Tile {
+    origins: Vec<Point3<f64>>,
+    directions: Vec<Vector3<f64>>,
+    hits: Vec<Option<Hit>>,
+    /// Sun-facing share of the direct light at each pixel's surface.
+    direct: Vec<f64>,
+    shadow_origins: Vec<Point3<f64>>,
+    shadow_directions: Vec<Vector3<f64>>,
+    /// Pixel (tile index) of each shadow ray.
+    shadow_pixels: Vec<usize>,
+    shadowed: Vec<bool>,
+    /// Colour (linear RGB), instance id and distance of each pixel, row-major.
+    shaded: Vec<([f64; 3], i32, f64)>,
+}
+
+impl Camera<'_> {
+    /// Shades the pixels `rows` x `cols` into `tile.shaded` (row-major): their
+    /// rays cast as one packet, then the shadow rays of their lit surfaces as one.
+    fn trace(
+        &self,
+        tile: &mut Tile,
+        rows: std::ops::Range<usize>,
+        cols: std::ops::Range<usize>,
+    ) -> Result<(), RaycastError> {
+        let lighting = self.lighting;
+        tile.directions.clear();
+        for row in rows {
+            for col in cols.clone() {
+                let ray = &self.rays_c[row * self.width + col];
+                tile.directions.push(self.rotation_w_c * unit(ray));
+            }
+        }
+        let n = tile.directions.len();
+        tile.origins.clear();
+        tile.origins.resize(n, *self.position);
+        tile.hits.clear();
+        tile.hits.resize(n, None);
+        self.scene.cast_packet(
+            &tile.origins,
+            &tile.directions,
+            lighting.max_range,
+            &mut tile.hits,
+        )?;
+        tile.direct.clear();
+        tile.shadow_origins.clear();
+        tile.shadow_pixels.clear();
+        for (k, (hit, dir)) in tile.hits.iter().zip(&tile.directions).enumerate() {
+            let direct = match hit {
+                Some(hit) => {
+                    let normal = facing(hit, dir);
+                    let direct = normal.dot(&self.sun).max(0.0);
+                    if direct > 0.0 && lighting.shadows {
+                        tile.shadow_origins
+                            .push(self.position + dir * hit.distance + normal * SHADOW_OFFSET);
+                        tile.shadow_pixels.push(k);
+                    }
+                    direct
+                }
+                None => 0.0,
+            };
+            tile.direct.push(direct);
+        }
+        let shadows = tile.shadow_origins.len();
+        tile.shadow_directions.clear();
+        tile.shadow_directions.resize(shadows, self.sun);
+        tile.shadowed.clear();
+        tile.shadowed.resize(shadows, false);
+        self.scene.occluded_packet(
+            &tile.shadow_origins,
+            &tile.shadow_directions,
+            lighting.max_range,
+            &mut tile.shadowed,
+        )?;
+        for (&pixel, &shadowed) in tile.shadow_pixels.iter().zip(&tile.shadowed) {
+            if shadowed {
+                tile.direct[pixel] = 0.0;
+            }
+        }
+        tile.shaded.clear();
+        for ((hit, dir), &direct) in tile.hits.iter().zip(&tile.directions).zip(&tile.direct) {
+            tile.shaded.push(shade(
+                hit.as_ref(),
+                direct,
+                self.position,
+                dir,
+                self.albedo,
+                lighting,
+                &self.sun,
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// Entries of [`GammaEncoder`]'s table over [0, 1].
@@ -285,9 +426,22 @@ fn exact_gamma(c: f64) -> f64 {
     255.0 * c.powf(1.0 / GAMMA)
 }
 
-/// Colour (linear RGB), instance id and distance seen along one unit ray in W.
+/// The normal of the surface `hit` facing the ray `dir`: thin open surfaces are
+/// lit from whichever side is seen.
+fn facing(hit: &Hit, dir: &Vector3<f64>) -> Vector3<f64> {
+    if hit.normal.dot(dir) > 0.0 {
+        -hit.normal
+    } else {
+        hit.normal
+    }
+}
+
+/// Colour (linear RGB), instance id and distance seen along one unit ray `dir` in
+/// W from `origin`, given what it hit and the sun's direct share there (the cosine
+/// of the sun on the [`facing`] normal, 0 in shadow).
 fn shade(
-    scene: &Scene,
+    hit: Option<&Hit>,
+    direct: f64,
     origin: &Point3<f64>,
     dir: &Vector3<f64>,
     albedo: &[[f64; 3]],
@@ -301,20 +455,7 @@ fn shade(
         })
     };
     let sun_elevation_factor = sun.z.max(0.0);
-    if let Some(hit) = scene.cast_one(origin, dir, lighting.max_range) {
-        // Face-forward normal: thin open surfaces are lit from whichever side is seen.
-        let normal = if hit.normal.dot(dir) > 0.0 {
-            -hit.normal
-        } else {
-            hit.normal
-        };
-        let mut direct = normal.dot(sun).max(0.0);
-        if direct > 0.0 && lighting.shadows {
-            let point = origin + dir * hit.distance + normal * SHADOW_OFFSET;
-            if scene.occluded(&point, sun, lighting.max_range) {
-                direct = 0.0;
-            }
-        }
+    if let Some(hit) = hit {
         let base = usize::try_from(hit.instance_id)
             .ok()
             .and_then(|i| albedo.get(i))
@@ -340,13 +481,6 @@ fn shade(
     let sky =
         std::array::from_fn(|k| lighting.sky_horizon[k] * (1.0 - up) + lighting.sky_zenith[k] * up);
     (sky, -1, f64::INFINITY)
-}
-
-/// One standard normal sample (Box-Muller; rand 0.9 without rand_distr).
-fn standard_normal(rng: &mut Pcg64Mcg) -> f64 {
-    let u1: f64 = 1.0 - rng.random::<f64>(); // (0, 1]
-    let u2: f64 = rng.random::<f64>();
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
 }
 
 #[cfg(test)]
@@ -441,7 +575,7 @@ mod tests {
             } else {
                 rng.random::<f64>() * 1.2 - 0.1
             };
-            for noise in [0.0, 3.0 * standard_normal(&mut rng)] {
+            for noise in [0.0, 3.0 * rng.sample::<f64, _>(StandardNormal)] {
                 let direct = (exact_gamma(c.clamp(0.0, 1.0)) + noise)
                     .round()
                     .clamp(0.0, 255.0) as u8;

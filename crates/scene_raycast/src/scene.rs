@@ -7,13 +7,16 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::bvh::Bvh;
+use crate::bvh::{Bvh, RayQuery, MAX_PACKET};
 use crate::error::RaycastError;
 
 /// Triangles with a smaller area (m^2) are refused as degenerate.
 pub const MIN_TRIANGLE_AREA: f64 = 1e-14;
 /// Rays handed to one rayon task at a time.
 const RAYS_PER_TASK: usize = 512;
+/// A batch's consecutive rays that share their origin (a camera's pixels, a LiDAR's
+/// shots) are cast in packets of this many ([`Scene::cast_packet`]).
+const BATCH_PACKET: usize = 64;
 /// The result of one ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
@@ -156,14 +159,8 @@ impl Scene {
         direction: &Vector3<f64>,
         max_range: f64,
     ) -> Option<Hit> {
-        let (distance, tri) = self.bvh.cast(origin, direction, max_range, false)?;
-        let t = tri as usize;
-        Some(Hit {
-            distance,
-            triangle: tri,
-            instance_id: self.instance_ids[t],
-            normal: self.normals[t],
-        })
+        let hit = self.bvh.cast(origin, direction, max_range, false)?;
+        Some(self.hit(hit))
     }
 
     /// True when the ray meets any triangle within [0, `max_range`] (the same
@@ -171,6 +168,112 @@ impl Scene {
     /// `direction` must be a unit vector.
     pub fn occluded(&self, origin: &Point3<f64>, direction: &Vector3<f64>, max_range: f64) -> bool {
         self.bvh.cast(origin, direction, max_range, true).is_some()
+    }
+
+    /// Casts up to [`Scene::PACKET`] rays together, a packet (rays beyond are
+    /// cast in further packets): for coherent rays, neighbouring pixels of a camera
+    /// or shadow rays toward the sun, each BVH node is fetched once for all the rays
+    /// that enter its box. `out[i]` gets exactly what `cast_one` gives ray `i`
+    /// (unit `directions[i]` from `origins[i]`).
+    ///
+    /// Returns an error naming the argument when `directions` or `out` does not
+    /// have one row per origin.
+    pub fn cast_packet(
+        &self,
+        origins: &[Point3<f64>],
+        directions: &[Vector3<f64>],
+        max_range: f64,
+        out: &mut [Option<Hit>],
+    ) -> Result<(), RaycastError> {
+        check_packet(origins, directions, out.len())?;
+        self.each_packet(origins, directions, max_range, false, |slot, best| {
+            out[slot] = best.map(|hit| self.hit(hit));
+        });
+        Ok(())
+    }
+
+    /// [`Scene::occluded`] of a packet of rays cast together (see
+    /// [`Scene::cast_packet`]): `out[i]` is true when ray `i` meets a triangle
+    /// within [0, `max_range`].
+    pub fn occluded_packet(
+        &self,
+        origins: &[Point3<f64>],
+        directions: &[Vector3<f64>],
+        max_range: f64,
+        out: &mut [bool],
+    ) -> Result<(), RaycastError> {
+        check_packet(origins, directions, out.len())?;
+        self.each_packet(origins, directions, max_range, true, |slot, best| {
+            out[slot] = best.is_some();
+        });
+        Ok(())
+    }
+
+    /// Casts the rays in packets of [`MAX_PACKET`] (with `any`, occlusion tests)
+    /// and hands `answer` each ray's index and BVH answer, misses included.
+    fn each_packet(
+        &self,
+        origins: &[Point3<f64>],
+        directions: &[Vector3<f64>],
+        max_range: f64,
+        any: bool,
+        mut answer: impl FnMut(usize, Option<(f64, u32)>),
+    ) {
+        let mut rays = Vec::with_capacity(MAX_PACKET.min(origins.len()));
+        let mut slots = Vec::with_capacity(rays.capacity());
+        for start in (0..origins.len()).step_by(MAX_PACKET) {
+            let end = (start + MAX_PACKET).min(origins.len());
+            self.queries(
+                &origins[start..end],
+                &directions[start..end],
+                max_range,
+                &mut rays,
+                &mut slots,
+            );
+            self.bvh.cast_packet(&mut rays, any);
+            let mut cast = rays.iter().zip(&slots).peekable();
+            for slot in 0..end - start {
+                let best = match cast.next_if(|(_, &s)| s == slot) {
+                    Some((ray, _)) => ray.best(),
+                    None => None,
+                };
+                answer(start + slot, best);
+            }
+        }
+    }
+
+    /// Most rays one packet of [`Scene::cast_packet`] traverses together.
+    pub const PACKET: usize = MAX_PACKET;
+
+    /// The traversal states of the rays that can meet the scene (into `rays`) and
+    /// their indices (into `slots`).
+    fn queries(
+        &self,
+        origins: &[Point3<f64>],
+        directions: &[Vector3<f64>],
+        max_range: f64,
+        rays: &mut Vec<RayQuery>,
+        slots: &mut Vec<usize>,
+    ) {
+        rays.clear();
+        slots.clear();
+        for (slot, (origin, direction)) in origins.iter().zip(directions).enumerate() {
+            if let Some(ray) = self.bvh.query(origin, direction, max_range) {
+                rays.push(ray);
+                slots.push(slot);
+            }
+        }
+    }
+
+    /// The [`Hit`] of (distance, triangle) found by the BVH.
+    fn hit(&self, (distance, triangle): (f64, u32)) -> Hit {
+        let t = triangle as usize;
+        Hit {
+            distance,
+            triangle,
+            instance_id: self.instance_ids[t],
+            normal: self.normals[t],
+        }
     }
 
     /// Casts a batch of rays in parallel.
@@ -208,24 +311,66 @@ impl Scene {
             .zip(out.triangle.par_chunks_mut(RAYS_PER_TASK))
             .zip(out.normal.par_chunks_mut(RAYS_PER_TASK))
             .enumerate()
-            .for_each(|(chunk, (((distance, instance_id), triangle), normal))| {
+            .try_for_each(|(chunk, (((distance, instance_id), triangle), normal))| {
                 let start = chunk * RAYS_PER_TASK;
-                for (k, (o, d)) in origins[start..start + distance.len()]
-                    .iter()
-                    .zip(&directions[start..start + distance.len()])
-                    .enumerate()
-                {
-                    let origin = Point3::new(o[0], o[1], o[2]);
-                    if let Some(hit) = self.cast_one(&origin, &unit(d), max_range) {
-                        distance[k] = hit.distance;
-                        instance_id[k] = hit.instance_id;
-                        triangle[k] = i64::from(hit.triangle);
-                        normal[k] = [hit.normal.x, hit.normal.y, hit.normal.z];
+                let mut packet_origins = Vec::with_capacity(BATCH_PACKET);
+                let mut packet_directions = Vec::with_capacity(BATCH_PACKET);
+                let mut packet_hits = vec![None; BATCH_PACKET];
+                for first in (0..distance.len()).step_by(BATCH_PACKET) {
+                    let rows = start + first..start + (first + BATCH_PACKET).min(distance.len());
+                    packet_origins.clear();
+                    packet_directions.clear();
+                    for (o, d) in origins[rows.clone()].iter().zip(&directions[rows.clone()]) {
+                        packet_origins.push(Point3::new(o[0], o[1], o[2]));
+                        packet_directions.push(unit(d));
+                    }
+                    let hits = &mut packet_hits[..rows.len()];
+                    // Rays from one point are coherent; others are cast one by one.
+                    if origins[rows.clone()]
+                        .iter()
+                        .all(|o| *o == origins[rows.start])
+                    {
+                        self.cast_packet(&packet_origins, &packet_directions, max_range, hits)?;
+                    } else {
+                        for (hit, (o, d)) in hits
+                            .iter_mut()
+                            .zip(packet_origins.iter().zip(&packet_directions))
+                        {
+                            *hit = self.cast_one(o, d, max_range);
+                        }
+                    }
+                    for (k, hit) in hits.iter().enumerate() {
+                        if let Some(hit) = hit {
+                            let k = first + k;
+                            distance[k] = hit.distance;
+                            instance_id[k] = hit.instance_id;
+                            triangle[k] = i64::from(hit.triangle);
+                            normal[k] = [hit.normal.x, hit.normal.y, hit.normal.z];
+                        }
                     }
                 }
-            });
+                Ok(())
+            })?;
         Ok(out)
     }
+}
+
+/// A packet's rows: one direction and one output per origin.
+fn check_packet(
+    origins: &[Point3<f64>],
+    directions: &[Vector3<f64>],
+    outputs: usize,
+) -> Result<(), RaycastError> {
+    for (name, got) in [("directions", directions.len()), ("out", outputs)] {
+        if got != origins.len() {
+            return Err(RaycastError::LengthMismatch {
+                name,
+                expected: origins.len(),
+                got,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// `max_range` must be > 0 (infinity allowed), never NaN.

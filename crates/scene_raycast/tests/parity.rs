@@ -17,7 +17,7 @@
 mod common;
 
 use common::parry_reference::ParryScene;
-use common::Soup;
+use common::{brute_force, random_unit as unit, Soup};
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -29,19 +29,6 @@ fn scenes(soup: &Soup) -> (Scene, ParryScene) {
     match Scene::new(&soup.vertices, &soup.triangles, &soup.ids) {
         Ok(s) => (s, ParryScene::new(&soup.vertices, &soup.triangles)),
         Err(e) => panic!("test scene refused: {e}"),
-    }
-}
-
-fn unit(rng: &mut Pcg64Mcg) -> Vector3<f64> {
-    loop {
-        let v = Vector3::new(
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        );
-        if let Some(u) = v.try_normalize(1e-3) {
-            return u;
-        }
     }
 }
 
@@ -135,37 +122,6 @@ fn rays(soup: &Soup, rng: &mut Pcg64Mcg, n: usize) -> Vec<(Point3<f64>, Vector3<
         out.push(ray);
     }
     out
-}
-
-/// Nearest (distance, triangle) by f64 Moeller-Trumbore over every triangle,
-/// with the crate's parallel-ray threshold.
-fn brute_force(soup: &Soup, o: &Point3<f64>, d: &Vector3<f64>, range: f64) -> Option<(f64, u32)> {
-    let mut best: Option<(f64, u32)> = None;
-    for (k, tri) in soup.triangles.iter().enumerate() {
-        let [a, b, c] = tri.map(|i| Point3::from(soup.vertices[i as usize]));
-        let (e1, e2) = (b - a, c - a);
-        let p = d.cross(&e2);
-        let det = e1.dot(&p);
-        if det.abs() < 1e-14 * e1.norm() * e2.norm() {
-            continue;
-        }
-        let inv = 1.0 / det;
-        let s = o - a;
-        let u = s.dot(&p) * inv;
-        let q = s.cross(&e1);
-        let v = d.dot(&q) * inv;
-        let t = e2.dot(&q) * inv;
-        if (0.0..=1.0).contains(&u)
-            && v >= 0.0
-            && u + v <= 1.0
-            && t >= 0.0
-            && t <= range
-            && best.is_none_or(|(bt, _)| t < bt)
-        {
-            best = Some((t, k as u32));
-        }
-    }
-    best
 }
 
 fn check(soup: &Soup, n: usize, seed: u64) {

@@ -5,6 +5,10 @@ pub mod parry_reference;
 
 use std::f64::consts::PI;
 
+use nalgebra::{Point3, Vector3};
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
+
 /// A triangle soup: vertices, triangles, instance ids.
 #[derive(Default, Clone)]
 pub struct Soup {
@@ -238,4 +242,54 @@ pub fn lattice(n_members: u32, segments: u32) -> Soup {
         ));
     }
     soup
+}
+
+/// Nearest (distance, triangle) by f64 Moeller-Trumbore over every triangle,
+/// with the crate's parallel-ray threshold.
+pub fn brute_force(
+    soup: &Soup,
+    o: &Point3<f64>,
+    d: &Vector3<f64>,
+    range: f64,
+) -> Option<(f64, u32)> {
+    let mut best: Option<(f64, u32)> = None;
+    for (k, tri) in soup.triangles.iter().enumerate() {
+        let [a, b, c] = tri.map(|i| Point3::from(soup.vertices[i as usize]));
+        let (e1, e2) = (b - a, c - a);
+        let p = d.cross(&e2);
+        let det = e1.dot(&p);
+        if det.abs() < 1e-14 * e1.norm() * e2.norm() {
+            continue;
+        }
+        let inv = 1.0 / det;
+        let s = o - a;
+        let u = s.dot(&p) * inv;
+        let q = s.cross(&e1);
+        let v = d.dot(&q) * inv;
+        let t = e2.dot(&q) * inv;
+        if (0.0..=1.0).contains(&u)
+            && v >= 0.0
+            && u + v <= 1.0
+            && t >= 0.0
+            && t <= range
+            && best.is_none_or(|(bt, _)| t < bt)
+        {
+            best = Some((t, k as u32));
+        }
+    }
+    best
+}
+
+/// A random unit vector (rejection from the cube).
+pub fn random_unit(rng: &mut Pcg64Mcg) -> Vector3<f64> {
+    loop {
+        let v = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        if let Some(u) = v.try_normalize(1e-3) {
+            return u;
+        }
+    }
 }
