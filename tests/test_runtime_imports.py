@@ -200,6 +200,11 @@ def _module_level_imports(path: Path) -> dict[str, int]:
                     found.setdefault(alias.name, node.lineno)
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 found.setdefault(node.module, node.lineno)
+                if node.module.split(".")[0] == "insulator_rs":
+                    # ``from insulator_rs.recording import types``: the name may be a module,
+                    # which loads too (sim/flight_assembly.py reached rosbags this way)
+                    for alias in node.names:
+                        found.setdefault(f"{node.module}.{alias.name}", node.lineno)
 
     visit(ast.parse(path.read_text(encoding="utf-8"), filename=str(path)).body)
     return found

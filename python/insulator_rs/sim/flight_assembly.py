@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs.ports.observer import FlightObserver
@@ -31,11 +31,13 @@ from insulator_rs.mission.config import Mission
 from insulator_rs.ports.detector import BoxDetector
 from insulator_rs.ports.sensors import Sensors
 from insulator_rs.ports.vehicle import Vehicle
-from insulator_rs.recording.writer import McapRecorder, RecordingSensors, RecordingVehicle
 from insulator_rs.rig import SensorRig
 from insulator_rs.sim.ground_truth_detector import GroundTruthDetector
 from insulator_rs.sim.mesh import Mesh
 from insulator_rs.sim.sensors import DETECT_SCALE, PoseSource, SimulatedSensors
+
+if TYPE_CHECKING:  # recording needs the bags extra: a bare install flies without it
+    from insulator_rs.recording.writer import McapRecorder
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,8 @@ def assemble_flight(mission: Mission, vehicle: Vehicle, sensors: Sensors, detect
     ``photo_detector`` (what checks each photo; default ``detector``) and ``settings`` as
     :class:`~insulator_rs.flight.loop.FlightLoop`'s."""
     if recorder is not None:
+        from insulator_rs.recording.writer import RecordingSensors, RecordingVehicle
+
         vehicle = RecordingVehicle(vehicle, recorder)
         sensors = RecordingSensors(sensors, recorder, T_b_l=rig.T_b_l)
     if outer_vehicle is not None:
