@@ -43,6 +43,7 @@ from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, d
 from insulator_rs.flight.loop import FlightSettings
 from insulator_rs.report.run_status import RunOutcome, RunStatus
 from insulator_rs.flight.gc_pauses import startup_heap_frozen
+from insulator_rs.flight.operator_abort import OperatorAbort, ReturnHandover, return_handover
 from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
@@ -376,12 +377,20 @@ def run(args: argparse.Namespace) -> int:
         loop, vehicle, sensors = flight.loop, flight.vehicle, flight.sensors
         if mavlink:  # an outside autopilot fails safe when our setpoint thread stalls: watch for it
             stall_watch = loop.stall_watch = StallWatch(dump=Path(args.out) / STALL_STACKS).start()
+        # the operator's abort: Ctrl-C / SIGTERM in the air, and the ground station's command
+        operator = OperatorAbort(loop)
+        if observer is not None:
+            observer.on_abort_command(operator.request)
         code = 0
         # everything set up so far stays out of the collector's walks while the loop flies: a
         # full collection of it held the GIL past half a second on a loaded box (gc_pauses.py)
         with startup_heap_frozen():
             try:
-                loop.fly()
+                with operator.installed():
+                    loop.fly()
+            except ReturnHandover as exc:  # the second Ctrl-C in the air: PX4's Return, and out at once
+                print(return_handover(loop, vehicle, exc.how), file=sys.stderr)
+                return 130
             except KeyboardInterrupt:
                 loop.outcome = RunOutcome(RunStatus.INTERRUPTED)
                 code = 130

@@ -31,7 +31,7 @@ import numpy as np
 
 from insulator_rs.exceptions import (ParameterError, PlanningError, PreflightRefused, SensorError, VehicleError,
                                      VehicleFailsafe)
-from insulator_rs.flight.abort_policy import AbortPolicy
+from insulator_rs.flight.abort_policy import OPERATOR, AbortPolicy
 from insulator_rs.flight.autopilot_session import AutopilotSession
 from insulator_rs.flight.energy_budget import EnergyBudget
 from insulator_rs.flight.leg_follower import LegFollower
@@ -223,9 +223,10 @@ class FlightLoop:
         self._print_transitions()
         return st
 
-    def request_abort(self, reason: str = "operator abort") -> None:
-        """The operator aborts the mission (from another thread too): taken at the next control
-        tick, then the safe route out and the landing, as for any abort."""
+    def request_abort(self, reason: str = OPERATOR) -> None:
+        """The operator aborts the mission (from another thread or a signal handler too): taken at
+        the next control tick, then the safe route out and the landing, as for any abort.
+        ``reason``: :func:`~insulator_rs.flight.abort_policy.operator_reason` of how it was asked."""
         self.abort_policy.request(reason)
 
     def abort(self, reason: str, time: float | None = None) -> None:
