@@ -326,9 +326,8 @@ def test_a_second_ctrl_c_hands_over_to_the_return_and_exits(tmp_path, monkeypatc
     summary = json.loads((out / "summary.json").read_text())
     assert rc == 130
     assert summary["status"].startswith("aborted: operator: Ctrl-C; Ctrl-C again: handed over to PX4's Return")
-    (vehicle,) = vehicles
-    st = vehicle.state()
-    assert st.mode == FlightMode.RTL.value and not st.landed  # the autopilot's Return flies it now
+    (vehicle,) = vehicles  # closed by the command: its mode and landed state read directly
+    assert vehicle.mode == FlightMode.RTL and not vehicle.landed  # the autopilot's Return flies it now
     assert "Ctrl-C again: handed over to PX4's Return (RTL)" in capsys.readouterr().err
     assert not (out / "score.json").exists()  # out at once: nothing scored
 

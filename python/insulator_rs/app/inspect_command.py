@@ -43,6 +43,7 @@ from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, d
 from insulator_rs.flight.loop import FlightSettings
 from insulator_rs.report.run_status import RunOutcome, RunStatus
 from insulator_rs.flight.gc_pauses import startup_heap_frozen
+from insulator_rs.flight.home import at_vehicle_home
 from insulator_rs.flight.operator_abort import OperatorAbort, ReturnHandover, return_handover
 from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
@@ -315,6 +316,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         vehicle = windy(charged(kinematic_vehicle(mission, args.seed), args.sim_battery), args.wind, args.seed)
         pose = kinematic_true_pose(vehicle)
+    try:  # takeoff = "home": planned from where the vehicle stands, refused before anything flies
+        mission = at_vehicle_home(mission, vehicle)
+        MissionGeometry.from_mission(mission)
+    except (ConfigError, ValueError) as exc:
+        vehicle.close()
+        print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
+        return 2
     live = args.lidar is not None
     sensors: Any
     if live:

@@ -34,6 +34,7 @@ from insulator_rs.exceptions import (ParameterError, PlanningError, PreflightRef
 from insulator_rs.flight.abort_policy import OPERATOR, AbortPolicy
 from insulator_rs.flight.autopilot_session import AutopilotSession
 from insulator_rs.flight.energy_budget import EnergyBudget
+from insulator_rs.flight.home import at_vehicle_home
 from insulator_rs.flight.leg_follower import LegFollower
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photo_session import PhotoSession
@@ -76,6 +77,8 @@ class FlightLoop:
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
                  overwrite: bool = False, observer: FlightObserver | None = None,
                  photo_camera: Any = None, photo_detector: BoxDetector | None = None) -> None:
+        # takeoff = "home": the take-off point is where the vehicle stands, before anything is planned
+        mission = at_vehicle_home(mission, vehicle)
         self.mission, self.vehicle, self.sensors, self.detector = mission, vehicle, sensors, detector
         self.rig, self.settings, self.out = rig, settings, out
         # who watches the flight: the console unless quiet, and what the caller adds (the GCS)
