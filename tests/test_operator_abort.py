@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from helpers.flights import ARGS, small_scene
 from helpers.gcs_listener import GcsListener, M
+from test_mission_inspect_mavlink import _started_simulators
 
 import insulator_rs
 from insulator_rs.app.cli import main
@@ -216,20 +217,6 @@ def _flew_the_safe_route_and_landed(out: Path, summary: dict) -> None:
     last = traj[-1, 1:4]
     assert last[2] < 0.1, "it lands"
     assert np.linalg.norm(np.array(ab["landing_point"])[:2] - last[:2]) < 0.5, "where the route ends"
-
-
-def _started_simulators(monkeypatch):
-    from insulator_rs.sim.px4 import SimulatedPx4
-
-    sims = []
-    original = SimulatedPx4.start
-
-    def start(self):
-        sims.append(self)
-        return original(self)
-
-    monkeypatch.setattr(SimulatedPx4, "start", start)
-    return sims
 
 
 @pytest.mark.slow

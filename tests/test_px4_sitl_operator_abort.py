@@ -21,25 +21,15 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
-import pytest
 from helpers.flights import small_scene
 from helpers.gcs_listener import GcsListener, M
-from helpers.px4_sitl import PX4_HOME, Px4Sitl, mission_at_home, sitl_folder
+from helpers.px4_sitl import PX4_HOME, Px4Sitl, mission_at_home
 
 import insulator_rs
 from insulator_rs.app.cli import main
 from insulator_rs.mavlink.gcs import ABORT_ANNOUNCEMENT, ABORT_COMMAND, COMPANION_COMPONENT
+from test_px4_sitl import ARGS, FOLDER, SPEED, pytestmark  # noqa: F401 (pytestmark: slow, sitl, skipped without PX4)
 
-FOLDER = sitl_folder()
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.sitl,
-    pytest.mark.skipif(FOLDER is None, reason="PX4 SITL folder absent: no ../shared/px4_sitl beside the "
-                                              "repository and INSULATOR_RS_PX4_SITL not set"),
-]
-SPEED = 1.0
-ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2", "--quiet",
-        "--detector", "standin"]
 GCS_PORT = 18570  # PX4 SITL's GCS link: udp 18570 + instance
 ACTIONS = Path(insulator_rs.__file__).parent / "data" / "qgc_mavlink_actions.json"
 INTO_FLIGHT_S = 15.0  # s of flight (the first pass) before the operator aborts
