@@ -16,9 +16,11 @@ and their obstacle re-check (``leg_follower``), the second look (``second_look``
 (``abort_policy``), the way out after an abort (``safe_exit``: a safe route to a landing point
 clear of the tower and the conductors, or a hold for the pilot, never a blind descent) and the
 summary (``summary_assembly``). A vehicle failsafe aborts the mission and nothing more is sent to
-the vehicle; a sensor error costs that detection event or photo, never the flight. The report
-folder is written as the flight goes: an interruption (Ctrl-C) still leaves the summary, the
-photos taken and the plot.
+the vehicle; a sensor error costs that detection event or photo, never the flight. The operator's
+abort (:meth:`FlightLoop.request_abort`: Ctrl-C or the ground station's command in the air,
+``flight/operator_abort.py``) is one more abort. The report folder is written as the flight
+goes: an interruption (Ctrl-C on the ground) still leaves the summary, the photos taken and the
+plot.
 """
 
 from __future__ import annotations
