@@ -118,7 +118,7 @@ def test_battery_below_the_missions_need_is_refused_before_arming(tmp_path):
     summary, sim, texts = _fly_px4(tmp_path, battery=0.27)
     reason = _refused_before_arming(summary, sim, texts, "battery")
     assert reason.startswith("charge 27%: the exploration path and landing") and "above the 25% reserve" in reason
-    assert _outcomes(summary) == {"sensors": "passed", "clock": "passed", "gps_home": "passed",
+    assert _outcomes(summary) == {"sensors": "passed", "clock": "passed", "gps_home": "passed", "home": "passed",
                                   "detector": "not_applicable", "battery": "failed", "geofence": "passed"}
     assert "3D fix" in _reason(summary, "gps_home") and "TIMESYNC" in _reason(summary, "clock")
 
@@ -265,7 +265,8 @@ def test_a_healthy_flight_passes_the_gate_and_flies_as_without_it(tmp_path, monk
     assert rc == 0 and s["status"] == "finished", s["status"]
     assert s["preflight"]["passed"] is True
     assert _outcomes(s) == {"sensors": "passed", "clock": "not_applicable", "gps_home": "not_applicable",
-                            "detector": "not_applicable", "battery": "passed", "geofence": "not_applicable"}
+                            "home": "passed", "detector": "not_applicable", "battery": "passed",
+                            "geofence": "not_applicable"}
     assert _reason(s, "sensors").startswith("camera 1 delivered, newest 0.00 s old, lidar 1 delivered")
     monkeypatch.setattr(AutopilotSession, "preflight", lambda self: None)
     rc2, s2, ungated = fly(tmp_path / "ungated")

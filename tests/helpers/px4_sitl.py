@@ -45,8 +45,12 @@ HARDWARE_PRIORITY = ["nice", "-n", "-10"] if os.geteuid() == 0 else []
 
 REPO = Path(__file__).resolve().parents[2]
 ENV_VAR = "INSULATOR_RS_PX4_SITL"
-# PX4 SITL's home (SIH defaults: SIH_LOC_LAT0/LON0/H0), as its README states.
-PX4_HOME = (47.397742, 8.545594, 488.0)
+# PX4 SITL's home as its HOME_POSITION says before arming (measured twice on v1.16.0 SIH:
+# 47.3977434, 8.5455942, 489.382-489.397 m): SIH starts at SIH_LOC_LAT0/LON0/H0 (47.397742,
+# 8.545594, 488.0, its README), and the estimator's home lies 0.16 m north and 1.4 m above it.
+# The pre-flight's home check (flight/preflight.py) allows 1 m in height: a mission put on the
+# SIH start would be refused.
+PX4_HOME = (47.3977434, 8.5455942, 489.39)
 OFFBOARD_PORT = 14540  # PX4's onboard link sends to udp 127.0.0.1:14540 + instance
 READY_LINE = "Ready for takeoff!"
 FAILSAFE_LINE = "Failsafe activated"

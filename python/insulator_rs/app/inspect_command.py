@@ -43,6 +43,8 @@ from insulator_rs.ports.detector import STANDIN, BoxDetector, NetworkDetector, d
 from insulator_rs.flight.loop import FlightSettings
 from insulator_rs.report.run_status import RunOutcome, RunStatus
 from insulator_rs.flight.gc_pauses import startup_heap_frozen
+from insulator_rs.flight.home import at_vehicle_home
+from insulator_rs.flight.operator_abort import OperatorAbort, ReturnHandover, return_handover
 from insulator_rs.flight.stall_watch import STALL_STACKS, StallWatch
 from insulator_rs import bounds
 from insulator_rs.mission.config import Mission, load_mission
@@ -314,6 +316,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         vehicle = windy(charged(kinematic_vehicle(mission, args.seed), args.sim_battery), args.wind, args.seed)
         pose = kinematic_true_pose(vehicle)
+    try:  # takeoff = "home": planned from where the vehicle stands, refused before anything flies
+        mission = at_vehicle_home(mission, vehicle)
+        MissionGeometry.from_mission(mission)
+    except (ConfigError, ValueError) as exc:
+        vehicle.close()
+        print(f"insulator-rs inspect: error: {exc}", file=sys.stderr)
+        return 2
     live = args.lidar is not None
     sensors: Any
     if live:
@@ -376,12 +385,20 @@ def run(args: argparse.Namespace) -> int:
         loop, vehicle, sensors = flight.loop, flight.vehicle, flight.sensors
         if mavlink:  # an outside autopilot fails safe when our setpoint thread stalls: watch for it
             stall_watch = loop.stall_watch = StallWatch(dump=Path(args.out) / STALL_STACKS).start()
+        # the operator's abort: Ctrl-C / SIGTERM in the air, and the ground station's command
+        operator = OperatorAbort(loop)
+        if observer is not None:
+            observer.on_abort_command(operator.request)
         code = 0
         # everything set up so far stays out of the collector's walks while the loop flies: a
         # full collection of it held the GIL past half a second on a loaded box (gc_pauses.py)
         with startup_heap_frozen():
             try:
-                loop.fly()
+                with operator.installed():
+                    loop.fly()
+            except ReturnHandover as exc:  # the second Ctrl-C in the air: PX4's Return, and out at once
+                print(return_handover(loop, vehicle, exc.how), file=sys.stderr)
+                return 130
             except KeyboardInterrupt:
                 loop.outcome = RunOutcome(RunStatus.INTERRUPTED)
                 code = 130

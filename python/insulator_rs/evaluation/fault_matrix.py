@@ -51,7 +51,7 @@ MAVLINK_FAULTS = ("link loss", "client killed")
 #: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
 REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
-                "operator abort": ("operator abort",), "client killed": ("running",)}
+                "operator abort": ("operator",), "client killed": ("running",)}
 SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)

@@ -15,8 +15,17 @@ from insulator_rs.mission.state_machine import State
 from insulator_rs.perception.runner import PerceptionRunner
 from insulator_rs.ports.vehicle import FlightMode, VehicleState
 
+#: the abort reason's head when a person aborted (Ctrl-C, SIGTERM, the ground station's command):
+#: summary.json's status reads "aborted: operator: <how>", as the other aborts name their cause first
+OPERATOR = "operator"
 SENSOR_LOST_TIMEOUT = 10.0  # s of flight without a new camera frame: the sensor is lost, abort
 HOLD_TIMEOUT = 10.0  # s in HOLD before the mission aborts
+
+
+def operator_reason(how: str) -> str:
+    """The abort reason of the operator's abort, ``how`` it was asked (``"Ctrl-C"``,
+    ``"ground station"``)."""
+    return f"{OPERATOR}: {how}"
 
 
 class AbortPolicy:

@@ -85,7 +85,8 @@ class AutopilotSession:
         result = preflight_checks(vehicle, self.sensors, self.detector,
                                   demand=self.energy.mission_demand(vehicle.state().position),
                                   reserve=self.battery_reserve, volumes=self.geom.volumes,
-                                  mission_points=self.geom.path_points())
+                                  mission_points=self.geom.path_points(), takeoff=self.geom.takeoff,
+                                  origin=self.geom.mission.tower)
         self.preflight_result = result
         for c in result.checks:
             self.pilot.say(f"pre-flight {c.check.value}: {c.outcome.value.replace('_', ' ')} ({c.reason})")

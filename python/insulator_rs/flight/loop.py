@@ -16,9 +16,11 @@ and their obstacle re-check (``leg_follower``), the second look (``second_look``
 (``abort_policy``), the way out after an abort (``safe_exit``: a safe route to a landing point
 clear of the tower and the conductors, or a hold for the pilot, never a blind descent) and the
 summary (``summary_assembly``). A vehicle failsafe aborts the mission and nothing more is sent to
-the vehicle; a sensor error costs that detection event or photo, never the flight. The report
-folder is written as the flight goes: an interruption (Ctrl-C) still leaves the summary, the
-photos taken and the plot.
+the vehicle; a sensor error costs that detection event or photo, never the flight. The operator's
+abort (:meth:`FlightLoop.request_abort`: Ctrl-C or the ground station's command in the air,
+``flight/operator_abort.py``) is one more abort. The report folder is written as the flight
+goes: an interruption (Ctrl-C on the ground) still leaves the summary, the photos taken and the
+plot.
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ import numpy as np
 
 from insulator_rs.exceptions import (ParameterError, PlanningError, PreflightRefused, SensorError, VehicleError,
                                      VehicleFailsafe)
-from insulator_rs.flight.abort_policy import AbortPolicy
+from insulator_rs.flight.abort_policy import OPERATOR, AbortPolicy
 from insulator_rs.flight.autopilot_session import AutopilotSession
 from insulator_rs.flight.energy_budget import EnergyBudget
+from insulator_rs.flight.home import at_vehicle_home
 from insulator_rs.flight.leg_follower import LegFollower
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photo_session import PhotoSession
@@ -76,6 +79,8 @@ class FlightLoop:
                  out: Path, *, rig: SensorRig, settings: FlightSettings = FlightSettings(),
                  overwrite: bool = False, observer: FlightObserver | None = None,
                  photo_camera: Any = None, photo_detector: BoxDetector | None = None) -> None:
+        # takeoff = "home": the take-off point is where the vehicle stands, before anything is planned
+        mission = at_vehicle_home(mission, vehicle)
         self.mission, self.vehicle, self.sensors, self.detector = mission, vehicle, sensors, detector
         self.rig, self.settings, self.out = rig, settings, out
         # who watches the flight: the console unless quiet, and what the caller adds (the GCS)
@@ -223,9 +228,10 @@ class FlightLoop:
         self._print_transitions()
         return st
 
-    def request_abort(self, reason: str = "operator abort") -> None:
-        """The operator aborts the mission (from another thread too): taken at the next control
-        tick, then the safe route out and the landing, as for any abort."""
+    def request_abort(self, reason: str = OPERATOR) -> None:
+        """The operator aborts the mission (from another thread or a signal handler too): taken at
+        the next control tick, then the safe route out and the landing, as for any abort.
+        ``reason``: :func:`~insulator_rs.flight.abort_policy.operator_reason` of how it was asked."""
         self.abort_policy.request(reason)
 
     def abort(self, reason: str, time: float | None = None) -> None:

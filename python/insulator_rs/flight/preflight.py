@@ -14,6 +14,10 @@ record). The checks read only what the ports already expose:
   telemetry fallback of live sensors), waited for up to CLOCK_WAIT s;
 * ``gps_home``: a 3D GPS fix (GPS_RAW_INT), a global position estimate and a home position
   (:class:`~insulator_rs.ports.vehicle.NavigationStatus`);
+* ``home``: the vehicle stands on the mission's take-off point: PX4's home (HOME_POSITION; the
+  in-process vehicle's own position) within HOME_MAX_DISTANCE across and HOME_MAX_HEIGHT_OFF in
+  height of it (:mod:`insulator_rs.flight.home`); the mission's ground, landing point and pass
+  heights are planned from that point. ``takeoff = "home"`` in the mission plans them from the home;
 * ``detector``: a detector there, and a network one that runs (one blank frame through it);
 * ``battery``: the charge above the mission's reserve holds what the exploration path and the
   landing take, at the airframe class's nominal rates (:mod:`insulator_rs.planning.energy`)
@@ -40,7 +44,11 @@ from typing import Any
 import numpy as np
 
 from insulator_rs.exceptions import ParameterError, PreflightRefused
+from insulator_rs.flight.home import vehicle_home
+from insulator_rs.flight.pilot import LAND_HEIGHT
 from insulator_rs.flight.record import timesync_record
+from insulator_rs.geodesy import GeoPoint, enu_to_gps
+from insulator_rs.mission.config import TAKEOFF_HOME
 from insulator_rs.flight.reserve import ESTIMATE_MARGIN, READING_STEP
 from insulator_rs.planning.energy import RouteDemand, nominal_consumed
 from insulator_rs.planning.px4_failsafes import mission_extent
@@ -67,6 +75,19 @@ CLOCK_POLL = 0.05  # wall s between looks at the clock map while waiting
 SENSORS_WAIT = 10.0
 SENSORS_POLL = 0.2  # wall s between looks at the streams while waiting
 SENSORS_NEEDED = ("camera", "lidar")  # detection frames and the points that localize them
+# m: the farthest the vehicle's home may stand from the mission's take-off point, horizontally. A
+# GNSS home wanders 1-3 m (a consumer receiver's CEP95 is about 2.5 m): a vehicle set down on the
+# planned point is not refused for its receiver's noise. The default take-off point lies the
+# standoff (8 m in the shipped missions) beyond the tower's widest extent, 6 m outside its 2 m
+# safety margin: a vehicle within 5 m of it still climbs outside the safety volumes.
+HOME_MAX_DISTANCE = 5.0
+# m: the most the home may lie above or below the take-off point. The landing approach ends
+# LAND_HEIGHT (2 m) above the take-off point: with the ground 2 m higher it would fly into it, so
+# half of it, 1 m, is kept. (The obstacle map leaves out returns less than GROUND_BAND (1.5 m)
+# above the take-off point, and ground returns scatter up to 1.2 m high: ground more than 0.3 m
+# higher can enter the map and bend or refuse legs near the ground: a mission lost, not an unsafe
+# one. takeoff = "home" plans from the home itself and avoids both.)
+HOME_MAX_HEIGHT_OFF = LAND_HEIGHT / 2
 PROBE_IMAGE_SIDE = 64  # px of the blank frame a network is run on (the letterbox takes any size)
 GPS_FIX_NAMES = {0: "no GPS", 1: "no fix", 2: "2D fix", 3: "3D fix", 4: "DGPS", 5: "RTK float",
                  6: "RTK fixed", 7: "static", 8: "PPP"}  # MAVLink GPS_FIX_TYPE
@@ -78,6 +99,7 @@ class Check(str, Enum):
     SENSORS = "sensors"
     CLOCK = "clock"
     GPS_HOME = "gps_home"
+    HOME = "home"
     DETECTOR = "detector"
     BATTERY = "battery"
     GEOFENCE = "geofence"
@@ -222,6 +244,39 @@ def check_gps_home(vehicle: object) -> CheckResult:
     return _result(Check.GPS_HOME, problems, ", ".join(fine))
 
 
+def _decimetres(value: float) -> float:
+    """``value`` rounded to 0.1, without a minus on zero (the earth's curve puts a point 13 m
+    away at the same altitude 13 um below W's horizon: "-0.0" would read as a fault)."""
+    return round(float(value), 1) + 0.0
+
+
+def _where(local: np.ndarray, gps: GeoPoint) -> str:
+    e, n, u = (_decimetres(c) for c in local)
+    return f"{gps.lat:.7f} {gps.lon:.7f} {gps.alt:.1f} m (W [{e:.1f}, {n:.1f}, {u:.1f}])"
+
+
+def check_home(vehicle: Vehicle, takeoff: np.ndarray, origin: GeoPoint) -> CheckResult:
+    """The vehicle's home (:func:`~insulator_rs.flight.home.vehicle_home`) within HOME_MAX_DISTANCE
+    across and HOME_MAX_HEIGHT_OFF in height of the mission's ``takeoff`` point (W); ``origin``:
+    W's origin in WGS-84 (the tower base). The reason names both points and the distance."""
+    home = vehicle_home(vehicle, origin)
+    if home is None:
+        return CheckResult(Check.HOME, Outcome.FAILED,
+                           "no home position from the autopilot to compare with the mission's take-off point")
+    takeoff = np.asarray(takeoff, dtype=np.float64).reshape(3)
+    offset = home.local - takeoff
+    across, height = float(np.hypot(offset[0], offset[1])), float(offset[2])
+    what = (f"{home.source} at {_where(home.local, home.gps)} is {across:.1f} m across and "
+            f"{_decimetres(height):+.1f} m in "
+            f"height from the mission's take-off point at {_where(takeoff, enu_to_gps(takeoff, origin))}")
+    limits = f"at most {HOME_MAX_DISTANCE:g} m across and {HOME_MAX_HEIGHT_OFF:g} m in height"
+    if across > HOME_MAX_DISTANCE or abs(height) > HOME_MAX_HEIGHT_OFF:
+        return CheckResult(Check.HOME, Outcome.FAILED,
+                           f"{what}, {limits}: set the vehicle down on the take-off point, or give "
+                           f'takeoff = "{TAKEOFF_HOME}" in the mission to plan from where it stands')
+    return CheckResult(Check.HOME, Outcome.PASSED, f"{what} ({limits})")
+
+
 def check_detector(detector: object) -> CheckResult:
     """A detector there; a network one must run (one blank frame through its session)."""
     if detector is None:
@@ -292,12 +347,14 @@ def check_geofence(vehicle: object, volumes: SafetyVolumes, mission_points: np.n
 
 
 def preflight_checks(vehicle: Vehicle, sensors: object, detector: object, *, demand: RouteDemand,
-                     reserve: float, volumes: SafetyVolumes, mission_points: np.ndarray,
-                     clock_wait: float = CLOCK_WAIT, sensors_wait: float = SENSORS_WAIT) -> PreflightResult:
+                     reserve: float, volumes: SafetyVolumes, mission_points: np.ndarray, takeoff: np.ndarray,
+                     origin: GeoPoint, clock_wait: float = CLOCK_WAIT,
+                     sensors_wait: float = SENSORS_WAIT) -> PreflightResult:
     """Every check (see the module docstring), each evaluated whatever the others gave.
     ``demand``: the exploration path and landing of the mission; ``reserve``: the mission's
-    battery reserve; ``volumes`` and ``mission_points`` (N, 3) W: the mission's extent; home is
-    where the vehicle stands (PX4 sets it there at arming)."""
+    battery reserve; ``volumes`` and ``mission_points`` (N, 3) W: the mission's extent;
+    ``takeoff`` (3,) W: the mission's take-off point, ``origin``: W's origin in WGS-84 (the tower
+    base). The geofence's home is where the vehicle stands (PX4 sets it there at arming)."""
     # the clock first: the sensors' stamps are in the vehicle time it maps to
     clock = check_clock(vehicle, sensors, wait=clock_wait)
     sensors_result = check_sensors_waiting(sensors, lambda: vehicle.state().time, wait=sensors_wait)
@@ -306,6 +363,7 @@ def preflight_checks(vehicle: Vehicle, sensors: object, detector: object, *, dem
         sensors_result,
         clock,
         check_gps_home(vehicle),
+        check_home(vehicle, takeoff, origin),
         check_detector(detector),
         check_battery(st.battery_fraction, demand, reserve),
         check_geofence(vehicle, volumes, mission_points, st.position),

@@ -18,6 +18,14 @@ as PX4 companion software does, through the autopilot, which forwards it to its 
   (w, x, y, z; NED earth frame, zero = looking north, level), from which QGroundControl draws
   its photo markers. A lost CAMERA_IMAGE_CAPTURED is sent again when asked by index.
 
+* The **operator's abort** from the ground station: a COMMAND_LONG ``MAV_CMD_USER_1``
+  (:data:`ABORT_COMMAND`, param1 :data:`ABORT_PARAM1`) addressed to the companion (component 191; QGroundControl sends it from
+  the Fly View's custom action, ``data/qgc_mavlink_actions.json``) asks the flight for the abort
+  (the handler given to :meth:`MavlinkGcsObserver.on_abort_command`). Accepted in the air: a
+  COMMAND_ACK ACCEPTED and the STATUSTEXT :data:`ABORT_ANNOUNCEMENT` (CRITICAL); on the ground
+  TEMPORARILY_REJECTED with the reason in a STATUSTEXT. Any other command to the companion is
+  answered UNSUPPORTED.
+
 Frames go out paced, at least :data:`SEND_INTERVAL_S` apart (a queue and a sender thread): PX4
 forwards a burst of large frames only in part (measured on v1.16.0 SITL: of 10
 CAMERA_IMAGE_CAPTURED sent back to back 2 reached the GCS, 7 at 2 ms apart, all 10 at 5 ms and
@@ -47,6 +55,14 @@ M = mavlink2
 CAMERA_COMPONENT = M.MAV_COMP_ID_CAMERA  # 100
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 STATUSTEXT_LEN = 50  # characters of one STATUSTEXT
+# The ground station's abort: MAVLink's first user-defined command, addressed to the companion (no
+# standard command means "companion, abort your mission"; PX4 forwards commands to component 191)
+ABORT_COMMAND = M.MAV_CMD_USER_1  # 31010
+# its param1: 1 asks for the abort; any other value is refused (DENIED), so that another tool's use
+# of MAVLink's user command never aborts a flight by accident
+ABORT_PARAM1 = 1.0
+ABORT_ANNOUNCEMENT = "insulator-rs: operator abort, flying the safe route"
+ABORT_REFUSED = "insulator-rs: abort refused: not in the air"
 HEARTBEAT_PERIOD_S = 1.0
 # s between two frames sent. PX4 forwards through a buffer of about two frames, drained by its
 # GCS link's loop: on a quiet machine every large frame got through from 5 ms apart, but on a
@@ -125,6 +141,8 @@ class MavlinkGcsObserver:
         self.camera = camera or CameraDescription()
         self.file_url_prefix = file_url_prefix
         self._lock = threading.Lock()
+        # the flight's abort (flight/operator_abort.py OperatorAbort.request): True when taken
+        self._abort_handler: Callable[[], bool] | None = None
 
         class _Writer:
             def write(_self, buf: bytes) -> None:  # noqa: N805
@@ -280,17 +298,41 @@ class MavlinkGcsObserver:
                    event.index - 1, 1, url)
 
     # -- receiving (commands PX4 forwards to our components) ------------------------------------
+    def on_abort_command(self, handler: Callable[[], bool] | None) -> None:
+        """Who takes the ground station's abort: ``handler()`` asks the flight for it and says
+        whether it was taken (None: nobody; the command is then refused)."""
+        self._abort_handler = handler
+
     def handle_message(self, msg: Any) -> None:
         """A message from the ground station (forwarded by the autopilot): answer the camera
-        requests addressed to our camera; everything else is ignored. Never raises."""
+        requests addressed to our camera and the abort addressed to the companion; everything
+        else is ignored. Never raises."""
         try:
-            if msg.get_type() not in ("COMMAND_LONG", "COMMAND_INT"):
+            if msg.get_type() not in ("COMMAND_LONG", "COMMAND_INT") or msg.target_system != self.system_id:
                 return
-            if msg.target_system != self.system_id or msg.target_component != CAMERA_COMPONENT:
-                return
-            self._command(msg)
+            if msg.target_component == CAMERA_COMPONENT:
+                self._command(msg)
+            elif msg.target_component == COMPANION_COMPONENT:
+                self._companion_command(msg)
         except Exception:  # noqa: BLE001
             self.send_errors += 1
+
+    def _companion_command(self, msg: Any) -> None:
+        """A command to the companion: the operator's abort, or UNSUPPORTED."""
+        if msg.command != ABORT_COMMAND:
+            self._ack(msg, M.MAV_RESULT_UNSUPPORTED, self._companion)
+            return
+        handler = self._abort_handler
+        # not the abort's param1 (another tool's user command), or no flight to abort: refused
+        if msg.param1 != ABORT_PARAM1 or handler is None:
+            self._ack(msg, M.MAV_RESULT_DENIED, self._companion)
+            return
+        if handler():
+            self._ack(msg, M.MAV_RESULT_ACCEPTED, self._companion)
+            self.statustext(ABORT_ANNOUNCEMENT, M.MAV_SEVERITY_CRITICAL)
+        else:
+            self._ack(msg, M.MAV_RESULT_TEMPORARILY_REJECTED, self._companion)
+            self.statustext(ABORT_REFUSED, M.MAV_SEVERITY_WARNING)
 
     def _requested_images(self, first: float, last: float) -> range:
         """The image indices a MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED) asks for, as the
@@ -310,8 +352,9 @@ class MavlinkGcsObserver:
             return range(first_i, n)
         return range(first_i, min(last_i, n - 1) + 1) if last_i >= first_i else range(0)
 
-    def _ack(self, msg: Any, result: int) -> None:
-        self._emit(self._camera, "command_ack", msg.command, result, 0, 0, msg.get_srcSystem(),
+    def _ack(self, msg: Any, result: int, component: Any = None) -> None:
+        """COMMAND_ACK from ``component`` (our camera's MAVLink by default) to the command's sender."""
+        self._emit(self._camera if component is None else component, "command_ack", msg.command, result, 0, 0, msg.get_srcSystem(),
                    msg.get_srcComponent())
 
     def _command(self, msg: Any) -> None:

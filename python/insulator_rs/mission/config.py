@@ -22,6 +22,8 @@ message gives the range and the reason)::
     lat = 50.0001
     lon = 14.0
     alt = 300.0
+    # or, at the top of the file (before the tables): takeoff = "home": the take-off point is
+    # the vehicle's own home, read from the autopilot before planning (flight/home.py)
 
     [vehicle]                     # limits (m/s, m/s^2); the paper's real flight: 1 and 3
     rig = "simulator"             # optional: the sensor rig file (camera calibration, T_b_c, T_b_l;
@@ -52,7 +54,7 @@ from __future__ import annotations
 
 import math
 from insulator_rs._toml import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +67,10 @@ from insulator_rs.geodesy import GeoPoint, LineFrame, gps_to_enu, line_frame
 from insulator_rs.rig import SensorRig, load_rig, resolve_rig, simulator_rig
 from insulator_rs.textfile import read_config_text
 from insulator_rs.tracking.confirmation import CONFIRMATIONS, MIN_CONFIRMATIONS
+
+
+#: ``takeoff = "home"``: the take-off point is the vehicle's home, as the autopilot says
+TAKEOFF_HOME = "home"
 
 
 @dataclass(frozen=True)
@@ -116,7 +122,10 @@ class InspectionParams:
 class Mission:
     """A validated mission. ``takeoff`` is None when the file gives none (the
     planner then takes off on the "+" side at the standoff); ``rig`` is None when the
-    file names no sensor rig (the simulator then flies its own, a real flight refuses)."""
+    file names no sensor rig (the simulator then flies its own, a real flight refuses).
+    ``takeoff_home``: the file says ``takeoff = "home"``: the take-off point is the vehicle's
+    home, put in ``takeoff`` by :meth:`with_takeoff` once the autopilot has told it
+    (:func:`insulator_rs.flight.home.at_vehicle_home`, before anything is planned for a flight)."""
 
     source: str
     tower: GeoPoint
@@ -127,6 +136,7 @@ class Mission:
     vehicle: VehicleLimits
     inspection: InspectionParams
     rig: SensorRig | None = None  # the airframe's sensors; None: the file names none
+    takeoff_home: bool = False  # [takeoff] = "home"
 
     def sensor_rig(self) -> SensorRig:
         """The rig this mission flies: the file's, or the shipped simulator rig when it names none."""
@@ -141,11 +151,21 @@ class Mission:
         return line_frame(self.neighbours_enu())
 
     def takeoff_enu(self) -> np.ndarray:
-        """Take-off point in W (3,), m: the file's, or on the "+" side at the standoff, on the ground."""
+        """Take-off point in W (3,), m: the file's (or the vehicle's home it was given), or on the
+        "+" side at the standoff, on the ground. A ``takeoff = "home"`` mission whose home is not
+        known yet stands on that default point (the simulated airframe is put there); a flight
+        takes the vehicle's home first."""
         if self.takeoff is not None:
             return gps_to_enu(self.takeoff, self.tower)
         lf = self.line()
         return lf.to_world(np.array([0.0, self.max_width / 2 + self.inspection.standoff, 0.0]))
+
+
+    def with_takeoff(self, point: GeoPoint) -> Mission:
+        """This mission taking off from ``point`` (the vehicle's home, for ``takeoff = "home"``),
+        checked as the file's ``[takeoff]`` is (ConfigError naming ``takeoff``)."""
+        _check_placement(_Reader(self.source), self.tower, [], point, field='takeoff ("home")')
+        return replace(self, takeoff=point)
 
 
 class _Reader:
@@ -231,7 +251,7 @@ def _short(value: Any) -> str:
 
 
 def _check_placement(r: _Reader, tower: GeoPoint, neighbours: list[GeoPoint],
-                     takeoff: GeoPoint | None) -> None:
+                     takeoff: GeoPoint | None, *, field: str = "takeoff") -> None:
     """Neighbours a span away, the take-off point near the tower (:mod:`bounds`)."""
     for i, nb in enumerate(neighbours):
         e, n, _ = gps_to_enu(nb, tower)
@@ -243,10 +263,10 @@ def _check_placement(r: _Reader, tower: GeoPoint, neighbours: list[GeoPoint],
     e, n, _ = gps_to_enu(takeoff, tower)
     problem = bounds.TAKEOFF_DISTANCE.problem(float(math.hypot(e, n)))
     if problem is not None:
-        raise r.fail("takeoff", f"horizontal distance from the tower {problem}")
+        raise r.fail(field, f"horizontal distance from the tower {problem}")
     problem = bounds.TAKEOFF_HEIGHT.problem(takeoff.alt - tower.alt)
     if problem is not None:
-        raise r.fail("takeoff.alt", f"height above the tower base {problem}")
+        raise r.fail(f"{field}.alt", f"height above the tower base {problem}")
 
 
 def parse_mission(data: Any, source: str = "<mission>", base: Path | None = None) -> Mission:
@@ -276,7 +296,11 @@ def parse_mission(data: Any, source: str = "<mission>", base: Path | None = None
         r.unknown(nb, f"neighbours[{i}]", {"lat", "lon", "alt"})
         neighbours.append(r.geo(nb, f"neighbours[{i}]"))
 
-    takeoff_t = r.table(data, "takeoff", required=False)
+    takeoff_home = data.get("takeoff") == TAKEOFF_HOME
+    if "takeoff" in data and not takeoff_home and not isinstance(data["takeoff"], dict):
+        raise r.fail("takeoff", f'expected a table (lat, lon, alt) or "{TAKEOFF_HOME}" (the vehicle\'s own '
+                                f'home, read from the autopilot), got {_short(data["takeoff"])}')
+    takeoff_t = None if takeoff_home else r.table(data, "takeoff", required=False)
     takeoff = None
     if takeoff_t is not None:
         r.unknown(takeoff_t, "takeoff", {"lat", "lon", "alt"})
@@ -326,7 +350,7 @@ def parse_mission(data: Any, source: str = "<mission>", base: Path | None = None
                      f"must exceed inspection.safety_margin ({inspection.safety_margin} m), "
                      f"or the exploration path would lie inside the safety volume")
     mission = Mission(source, tower, max_height, max_width, tuple(neighbours), takeoff,
-                      vehicle, inspection, rig)
+                      vehicle, inspection, rig, takeoff_home=takeoff_home)
     try:
         mission.line()
     except ValueError as exc:
