@@ -21,14 +21,16 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
-from helpers.flights import small_scene
+from helpers.flights import ARGS, small_scene
 from helpers.gcs_listener import GcsListener, M
 from helpers.px4_sitl import PX4_HOME, Px4Sitl, mission_at_home
+from helpers.sitl_suite import FOLDER, SITL_MARKS, SPEED
 
 import insulator_rs
 from insulator_rs.app.cli import main
 from insulator_rs.mavlink.gcs import ABORT_ANNOUNCEMENT, ABORT_COMMAND, COMPANION_COMPONENT
-from test_px4_sitl import ARGS, FOLDER, SPEED, pytestmark  # noqa: F401 (pytestmark: slow, sitl, skipped without PX4)
+
+pytestmark = SITL_MARKS
 
 GCS_PORT = 18570  # PX4 SITL's GCS link: udp 18570 + instance
 ACTIONS = Path(insulator_rs.__file__).parent / "data" / "qgc_mavlink_actions.json"
