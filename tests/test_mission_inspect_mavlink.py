@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from helpers.flights import small_scene
+from helpers.simulated_px4 import started_simulators
 
 from insulator_rs.app.cli import main
 from insulator_rs.mission.config import InspectionParams
@@ -58,22 +59,6 @@ def _after_first_photo(monkeypatch, action):
             action(self.pilot)  # the loop
 
     monkeypatch.setattr(PhotoSession, "take_photo", photo_then_fault)
-
-
-def _started_simulators(monkeypatch):
-    """The simulated PX4s this test's runs start (``start_simulated_px4`` returns the one it
-    starts to the composition root; the test records them on ``SimulatedPx4.start``)."""
-    from insulator_rs.sim.px4 import SimulatedPx4
-
-    sims = []
-    original = SimulatedPx4.start
-
-    def start(self):
-        sims.append(self)
-        return original(self)
-
-    monkeypatch.setattr(SimulatedPx4, "start", start)
-    return sims
 
 
 def _assert_found_so_far_kept(out, s):
@@ -134,7 +119,7 @@ def test_inspect_through_the_simulated_px4_over_mavlink(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_path, monkeypatch):
-    sims = _started_simulators(monkeypatch)
+    sims = started_simulators(monkeypatch)
 
     def cut_link(run):
         sims[-1].set_link_lost(True)
@@ -155,7 +140,7 @@ def test_link_loss_mid_flight_aborts_with_the_reason_and_keeps_the_findings(tmp_
 @pytest.mark.slow
 def test_pilot_takeover_aborts_and_nothing_more_is_sent(tmp_path, monkeypatch):
     seen = {}
-    sims = _started_simulators(monkeypatch)
+    sims = started_simulators(monkeypatch)
     original = FlightLoop.on_failsafe
 
     def on_failsafe(self, exc):

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from helpers.flights import ARGS, small_scene
 from helpers.gcs_listener import GcsListener, M
-from test_mission_inspect_mavlink import _started_simulators
+from helpers.simulated_px4 import started_simulators
 
 import insulator_rs
 from insulator_rs.app.cli import main
@@ -227,7 +227,7 @@ def test_the_ground_stations_abort_mid_flight_flies_the_safe_route_and_lands(tmp
     action = _shipped_action()
     scene, mission = small_scene(tmp_path)
     out = tmp_path / "report"
-    sims = _started_simulators(monkeypatch)
+    sims = started_simulators(monkeypatch)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

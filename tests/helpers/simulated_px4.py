@@ -45,3 +45,19 @@ def take_off_into_offboard(client: MavlinkVehicle, altitude: float = 3.0) -> Non
     client.send_setpoint(client.state().position)
     client.advance(0.3)
     client.start_offboard()
+
+
+def started_simulators(monkeypatch):
+    """The simulated PX4s this test's runs start (``start_simulated_px4`` returns the one it
+    starts to the composition root; the test records them on ``SimulatedPx4.start``)."""
+    from insulator_rs.sim.px4 import SimulatedPx4
+
+    sims = []
+    original = SimulatedPx4.start
+
+    def start(self):
+        sims.append(self)
+        return original(self)
+
+    monkeypatch.setattr(SimulatedPx4, "start", start)
+    return sims
