@@ -14,13 +14,14 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
 from insulator_rs.app.gpu_training import CARD_TEST_SEED, GpuRecipe, render_jobs, write_combined_yaml
-from insulator_rs.detection.train import read_results_csv
+from insulator_rs.detection.train import prepare_offline, read_results_csv
 
 REPO = Path(__file__).resolve().parent.parent
 needs_ultralytics = pytest.mark.skipif(importlib.util.find_spec("ultralytics") is None,
@@ -29,6 +30,8 @@ needs_ultralytics = pytest.mark.skipif(importlib.util.find_spec("ultralytics") i
 
 def _ultralytics_results_csv(path: Path, epochs: int) -> None:
     """Write results.csv with Ultralytics' BaseTrainer.save_metrics (its own format, %.6g)."""
+    # offline first, as every test that imports Ultralytics (a worker runs several such modules)
+    prepare_offline(Path(tempfile.gettempdir()) / "insulator_rs_ultralytics_cfg")
     from ultralytics.engine.trainer import BaseTrainer
 
     trainer = SimpleNamespace(csv=path, train_time_start=0.0, epoch=0)
