@@ -60,8 +60,11 @@ from insulator_rs.exceptions import SensorError  # noqa: E402
 
 #: What a pipeline that names no appsink gets appended: BGR frames, as the detector takes them.
 APPSINK_TAIL = "videoconvert ! video/x-raw,format=BGR ! appsink name=sink"
-#: Seconds ``start()`` waits for the pipeline's first frame before giving up.
-START_TIMEOUT_S = 5.0
+#: Seconds ``start()`` waits for the pipeline's first frame before giving up. A network camera's
+#: first frame comes after the session's set-up and the next keyframe (an RTSP camera at a 1-2 s
+#: keyframe interval: 2-4 s), later on a busy computer: the PX4 SITL sensor head's MJPEG stream,
+#: on a 2-core machine running two other PX4 SITL flights, gave none within 5 s.
+START_TIMEOUT_S = 10.0
 #: Seconds one pull waits for a frame before the thread looks at the bus and its stop flag.
 PULL_SLICE_S = 0.1
 #: Frames the appsink holds before it drops the oldest.
