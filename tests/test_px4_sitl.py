@@ -110,6 +110,7 @@ def _timesync_figures(vehicle, seconds: float = 4.0) -> dict[str, float]:
             "lag_min_s": min(lags), "lag_max_s": max(lags)}
 
 
+@pytest.mark.realtime  # the clock maps are judged against wall time
 def test_px4_timesync_agrees_with_the_simulated_px4s(px4) -> None:
     """Reference: PX4 v1.16.0 itself. The client's TIMESYNC against PX4 and against our
     simulated PX4 must agree in kind: both answer (map fitted, round trip of a few ms on
@@ -242,6 +243,7 @@ def test_hostile_traffic_mid_flight_against_px4_sitl(px4, tmp_path, monkeypatch,
     assert f"foreign_address {stats[0]['foreign_address']}" in capsys.readouterr().out  # reported
 
 
+@pytest.mark.realtime  # the sensor head renders in real time: beside other flights it starves
 def test_small_scene_live_sensor_inspection_against_px4_sitl(px4, tmp_path) -> None:
     """The live-sensor path against PX4 itself (see the module docstring; the flight is
     ``live_sitl.fly_live``, which the soak script flies at the defaults). Reference:
