@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -135,5 +136,7 @@ def test_a_sitl_vehicle_13_m_from_the_takeoff_point_is_refused_before_arming(tmp
         log = px4.log()
     s = json.loads((out / "summary.json").read_text())
     assert rc == 1 and s["status"].startswith("refused_preflight: home: the autopilot's home (HOME_POSITION) at ")
-    assert "is 13.0 m across" in s["status"], s["status"]
+    # PX4's home is its estimator's: 13.0-13.1 m across in our runs (GPS noise in SIH)
+    across = re.search(r"is ([0-9.]+) m across", s["status"])
+    assert across is not None and 12.5 < float(across.group(1)) < 13.5, s["status"]
     assert "Armed by" not in log and "Takeoff detected" not in log
