@@ -67,3 +67,32 @@ def test_the_latency_queue_releases_each_chunk_at_its_arrival_plus_the_latency()
 def test_a_bad_latency_is_refused(bad: float) -> None:
     with pytest.raises(ValueError, match="latency_s"):
         LatencyQueue(bad)
+
+
+@pytest.mark.parametrize("z_estimate", [-0.3, -0.05, 0.0, 0.1])
+def test_a_landed_airframe_is_rendered_on_its_gear_not_inside_the_ground(z_estimate: float) -> None:
+    """PX4's estimate of an airframe standing on the ground wanders 0.3 m below it to 0.05 m above
+    (PX4 SITL v1.16); the head renders from the airframe on its gear. Reference: the scene mesh's
+    own inside test (``Mesh.enclosing_instance``) at the rig's LiDAR and camera positions."""
+    from insulator_rs.rig import simulator_rig
+    from insulator_rs.sim.sensors import LANDING_GEAR_HEIGHT, resting_on
+    from insulator_rs.sim.towers import GROUND_Z, load_tower
+
+    mesh = load_tower("tower_b").mesh
+    estimate = np.eye(4)
+    estimate[:3, 3] = [20.0, -15.0, GROUND_Z + z_estimate]  # clear of the tower, over the ground
+    rig = simulator_rig()
+    T = resting_on(lambda t: estimate, GROUND_Z)(0.0)
+    assert T[2, 3] == pytest.approx(GROUND_Z + LANDING_GEAR_HEIGHT) and np.allclose(T[:2, 3], estimate[:2, 3])
+    for T_b_s in (rig.T_b_l, rig.T_b_c):
+        assert mesh.enclosing_instance((T @ T_b_s)[:3, 3]) is None
+    if z_estimate <= 0.0:  # the raw estimate puts the camera inside the ground: what the head sent nothing for
+        assert mesh.enclosing_instance((estimate @ rig.T_b_c)[:3, 3]) is not None
+
+
+def test_an_airborne_pose_is_rendered_as_estimated() -> None:
+    from insulator_rs.sim.sensors import resting_on
+
+    estimate = np.eye(4)
+    estimate[:3, 3] = [1.0, 2.0, 7.5]
+    assert np.array_equal(resting_on(lambda t: estimate, 0.0)(3.0), estimate)

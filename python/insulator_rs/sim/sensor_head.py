@@ -52,6 +52,8 @@ from insulator_rs.poses import interpolate_poses
 from insulator_rs.rig import MAX_LIDAR_LATENCY_S  # what the rig's [lidar] latency_s may state
 from insulator_rs.sim.livox_emitter import SensorClock, send
 from insulator_rs.sim.livox_wire import LidarStream
+from insulator_rs.sim.sensors import resting_on
+from insulator_rs.sim.towers import GROUND_Z
 from insulator_rs.timesync import TelemetryClock
 
 #: s: a camera image whose render missed its publication instant by more than this is dropped.
@@ -376,7 +378,8 @@ class SensorHead:
         # none did); a real Mid-360 sends on through the host's stalls, so the span is rendered
         # and sent late, up to LIDAR_CATCH_UP_S (past it the stream restarts, so a head that
         # cannot keep up falls behind by a bounded span, not for ever)
-        self.stream = LidarStream(mesh, feed.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
+        self.pose = resting_on(feed.pose, GROUND_Z)  # the airframe stands on its gear
+        self.stream = LidarStream(mesh, self.pose, rig.T_b_l, clock=sensor_clock, seed=seed, restart_span=0.0,
                                   slice_rate=LIDAR_SLICE_RATE, ahead=False, silence_s=LIDAR_CATCH_UP_S)
         # each chunk leaves lidar_latency_s after its arrival time (0: as soon as rendered)
         self.lidar_queue = LatencyQueue(lidar_latency_s)
@@ -457,7 +460,7 @@ class SensorHead:
             t0 = time.monotonic()
             try:
                 exposure = min(now, self.feed.newest_time())
-                frame = self.camera.render(self.mesh, self.feed.pose(exposure), seed=self.seed + self.images,
+                frame = self.camera.render(self.mesh, self.pose(exposure), seed=self.seed + self.images,
                                            time=exposure)
                 ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(frame.rgb[:, :, ::-1]),
                                         [cv2.IMWRITE_JPEG_QUALITY, 92])

@@ -66,6 +66,21 @@ def standing(pose: PoseSource) -> PoseSource:
     return on_gear
 
 
+def resting_on(pose: PoseSource, ground_z: float) -> PoseSource:
+    """``pose`` held at least LANDING_GEAR_HEIGHT above a ground plane at ``ground_z``: a pose
+    estimate stands in for the airframe's true one (the live sensor head renders from PX4's), and
+    an estimator's pose of an airframe on the ground wanders about it (PX4 SITL v1.16: 0.3 m below
+    to 0.05 m above, on the ground before take-off), while the airframe itself stands on its gear.
+    Rendered from the raw estimate, the sensors sat inside the ground and sent nothing."""
+    floor = ground_z + LANDING_GEAR_HEIGHT
+
+    def on_gear(time: float) -> np.ndarray:
+        T = np.array(pose(time), dtype=np.float64)
+        T[2, 3] = max(T[2, 3], floor)
+        return T
+    return on_gear
+
+
 def kinematic_true_pose(vehicle: KinematicVehicle) -> PoseSource:
     """The in-process airframe's true pose (no odometry noise, no GPS glitch) at a time."""
     def pose(time: float) -> np.ndarray:

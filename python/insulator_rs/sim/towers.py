@@ -37,6 +37,8 @@ OBSTACLE_ID_BASE = 3000
 OBSTACLE_COLOR = (0.45, 0.36, 0.26)  # a weathered wooden pole
 
 GROUND_INFO = InstanceInfo(name="ground", kind="ground", color=(0.32, 0.40, 0.22))
+#: m: the height of every built scene's ground plane in W (the tower stands on it)
+GROUND_Z = 0.0
 STEEL_INFO = InstanceInfo(name="tower steel", kind="tower", color=(0.55, 0.57, 0.58))
 FITTINGS_INFO = InstanceInfo(name="insulator fittings", kind="other", color=(0.60, 0.60, 0.62))
 INSULATOR_COLOR = (0.42, 0.52, 0.50)  # weathered glass/composite grey-green
@@ -325,7 +327,7 @@ def build_tower(spec: SceneSpec) -> Tower:
     T = np.eye(4)
     T[:3, :3] = R
     structure = Mesh.concatenate(local_parts).transformed(T)
-    ground = plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (spec.ground_size, spec.ground_size),
+    ground = plane((0.0, 0.0, GROUND_Z), (0.0, 0.0, 1.0), (spec.ground_size, spec.ground_size),
                    instance_id=GROUND_ID, info=GROUND_INFO)
     obstacles = [cylinder(o.start, o.end, o.radius, instance_id=OBSTACLE_ID_BASE + k, segments=12,
                           info=InstanceInfo(name=o.name, kind="obstacle", color=OBSTACLE_COLOR))
