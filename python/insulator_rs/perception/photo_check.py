@@ -67,6 +67,7 @@ import numpy as np
 import insulator_rs as ir
 from insulator_rs.perception.photo_quality import STRING_DIAMETER, photo_quality
 from insulator_rs.perception.photo_verdict import PhotoVerdict, Reason
+from insulator_rs.perception.shed_pattern import PERIOD_RANGE, WINDOW_PERIODS, shed_evidence
 
 #: Share of the frame's width (height) the box centre may stray from the image centre. The
 #: shot aims at the localized centre: a 5 cm error of the centre moves the string ~90 px of
@@ -298,27 +299,45 @@ def _united(part: np.ndarray) -> list[float] | None:
     return [float(part[:, 0].min()), float(part[:, 1].min()), float(part[:, 2].max()), float(part[:, 3].max()), score]
 
 
-def coverage(boxes: np.ndarray, view: ExpectedView) -> float:
+def coverage(boxes: np.ndarray, view: ExpectedView, image: np.ndarray | None = None) -> float:
     """The share of the projected string's samples inside the frame from the first to the last
-    that lies in a box of ``boxes`` ((M, 4|5) pixels) widened by COVER_TOLERANCE of the long side;
-    0 without samples in the frame or none in a box."""
+    that lies in a box of ``boxes`` ((M, 4|5) pixels) widened by COVER_TOLERANCE of the long side
+    or, given the photo ``image``, shows the string's shed pattern learned from the boxed samples
+    (:func:`~insulator_rs.perception.shed_pattern.shed_evidence`: the network's boxes stop where
+    the ground lies behind the sheds); 0 without samples in the frame or none in a box."""
     if not view.string_px:
         return 0.0
     uv = np.asarray(view.string_px, dtype=np.float64)
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < view.width) & (uv[:, 1] >= 0) & (uv[:, 1] < view.height)
     if not inside.any() or len(boxes) == 0:
         return 0.0
-    uv = uv[inside]
     tol = COVER_TOLERANCE * max(view.width, view.height)
     b = boxes[:, :4]
     hit = ((uv[:, None, 0] >= b[None, :, 0] - tol) & (uv[:, None, 0] <= b[None, :, 2] + tol)
            & (uv[:, None, 1] >= b[None, :, 1] - tol) & (uv[:, None, 1] <= b[None, :, 3] + tol))
-    hit = np.asarray(hit.any(axis=1), dtype=bool)
+    hit = np.asarray(hit.any(axis=1), dtype=bool) & inside
     if not hit.any():
         return 0.0
+    if image is not None and not hit[inside].all() and 0 < view.gsd_mm < math.inf:
+        hit = _with_shed_evidence(image, uv, hit, STRING_DIAMETER / (1e-3 * view.gsd_mm)) & inside
+    hit = hit[inside]
     # end to end: a shed the network missed between two it boxed is still the string where planned
     idx = np.flatnonzero(hit)
     return float((idx[-1] - idx[0] + 1) / hit.shape[0])
+
+
+def _with_shed_evidence(image: np.ndarray, uv: np.ndarray, boxed: np.ndarray, diameter_px: float) -> np.ndarray:
+    """:func:`~insulator_rs.perception.shed_pattern.shed_evidence` on the grey crop around the
+    projected string (the strip and its windows reach at most 2 diameters past it): a bounded
+    cost on a 12 MP photo."""
+    margin = 2.0 * (1.0 + PERIOD_RANGE[1] * WINDOW_PERIODS) * diameter_px
+    h, w = image.shape[:2]
+    x1, y1 = (max(0, int(math.floor(float(uv[:, k].min()) - margin))) for k in (0, 1))
+    x2, y2 = min(w, int(math.ceil(float(uv[:, 0].max()) + margin)) + 1), min(h, int(math.ceil(float(uv[:, 1].max()) + margin)) + 1)
+    if x2 - x1 < 3 or y2 - y1 < 3:
+        return boxed
+    grey = _crop_grey(image, (x1, y1, x2, y2)).astype(np.float32)
+    return shed_evidence(grey, uv - np.array([x1, y1]), boxed, diameter_px)
 
 
 def _framing(view: ExpectedView) -> tuple[list[Reason], list[str], float, list[float | None]]:
@@ -361,7 +380,7 @@ def check_boxes(image: np.ndarray, boxes: np.ndarray, view: ExpectedView) -> Pho
     clip = view.in_frame()
     part = _in_corridor(b, view)
     if clip is not None:
-        cover = coverage(b, view)
+        cover = coverage(b, view, image)
         if len(b) == 0:
             reasons.append(Reason.NOT_DETECTED)
         elif cover < MIN_COVERAGE:
