@@ -125,6 +125,10 @@ class LegFollower:
             self.legs_refused += counted
             raise
         self.legs_bent += counted and seg.detours > 0
+        if counted:
+            for bend in seg.bends:
+                self.pilot.say(f"[{self.pilot.now():7.1f} s] leg to {np.round(items[-1].position, 1).tolist()}: "
+                               f"{bend.describe()}")
         return FlownLeg(self, seg, seen)
 
     def record(self) -> dict[str, Any]:
