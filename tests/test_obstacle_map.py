@@ -15,7 +15,8 @@ from insulator_rs.planning.obstacle_map import GROUND_BAND, ObstacleMap, SeenVol
 from insulator_rs.planning.safety import OrientedBox, SafetyVolumes
 from insulator_rs.sim.scene import SceneError, load_scene
 
-from helpers.flights import ARGS, small_scene
+from helpers.flights import ARGS, POLE, POLE_END, POLE_RADIUS, POLE_START, small_scene
+from helpers.reference_safety import cylinder_clearance
 
 VOXEL = 0.4
 DIAGONAL = np.sqrt(3.0) * VOXEL  # the map's distances are within one voxel diagonal of the truth
@@ -121,26 +122,10 @@ def test_bad_scene_obstacles_are_named(tmp_path):
             load_scene(scene)
 
 
-# A distribution pole beside the small scene's far-side pass (1 m across from its line, 15 m
-# high), outside the tower's safety box and conductor corridors: the tower model does not hold it.
-POLE_START = np.array([-8.0, 6.0, 0.0])
-POLE_END = np.array([-8.0, 6.0, 15.0])
-POLE_RADIUS = 0.15
-POLE = f"""
-[[obstacles]]
-name = "distribution pole"
-start = {POLE_START.tolist()}
-end = {POLE_END.tolist()}
-radius = {POLE_RADIUS}
-"""
-
-
 def _pole_clearance(out):
     """The flown trajectory's least distance (m) to the pole's true surface."""
     rows = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3))
-    d = POLE_END - POLE_START
-    t = np.clip((rows - POLE_START) @ d / (d @ d), 0.0, 1.0)
-    return float(np.min(np.linalg.norm(rows - (POLE_START + t[:, None] * d), axis=1)) - POLE_RADIUS)
+    return float(np.min(cylinder_clearance(rows, POLE_START, POLE_END, POLE_RADIUS)))
 
 
 def _fly_beside_the_pole(tmp_path, *extra):
