@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -30,11 +31,16 @@ from helpers.reference_safety import cylinder_clearance, inside_any, polyline_sa
 from insulator_rs.evaluation.fault_matrix import Structure
 from insulator_rs.exceptions import ObstacleBlocked
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
+from insulator_rs.flight.pilot import CONTROL_PERIOD
+from insulator_rs.flight.safe_exit import SafeExit
 from insulator_rs.mission.config import load_mission
+from insulator_rs.mission.geometry import MissionGeometry
+from insulator_rs.mission.state_machine import AbortContext
 from insulator_rs.planning.abort import AbortCase, leg_trajectory, plan_abort_route
 from insulator_rs.planning.obstacle_map import ObstacleMap, SeenVolumes
 from insulator_rs.planning.safety import safety_volumes
 from insulator_rs.sim.flight_assembly import simulated_ports
+from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.mission_airframe import kinematic_vehicle
 from insulator_rs.sim.sensors import kinematic_true_pose
 from insulator_rs.sim.towers import load_tower
@@ -169,3 +175,75 @@ def test_an_abort_beside_a_pole_the_tower_model_lacks_flies_round_it(tmp_path):
     assert mesh >= margin
     assert ab["bends"], "the way back out was not bent round the pole"
     assert np.linalg.norm(np.array(ab["bends"][0]["obstacle"])[:2] - POLE_START[:2]) < 0.6, ab["bends"]
+
+
+# -- the map grows on the way out: stop, and plan the rest of the leg again ---------------------
+class _Pilot:
+    """The loop as the safe exit sees it, reduced to an in-process airframe that stands beside
+    tower B's arm in offboard; ``on_tick(state)`` runs after every tick (the LiDAR's survey)."""
+
+    def __init__(self, on_tick):
+        self.vehicle = KinematicVehicle(start_position=BESIDE_ARM, ground_z=0.0)
+        self.vehicle.send_setpoint(BESIDE_ARM)
+        self.vehicle.arm()
+        self.vehicle.start_offboard()
+        self.on_tick = on_tick
+        self.failsafe, self.airborne = None, True
+        self.sm = SimpleNamespace(aborted=AbortContext("operator", 0.0, -1, BACK_TO))
+        self.said: list[str] = []
+        self.path: list[np.ndarray] = []
+        self.landed = False
+
+    def tick(self, position, velocity, yaw):
+        self.vehicle.send_setpoint(position, velocity, yaw)
+        st = self.vehicle.advance(CONTROL_PERIOD)
+        self.path.append(self.vehicle.true_pose_at(st.time)[:3, 3].copy())
+        self.on_tick(st)
+        return st
+
+    def say(self, text):
+        self.said.append(text)
+
+    def now(self):
+        return self.vehicle.state().time
+
+    def write_summary(self):
+        pass
+
+    def land(self):
+        self.landed = True
+
+
+@pytest.mark.slow
+def test_an_obstacle_seen_on_the_rest_of_the_way_out_stops_the_vehicle_and_it_goes_round():
+    geom = MissionGeometry.from_mission(MISSION)
+    obstacles = ObstacleMap(known=geom.volumes, ground_z=0.0)
+    along = BACK_TO - BESIDE_ARM
+    across = np.array([-along[1], along[0], 0.0]) / np.linalg.norm(along[:2])
+    foot = (BESIDE_ARM + BACK_TO) / 2 + 0.3 * across
+    start, end = np.array([foot[0], foot[1], 0.0]), np.array([foot[0], foot[1], 25.0])
+    seen_when: list[float] = []
+
+    def survey(st):
+        # the LiDAR first sees the pole once the vehicle is a tenth of the way back out
+        if not seen_when and np.linalg.norm(st.position - BESIDE_ARM) > 0.1 * np.linalg.norm(along):
+            seen_when.append(st.time)
+            obstacles.insert(_pole_returns(foot[0], foot[1]))
+
+    pilot = _Pilot(survey)
+    exit_ = SafeExit(pilot, geom, SimpleNamespace(insulators=[]), v_max=V_MAX, a_max=A_MAX, crossing_clearance=3.0,
+                     observer=SimpleNamespace(handed_over=lambda *_: None),
+                     seen=lambda: SeenVolumes.of(geom.volumes, obstacles, MARGIN))
+    exit_.leave()
+    assert seen_when, "the vehicle never got going"
+    assert exit_.handed_over is None and pilot.landed, pilot.said
+    path = np.array(pilot.path)
+    clearance = cylinder_clearance(path, start, end, RADIUS)
+    print(f"true clearance to the pole seen late: {clearance.min():.2f} m")
+    assert clearance.min() >= MARGIN, f"{clearance.min():.2f} m from the pole"
+    assert not inside_any(VOL, path).any()
+    assert any("the LiDAR sees an obstacle on the rest of leg 1 of the way out" in s for s in pilot.said), pilot.said
+    assert any("bent round the obstacle the LiDAR saw at" in s for s in pilot.said), pilot.said
+    route = exit_.route
+    assert route is not None and route.bends and route.bends[0].leg == 0
+    assert np.linalg.norm(path[-1, :2] - BACK_TO[:2]) < 0.3 and path[-1, 2] == pytest.approx(2.0, abs=0.3)

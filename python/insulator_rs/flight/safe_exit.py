@@ -4,8 +4,10 @@ conductor corridors, or hold and hand the vehicle to the pilot.
 The route is :mod:`insulator_rs.planning.abort`'s, planned from what the state machine knew (on
 across over the tower where a crossing was heading, back out beside an arm where a detour
 began), checked against the LiDAR's obstacle map as the mission's legs are: a leg that comes
-within the safety margin of an obstacle seen is bent round it, and each leg is checked again
-against the map as it stands when the leg is flown (it grows on the way). Where no route can be
+within the safety margin of an obstacle seen is bent round it, each leg is checked again against
+the map as it stands when it is flown, and, while it is flown, a map that gained occupied voxels
+on its rest stops the vehicle, and the rest of that leg is planned again from there, bent round
+what is seen now (at most MAX_REPLANS times a leg). Where no route can be
 planned (the map's refusals included: why a hold then, :mod:`insulator_rs.planning.abort`), or
 the vehicle stops taking setpoints on it, the vehicle holds in the autopilot's HOLD and the pilot
 is told: never a blind descent. Nothing is flown while a vehicle failsafe has the vehicle (the
@@ -20,12 +22,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from enum import Enum
 from typing import Any
 
 import numpy as np
 
 from insulator_rs.exceptions import PlanningError, VehicleError
-from insulator_rs.flight.leg_follower import follow
+from insulator_rs.flight.leg_follower import follow, rest_blocked
 from insulator_rs.flight.pilot import LAND_HEIGHT, Pilot
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.planning.abort import (AbortCase, AbortRoute, bent_round_the_map, leg_trajectory,
@@ -39,6 +42,17 @@ from insulator_rs.ports.vehicle import FlightMode
 from insulator_rs.tracking.registry import InsulatorRegistry
 
 OFFBOARD_WARMUP = 0.5  # s of setpoints streamed before asking for OFFBOARD (PX4 wants a stream)
+# times one leg of the way out is stopped and planned again as the map grows on it: a map that
+# keeps finding more on the way (a tree line seen branch by branch) hands the vehicle to the pilot
+MAX_REPLANS = 5
+
+
+class LegEnd(Enum):
+    """How flying one trajectory of the way out ended."""
+
+    FLOWN = "flown"  # to its end
+    LEFT = "left"  # the vehicle stopped taking setpoints (handed over) or a failsafe has it
+    BLOCKED = "blocked"  # the obstacle map now blocks its rest: stop, and plan the rest again
 
 
 class SafeExit:
@@ -100,7 +114,7 @@ class SafeExit:
         yaw = st.yaw
         try:
             stop = plan_stop(self.geom.volumes, st.position, st.velocity, self.a_max)
-            if stop is not None and offboard and not self._fly(stop, yaw):
+            if stop is not None and offboard and self._fly(stop, yaw) is not LegEnd.FLOWN:
                 return
             route = self.route_from(pilot.vehicle.state().position)
         except PlanningError as exc:
@@ -117,6 +131,18 @@ class SafeExit:
         if not offboard and not self._take_offboard():
             return
         for i in range(len(route.legs)):
+            flown = self._fly_leg(route, i, yaw)
+            if flown is None:
+                return
+            route = flown
+        pilot.land()
+
+    def _fly_leg(self, route: AbortRoute, i: int, yaw: float) -> AbortRoute | None:
+        """Fly leg ``i`` of ``route``, checked against the map as it is now, stopped and planned
+        again from where the vehicle is whenever the map comes to block its rest; the route as
+        flown (also :attr:`route`), or None (the vehicle handed over, unless a failsafe has it)
+        when the leg cannot be flown to its end."""
+        for _ in range(MAX_REPLANS + 1):
             try:
                 # the map grew while the legs before were flown: this leg is checked (and bent)
                 # against it as it is now, the route kept as flown in the summary
@@ -126,10 +152,28 @@ class SafeExit:
                                       v_max=self.v_max, a_max=self.a_max, dt=SAFETY_CHECK_DT)
             except PlanningError as exc:
                 self.hand_over(f"no safe trajectory along the route out: {exc}")
-                return
-            if not self._fly(traj, yaw):
-                return
-        pilot.land()
+                return None
+            end = self._fly(traj, yaw, seen)
+            if end is not LegEnd.BLOCKED:
+                return route if end is LegEnd.FLOWN else None
+            # the rest of the leg from where the vehicle stops: straight to the leg's end, bent
+            # round what the map holds now by the next round's check
+            st = self.pilot.vehicle.state()
+            self.pilot.say(f"[{self.pilot.now():7.1f} s] abort: the LiDAR sees an obstacle on the rest of leg "
+                           f"{i + 1} of the way out: stopping and planning it again")
+            try:
+                stop = plan_stop(self.geom.volumes, st.position, st.velocity, self.a_max)
+            except PlanningError as exc:
+                self.hand_over(f"no safe stop on the route out: {exc}")
+                return None
+            if stop is not None and self._fly(stop, yaw) is not LegEnd.FLOWN:
+                return None
+            here = self.pilot.vehicle.state().position.copy()
+            rest = np.stack([here, route.legs[i][-1]])
+            route = self.route = replace(route, legs=route.legs[:i] + (rest,) + route.legs[i + 1:])
+        self.hand_over(f"the LiDAR kept finding obstacles on leg {i + 1} of the route out "
+                       f"({MAX_REPLANS} re-plans)")
+        return None
 
     def _checked_again(self, route: AbortRoute, i: int) -> AbortRoute:
         """``route`` with its leg ``i`` bent round the obstacle map as it is now (unchanged where it
@@ -146,16 +190,23 @@ class SafeExit:
         for bend in route.bends[first:]:
             self.pilot.say(f"[{self.pilot.now():7.1f} s] abort: {bend.describe()}")
 
-    def _fly(self, traj: MinSnapTrajectory, yaw: float) -> bool:
-        """Fly one trajectory of the way out; False (and the vehicle handed over, unless a
-        failsafe has it) when the vehicle stops taking setpoints on the way."""
-        for _, st in follow(self.pilot, traj, lambda: yaw):
+    def _fly(self, traj: MinSnapTrajectory, yaw: float, seen: SeenVolumes | None = None) -> LegEnd:
+        """Fly one trajectory of the way out; LEFT (and the vehicle handed over, unless a failsafe
+        has it) when the vehicle stops taking setpoints on the way; BLOCKED when ``seen``'s map
+        gains occupied voxels that block the trajectory's rest (None: not watched)."""
+        obstacles = None if seen is None else seen.obstacles
+        checked = -1 if obstacles is None else obstacles.version
+        for t, st in follow(self.pilot, traj, lambda: yaw):
             if self.pilot.failsafe is not None:
-                return False
+                return LegEnd.LEFT
             if not st.healthy or st.mode != FlightMode.OFFBOARD.value:
                 self.hand_over(st.fault or f"the vehicle left offboard on the way out (mode {st.mode})")
-                return False
-        return True
+                return LegEnd.LEFT
+            if seen is not None and obstacles is not None and obstacles.version != checked:
+                checked = obstacles.version
+                if rest_blocked(traj, t, seen, self.v_max):
+                    return LegEnd.BLOCKED
+        return LegEnd.FLOWN
 
     def _take_offboard(self) -> bool:
         """Back into offboard for the way out (setpoints streamed here first, as PX4 wants);
