@@ -30,13 +30,16 @@ from helpers.reference_safety import cylinder_clearance, inside_any, polyline_sa
 
 from insulator_rs.evaluation.fault_matrix import Structure
 from insulator_rs.exceptions import ObstacleBlocked
+from insulator_rs.flight.energy_budget import EnergyBudget
+from insulator_rs.flight.leg_follower import LegFollower
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
-from insulator_rs.flight.pilot import CONTROL_PERIOD
+from insulator_rs.flight.pilot import CONTROL_PERIOD, LAND_HEIGHT
 from insulator_rs.flight.safe_exit import SafeExit
 from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
-from insulator_rs.mission.state_machine import AbortContext
+from insulator_rs.mission.state_machine import AbortContext, PlanItem
 from insulator_rs.planning.abort import AbortCase, leg_trajectory, plan_abort_route
+from insulator_rs.planning.exploration import PlanKind
 from insulator_rs.planning.obstacle_map import ObstacleMap, SeenVolumes
 from insulator_rs.planning.safety import safety_volumes
 from insulator_rs.sim.flight_assembly import simulated_ports
@@ -247,3 +250,68 @@ def test_an_obstacle_seen_on_the_rest_of_the_way_out_stops_the_vehicle_and_it_go
     route = exit_.route
     assert route is not None and route.bends and route.bends[0].leg == 0
     assert np.linalg.norm(path[-1, :2] - BACK_TO[:2]) < 0.3 and path[-1, 2] == pytest.approx(2.0, abs=0.3)
+
+
+# -- the battery reserve's return and the landing approach -------------------------------------
+def test_the_reserve_weighs_the_way_out_as_bent_round_the_map():
+    """The reserve's return is the abort's route (flight/energy_budget.py): with the pole on the
+    way back out, the distance it weighs is the bent route's, corner to corner (numpy here)."""
+    along = BACK_TO - BESIDE_ARM
+    foot = (BESIDE_ARM + BACK_TO) / 2 + 0.3 * np.array([-along[1], along[0], 0.0]) / np.linalg.norm(along[:2])
+    seen = _seen(_pole_returns(foot[0], foot[1]))
+    geom = MissionGeometry.from_mission(MISSION)
+    budget = EnergyBudget(geom, v_max=V_MAX, a_max=A_MAX, reserve=0.25, crossing_clearance=3.0,
+                          way_out=lambda p: plan_abort_route(LINE, VOL, p, toward_side=-1, back_to=BACK_TO,
+                                                             seen=seen, **PLAN))
+    straight = _back_out(None)
+    bent = _back_out(seen)
+    corners = np.vstack([BESIDE_ARM] + [leg[1:] for leg in bent.legs])
+    length = float(np.sum(np.linalg.norm(np.diff(corners, axis=0), axis=1)))
+    straight_length = float(np.sum([np.linalg.norm(leg[-1] - leg[0]) for leg in straight.legs]))
+    way = budget.way_out_demand(BESIDE_ARM)
+    assert length > straight_length + 0.1, "the bend is longer than the straight way"
+    assert way.distance_m == pytest.approx(length + PLAN["land_height"])  # and the touchdown's 2 m
+
+
+class _LegPilot:
+    """What a leg follower asks of the loop: the vehicle, the clock, the log."""
+
+    def __init__(self, position):
+        self.vehicle = KinematicVehicle(start_position=position, ground_z=0.0)
+        self.said: list[str] = []
+
+    def say(self, text):
+        self.said.append(text)
+
+    def now(self):
+        return self.vehicle.state().time
+
+
+def test_the_landing_approach_is_bent_round_the_map_or_refused_as_a_leg():
+    """The landing approach (the loop's leg to LAND_HEIGHT above the landing point) is a leg: bent
+    round a pole between the vehicle and the landing point, and logged naming the pole; refused
+    when the pole stands by the landing point (the loop then aborts and the way out lands clear)."""
+    geom = MissionGeometry.from_mission(MISSION)
+    above = geom.takeoff + np.array([0.0, 0.0, LAND_HEIGHT])
+    outward = np.array([*geom.takeoff[:2], 0.0]) / np.linalg.norm(geom.takeoff[:2])  # away from the tower
+    start_at = above + 12.0 * outward + np.array([0.0, 0.0, 8.0])
+    foot = (start_at + above) / 2
+    lim, p = MISSION.vehicle, MISSION.inspection
+    for pole_at, bent in ((foot, True), (above + np.array([0.0, 1.0, 0.0]), False)):
+        pilot = _LegPilot(start_at)
+        follower = LegFollower(pilot, geom, v_max=lim.v_max(), a_max=lim.a_max(), clearance=p.crossing_clearance,
+                               margin=p.safety_margin, time_allocation="pmm", obstacle_map=True)
+        follower.obstacles.insert(_pole_returns(pole_at[0], pole_at[1]))
+        item = PlanItem(PlanKind.LAND, above, 0.0, 1)
+        if not bent:
+            with pytest.raises(ObstacleBlocked, match=r"lies within the safety margin of an obstacle the LiDAR saw at"):
+                follower.plan([item])
+            assert follower.record()["legs_refused"] == 1
+            continue
+        leg = follower.plan([item])
+        assert leg.segment.bends and follower.record()["legs_bent"] == 1
+        assert any("bent round the obstacle the LiDAR saw at" in s for s in pilot.said), pilot.said
+        _, flown, _ = leg.trajectory.sample(0.01)
+        start, end = np.array([*pole_at[:2], 0.0]), np.array([*pole_at[:2], 25.0])
+        assert cylinder_clearance(flown, start, end, RADIUS).min() >= MARGIN
+        assert np.allclose(flown[-1], above, atol=1e-6)
