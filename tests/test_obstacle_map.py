@@ -11,7 +11,7 @@ import pytest
 
 from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ObstacleBlocked, ObstacleMapError
-from insulator_rs.planning.obstacle_map import GROUND_BAND, ObstacleMap, SeenVolumes, clear_polyline
+from insulator_rs.planning.obstacle_map import GROUND_BAND, ObstacleMap, SeenVolumes, bend_polyline
 from insulator_rs.planning.safety import OrientedBox, SafetyVolumes
 from insulator_rs.sim.scene import SceneError, load_scene
 
@@ -102,12 +102,14 @@ def test_a_blocked_leg_is_bent_round_the_pole_and_a_waypoint_at_it_is_refused():
     space, pole = _pole_space()
     leg = np.array([[-8.0, 0.3, 6.0], [8.0, 0.3, 6.0]])
     assert not space.polyline_clear(leg)
-    bent = clear_polyline(leg, space)
+    bent, bends = bend_polyline(leg, space)
     assert len(bent) > 2 and space.polyline_clear(bent)
+    assert [b.segment for b in bends] == [0] and bends[0].points == len(bent) - 2
+    assert bends[0].obstacle is not None and np.linalg.norm(bends[0].obstacle[:2]) < VOXEL  # the pole, at 0, 0
     for a, b in zip(bent[:-1], bent[1:]):
         assert _segment_distance(a, b, pole, step=0.05) >= 2.0  # the true clearance, not the map's
     with pytest.raises(ObstacleBlocked, match="within the safety margin of an obstacle the LiDAR saw"):
-        clear_polyline(np.array([[-8.0, 0.0, 6.0], [1.0, 0.0, 6.0]]), space)
+        bend_polyline(np.array([[-8.0, 0.0, 6.0], [1.0, 0.0, 6.0]]), space)
 
 
 def test_bad_scene_obstacles_are_named(tmp_path):

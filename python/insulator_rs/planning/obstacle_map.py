@@ -22,11 +22,11 @@ planned path is also checked against what was seen.
 :class:`SeenVolumes` is the safety volumes with the map added: the same checks
 (``points_clear``, ``segments_clear``, ``polyline_clear``, ``samples_clear``), so every planner
 that takes the volumes (min-snap refinement, the routes) checks the map too, with the
-mission's safety margin kept from every occupied voxel. :func:`clear_polyline` bends a
-polyline round what the map holds, or refuses it: the one rule for every path flown, the legs
-of the mission (:mod:`insulator_rs.planning.segments`) and the abort's way out
-(:mod:`insulator_rs.planning.abort`) alike; :func:`bend_polyline` also says which segment was
-bent round which obstacle, for the log.
+mission's safety margin kept from every occupied voxel. :func:`bend_polyline` bends a polyline
+round what the map holds, or refuses it, and says which segment was bent round which obstacle
+(for the log): the one rule for every path flown, the legs of the mission
+(:mod:`insulator_rs.planning.segments`) and the abort's way out (:mod:`insulator_rs.planning.abort`)
+alike.
 """
 
 from __future__ import annotations
@@ -340,8 +340,3 @@ def bend_polyline(points: np.ndarray, space: SeenVolumes,
         out.extend(bend)
         out.append(b)
     return np.array(out), tuple(bends)
-
-
-def clear_polyline(points: np.ndarray, space: SeenVolumes, slack: float = DETOUR_SLACK) -> np.ndarray:
-    """:func:`bend_polyline`'s polyline (the bends not asked for)."""
-    return bend_polyline(points, space, slack)[0]
