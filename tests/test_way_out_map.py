@@ -15,6 +15,10 @@ never the map's own distances.
   stands beside the far-side inspection visit; the operator aborts at the visit's last
   waypoint; the way back out goes round the pole, and the airframe's true trajectory keeps the
   mission's margin from the pole and from the whole true mesh.
+* The map growing on the way out (the safe exit flying an in-process airframe): the pole first
+  seen a tenth of the way back stops the vehicle, and the rest of the leg goes round it.
+* The battery reserve weighs the bent way out; the landing approach at the mission's end is a
+  leg, bent round a pole or refused by one beside the landing point.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import pytest
 from helpers.flights import POLE, POLE_END, POLE_RADIUS, POLE_START, small_scene
 from helpers.reference_safety import cylinder_clearance, inside_any, polyline_samples
 
+from insulator_rs.app.inspect_command import MISSIONS_DIR
 from insulator_rs.evaluation.fault_matrix import Structure
 from insulator_rs.exceptions import ObstacleBlocked
 from insulator_rs.flight.energy_budget import EnergyBudget
@@ -47,7 +52,6 @@ from insulator_rs.sim.kinematics import KinematicVehicle
 from insulator_rs.sim.mission_airframe import kinematic_vehicle
 from insulator_rs.sim.sensors import kinematic_true_pose
 from insulator_rs.sim.towers import load_tower
-from insulator_rs.app.inspect_command import MISSIONS_DIR
 
 MISSION = load_mission(MISSIONS_DIR / "tower_b.toml")
 LINE = MISSION.line()
@@ -60,6 +64,15 @@ RADIUS = 0.15
 # beside tower B's arm (1 m from its box), and where the detour left the exploration path
 BESIDE_ARM = LINE.to_world(np.array([0.0, -7.5, 16.0]))
 BACK_TO = LINE.to_world(np.array([3.0, -14.5, 16.0]))
+
+
+def _pole_on_the_way_back() -> tuple[np.ndarray, np.ndarray]:
+    """The axis (start, end) of a 25 m pole half-way back out from beside the arm, 0.3 m off the
+    straight way (across it, horizontally)."""
+    along = BACK_TO - BESIDE_ARM
+    across = np.array([-along[1], along[0], 0.0]) / np.linalg.norm(along[:2])
+    foot = (BESIDE_ARM + BACK_TO) / 2 + 0.3 * across
+    return np.array([foot[0], foot[1], 0.0]), np.array([foot[0], foot[1], 25.0])
 
 
 def _pole_returns(x: float, y: float, height: float = 25.0, radius: float = RADIUS) -> np.ndarray:
@@ -80,11 +93,8 @@ def _back_out(seen: SeenVolumes | None):
 
 
 def test_a_way_out_past_a_pole_the_map_holds_is_bent_clear_of_the_margin():
-    # the pole half-way back, 0.3 m off the straight way out (across it, horizontally)
-    along = BACK_TO - BESIDE_ARM
-    across = np.array([-along[1], along[0], 0.0]) / np.linalg.norm(along[:2])
-    foot = (BESIDE_ARM + BACK_TO) / 2 + 0.3 * across
-    start, end = np.array([foot[0], foot[1], 0.0]), np.array([foot[0], foot[1], 25.0])
+    start, end = _pole_on_the_way_back()
+    foot = start
     straight = _back_out(None)
     assert straight.case == AbortCase.BACK_OUT and not straight.bends
     assert cylinder_clearance(polyline_samples(straight.legs[0]), start, end, RADIUS).min() < MARGIN, \
@@ -221,15 +231,13 @@ class _Pilot:
 def test_an_obstacle_seen_on_the_rest_of_the_way_out_stops_the_vehicle_and_it_goes_round():
     geom = MissionGeometry.from_mission(MISSION)
     obstacles = ObstacleMap(known=geom.volumes, ground_z=0.0)
-    along = BACK_TO - BESIDE_ARM
-    across = np.array([-along[1], along[0], 0.0]) / np.linalg.norm(along[:2])
-    foot = (BESIDE_ARM + BACK_TO) / 2 + 0.3 * across
-    start, end = np.array([foot[0], foot[1], 0.0]), np.array([foot[0], foot[1], 25.0])
+    start, end = _pole_on_the_way_back()
+    foot = start
     seen_when: list[float] = []
 
     def survey(st):
         # the LiDAR first sees the pole once the vehicle is a tenth of the way back out
-        if not seen_when and np.linalg.norm(st.position - BESIDE_ARM) > 0.1 * np.linalg.norm(along):
+        if not seen_when and np.linalg.norm(st.position - BESIDE_ARM) > 0.1 * np.linalg.norm(BACK_TO - BESIDE_ARM):
             seen_when.append(st.time)
             obstacles.insert(_pole_returns(foot[0], foot[1]))
 
@@ -256,8 +264,7 @@ def test_an_obstacle_seen_on_the_rest_of_the_way_out_stops_the_vehicle_and_it_go
 def test_the_reserve_weighs_the_way_out_as_bent_round_the_map():
     """The reserve's return is the abort's route (flight/energy_budget.py): with the pole on the
     way back out, the distance it weighs is the bent route's, corner to corner (numpy here)."""
-    along = BACK_TO - BESIDE_ARM
-    foot = (BESIDE_ARM + BACK_TO) / 2 + 0.3 * np.array([-along[1], along[0], 0.0]) / np.linalg.norm(along[:2])
+    foot, _ = _pole_on_the_way_back()
     seen = _seen(_pole_returns(foot[0], foot[1]))
     geom = MissionGeometry.from_mission(MISSION)
     budget = EnergyBudget(geom, v_max=V_MAX, a_max=A_MAX, reserve=0.25, crossing_clearance=3.0,
