@@ -54,7 +54,7 @@ class Observer:
 def _exit(pilot, insulators=()):
     registry = SimpleNamespace(insulators=list(insulators))
     return SafeExit(pilot, geom=None, registry=registry, v_max=np.ones(3), a_max=np.ones(3), crossing_clearance=3.0,
-                    observer=Observer())
+                    observer=Observer(), seen=lambda: None)
 
 
 def _wp(side):

@@ -11,11 +11,12 @@ import pytest
 
 from insulator_rs.app.cli import main
 from insulator_rs.exceptions import ObstacleBlocked, ObstacleMapError
-from insulator_rs.planning.obstacle_map import GROUND_BAND, ObstacleMap, SeenVolumes, clear_polyline
+from insulator_rs.planning.obstacle_map import GROUND_BAND, ObstacleMap, SeenVolumes, bend_polyline
 from insulator_rs.planning.safety import OrientedBox, SafetyVolumes
 from insulator_rs.sim.scene import SceneError, load_scene
 
-from helpers.flights import ARGS, small_scene
+from helpers.flights import ARGS, POLE, POLE_END, POLE_RADIUS, POLE_START, small_scene
+from helpers.reference_safety import cylinder_clearance
 
 VOXEL = 0.4
 DIAGONAL = np.sqrt(3.0) * VOXEL  # the map's distances are within one voxel diagonal of the truth
@@ -101,12 +102,14 @@ def test_a_blocked_leg_is_bent_round_the_pole_and_a_waypoint_at_it_is_refused():
     space, pole = _pole_space()
     leg = np.array([[-8.0, 0.3, 6.0], [8.0, 0.3, 6.0]])
     assert not space.polyline_clear(leg)
-    bent = clear_polyline(leg, space)
+    bent, bends = bend_polyline(leg, space)
     assert len(bent) > 2 and space.polyline_clear(bent)
+    assert [b.segment for b in bends] == [0] and bends[0].points == len(bent) - 2
+    assert bends[0].obstacle is not None and np.linalg.norm(bends[0].obstacle[:2]) < VOXEL  # the pole, at 0, 0
     for a, b in zip(bent[:-1], bent[1:]):
         assert _segment_distance(a, b, pole, step=0.05) >= 2.0  # the true clearance, not the map's
     with pytest.raises(ObstacleBlocked, match="within the safety margin of an obstacle the LiDAR saw"):
-        clear_polyline(np.array([[-8.0, 0.0, 6.0], [1.0, 0.0, 6.0]]), space)
+        bend_polyline(np.array([[-8.0, 0.0, 6.0], [1.0, 0.0, 6.0]]), space)
 
 
 def test_bad_scene_obstacles_are_named(tmp_path):
@@ -121,26 +124,10 @@ def test_bad_scene_obstacles_are_named(tmp_path):
             load_scene(scene)
 
 
-# A distribution pole beside the small scene's far-side pass (1 m across from its line, 15 m
-# high), outside the tower's safety box and conductor corridors: the tower model does not hold it.
-POLE_START = np.array([-8.0, 6.0, 0.0])
-POLE_END = np.array([-8.0, 6.0, 15.0])
-POLE_RADIUS = 0.15
-POLE = f"""
-[[obstacles]]
-name = "distribution pole"
-start = {POLE_START.tolist()}
-end = {POLE_END.tolist()}
-radius = {POLE_RADIUS}
-"""
-
-
 def _pole_clearance(out):
     """The flown trajectory's least distance (m) to the pole's true surface."""
     rows = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3))
-    d = POLE_END - POLE_START
-    t = np.clip((rows - POLE_START) @ d / (d @ d), 0.0, 1.0)
-    return float(np.min(np.linalg.norm(rows - (POLE_START + t[:, None] * d), axis=1)) - POLE_RADIUS)
+    return float(np.min(cylinder_clearance(rows, POLE_START, POLE_END, POLE_RADIUS)))
 
 
 def _fly_beside_the_pole(tmp_path, *extra):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from insulator_rs.evaluation import fault_matrix
 
 REPO = Path(__file__).resolve().parents[2]
@@ -23,3 +25,17 @@ ARGS = ["--detect-period", "0.5", "--detect-scale", "0.2", "--photo-scale", "0.2
         "--detector", "standin"]  # flight logic under test: the ground-truth stand-in, named
 
 
+
+# A distribution pole beside the small scene's far-side pass (1 m across from its line, 15 m
+# high), outside the tower's safety box and conductor corridors: the tower model does not hold it.
+# Append POLE to the scene file.
+POLE_START = np.array([-8.0, 6.0, 0.0])
+POLE_END = np.array([-8.0, 6.0, 15.0])
+POLE_RADIUS = 0.15
+POLE = f"""
+[[obstacles]]
+name = "distribution pole"
+start = {POLE_START.tolist()}
+end = {POLE_END.tolist()}
+radius = {POLE_RADIUS}
+"""

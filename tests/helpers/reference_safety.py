@@ -36,3 +36,24 @@ def inside_any(volumes: SafetyVolumes, points: np.ndarray) -> np.ndarray:
     """Inside a box: over its footprint and below its top."""
     return (footprint_distance(volumes, points) <= 0.0) & (points[:, 2] <= volumes.top) \
         & (points[:, 2] >= -GROUND_DEPTH)
+
+
+def cylinder_clearance(points: np.ndarray, start: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
+    """Distance (m) of each point (N, 3) from the surface of the solid cylinder round the axis
+    ``start`` -> ``end`` of ``radius`` (0 inside): the axis's exact point-to-segment distance less
+    the radius, computed here, not by the planner's method. A scene's obstacle is a polygon
+    inscribed in that circle, so its true surface is never nearer than this."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    d = end - start
+    t = np.clip((p - start) @ d / (d @ d), 0.0, 1.0)
+    return np.maximum(np.linalg.norm(p - (start + t[:, None] * d), axis=1) - radius, 0.0)
+
+
+def polyline_samples(points: np.ndarray, step: float = 0.01) -> np.ndarray:
+    """The straight polyline through ``points`` (K, 3) sampled at most ``step`` m apart, ends included."""
+    p = np.asarray(points, dtype=np.float64)
+    out = [p[:1]]
+    for a, b in zip(p[:-1], p[1:]):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / step)), 1)
+        out.append(a + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a))
+    return np.concatenate(out)

@@ -78,7 +78,7 @@ class EnergyBudget:
         here = np.asarray(here, dtype=np.float64)
         try:
             route = self.way_out(here)
-            way = [here] + [leg[1] for leg in route.legs]
+            way = [here] + [point for leg in route.legs for point in leg[1:]]  # bent legs: every corner
         except PlanningError:
             up = max(here[2], self.geom.volumes.top + self.crossing_clearance)
             home = np.asarray(self.geom.takeoff, dtype=np.float64)

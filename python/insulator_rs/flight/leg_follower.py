@@ -45,6 +45,15 @@ def follow(pilot: Pilot, traj: MinSnapTrajectory,
         yield t, st
 
 
+def rest_blocked(traj: MinSnapTrajectory, t: float, seen: SeenVolumes, v_max: np.ndarray) -> bool:
+    """Whether ``seen`` (the map as it is now) blocks the rest of ``traj`` from its time ``t`` on,
+    sampled as the planner checks it (SAFETY_CHECK_DT, at the limits' speed ``v_max``): the one
+    re-check of a trajectory being flown, for the mission's legs and the abort's way out alike."""
+    times = np.append(np.arange(t, traj.total_time, SAFETY_CHECK_DT), traj.total_time)
+    reach = float(np.linalg.norm(v_max)) * SAFETY_CHECK_DT
+    return not seen.samples_clear(traj.evaluate(times, 0), reach)
+
+
 class FlownLeg:
     """A planned leg being flown: its segment, and the map's version its rest was last checked at."""
 
@@ -72,9 +81,7 @@ class FlownLeg:
         if traj is None or self.seen is None or obstacles is None or obstacles.version == self._checked:
             return False
         self._checked = obstacles.version
-        times = np.append(np.arange(t, traj.total_time, SAFETY_CHECK_DT), traj.total_time)
-        reach = float(np.linalg.norm(self.follower.v_max)) * SAFETY_CHECK_DT
-        return not self.seen.samples_clear(traj.evaluate(times, 0), reach)
+        return rest_blocked(traj, t, self.seen, self.follower.v_max)
 
 
 class LegFollower:
@@ -125,6 +132,10 @@ class LegFollower:
             self.legs_refused += counted
             raise
         self.legs_bent += counted and seg.detours > 0
+        if counted:
+            for bend in seg.bends:
+                self.pilot.say(f"[{self.pilot.now():7.1f} s] leg to {np.round(items[-1].position, 1).tolist()}: "
+                               f"{bend.describe()}")
         return FlownLeg(self, seg, seen)
 
     def record(self) -> dict[str, Any]:

@@ -118,7 +118,7 @@ class FlightLoop:
                                 time_allocation=settings.time_allocation, obstacle_map=settings.obstacle_map,
                                 **limits)
         self.exit = SafeExit(self, geom, self.registry, crossing_clearance=p.crossing_clearance,
-                             observer=self.observer, **limits)
+                             observer=self.observer, seen=self.legs.seen, **limits)
         self.energy = EnergyBudget(geom, reserve=p.battery_reserve, crossing_clearance=p.crossing_clearance,
                                    way_out=self.exit.route_from, **limits)
         self.abort_policy = AbortPolicy(self, self.runner, self.energy, max_flight_time=settings.max_flight_time)

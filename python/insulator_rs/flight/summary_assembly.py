@@ -63,19 +63,22 @@ class SummaryAssembly:
 
     def abort_record(self, reason: str | None, t_start: float) -> dict[str, Any] | None:
         """summary.json's ``abort``: why and when, the way out (its case, landing point in W and
-        WGS-84, side, legs), the hand-over and what the plan still held; None without an abort."""
+        WGS-84, side, legs, the legs bent round the LiDAR's obstacle map and round what), the
+        hand-over (the map's refusal named there) and what the plan still held; None without an
+        abort."""
         ctx = self.sm.aborted
         if ctx is None:
             return None
         route = self.exit.route
         record: dict[str, Any] = {"reason": reason or ctx.reason, "time_s": ctx.time - t_start,
                                   "route": None, "landing_point": None, "landing_wgs84": None, "side": None,
-                                  "legs": [], "handed_over": self.exit.handed_over, "left": self.exit.left}
+                                  "legs": [], "bends": [], "handed_over": self.exit.handed_over,
+                                  "left": self.exit.left}
         if route is not None:
             lat, lon, alt = enu_to_geodetic(route.landing, self.origin)[0]
             record.update(route=route.case.value, landing_point=route.landing.tolist(),
                           landing_wgs84=[float(lat), float(lon), float(alt)], side=route.side,
-                          legs=[leg.tolist() for leg in route.legs])
+                          legs=[leg.tolist() for leg in route.legs], bends=[b.as_record() for b in route.bends])
         return record
 
 

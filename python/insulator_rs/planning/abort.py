@@ -15,21 +15,36 @@ vehicle's side of the tower (:func:`plan_abort_route`):
   nowhere known to go back to, straight out from the line plane;
 * anywhere else on a side (an exploration pass, the climb): straight down.
 
-Every leg is checked exactly against the safety volumes; PlanningError when none can be found
-(inside a volume, unable to stop before one, no clear way out): the caller then holds and hands
-over to the pilot, never descends blind.
+Every leg is checked exactly against the safety volumes, then, where the LiDAR's obstacle map is
+kept, against what it saw outside them by the rule the mission's legs follow
+(:func:`~insulator_rs.planning.obstacle_map.bend_polyline`): a leg that comes within the safety
+margin of an obstacle seen is bent round it (across, up, or both; never down), the bends named in
+:attr:`AbortRoute.bends`. PlanningError when no route can be found (inside a volume, unable to
+stop before one, no clear way out, a leg no bend clears, the landing column or a corner of the
+route within the margin of an obstacle seen): the caller then holds and hands over to the pilot,
+never descends blind.
+
+Why a hold, and not another way round, when the map refuses the route: the obstacle was seen on
+the very way out the rules above chose as the safest from here (the way the vehicle came, on
+across over the tower, straight down clear of the footprints). Every other way (PX4's Return
+straight home at its altitude, a landing in place) knows nothing of the obstacle or goes through
+what the route was chosen to avoid; the vehicle holding where it is, clear of everything (it flew
+there on checked legs), with the pilot told where the obstacle is, is what a pilot expects from an
+automatic that cannot see its way.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
-from insulator_rs.exceptions import PlanningError
+from insulator_rs.exceptions import ObstacleBlocked, PlanningError
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.minsnap import MinSnapTrajectory, plan_min_snap_safe, stop_trajectory
+from insulator_rs.planning.obstacle_map import Bend, SeenVolumes, bend_polyline
 from insulator_rs.planning.safety import SafetyVolumes
 
 # m: horizontal distance from every safety volume's footprint that a landing column keeps (the
@@ -54,15 +69,32 @@ class AbortCase(str, Enum):
 
 
 @dataclass(frozen=True)
+class RouteBend:
+    """A leg of the way out bent round an obstacle the LiDAR saw: ``leg`` its index in the route
+    (0: the first), ``bend`` which of its segments, round what, with how many points."""
+
+    leg: int
+    bend: Bend
+
+    def describe(self) -> str:
+        return f"leg {self.leg + 1}: {self.bend.describe()}"
+
+    def as_record(self) -> dict[str, Any]:
+        return {"leg": self.leg, **self.bend.as_record()}
+
+
+@dataclass(frozen=True)
 class AbortRoute:
-    """``legs``: straight legs (each (2, 3), W) flown one after the other from rest to rest,
-    the last ending ``land_height`` above ``landing`` (W, on the ground) where the vehicle's
-    own landing takes over; empty when it is there already. ``side``: the landing's side."""
+    """``legs``: legs (each (K, 3), W: straight, K = 2, or bent round what the LiDAR saw) flown
+    one after the other from rest to rest, the last ending ``land_height`` above ``landing`` (W,
+    on the ground) where the vehicle's own landing takes over; empty when it is there already.
+    ``side``: the landing's side. ``bends``: the legs bent round the obstacle map, in order."""
 
     case: AbortCase
     legs: tuple[np.ndarray, ...]
     landing: np.ndarray
     side: int
+    bends: tuple[RouteBend, ...] = ()
 
 
 #: m: distances compared to a clearance tolerate this much rounding.
@@ -104,13 +136,16 @@ def _way_off(volumes: SafetyVolumes, start: np.ndarray, direction: np.ndarray, c
 
 def plan_abort_route(line: LineFrame, volumes: SafetyVolumes, position: np.ndarray, *, toward_side: int,
                      back_to: np.ndarray | None, ground_z: float, land_height: float,
-                     crossing_clearance: float, clearance: float = LANDING_CLEARANCE) -> AbortRoute:
+                     crossing_clearance: float, clearance: float = LANDING_CLEARANCE,
+                     seen: SeenVolumes | None = None) -> AbortRoute:
     """The safe route from ``position`` (W, at rest) to the nearest landing point on the
     vehicle's side (see the module docstring). ``toward_side`` (+1/-1): where an interrupted
     crossing was going; ``back_to`` (W): where the detour the vehicle is in left the exploration
     path (None outside a detour); ``ground_z``: the ground's height in W (the take-off point's);
     ``land_height``: m above the ground where the vehicle's own landing starts;
-    ``crossing_clearance``: m above the volumes' top at which sides are crossed."""
+    ``crossing_clearance``: m above the volumes' top at which sides are crossed; ``seen``: the
+    volumes with the LiDAR's obstacle map, the legs bent round what it holds (None: the safety
+    volumes only). ObstacleBlocked (a PlanningError) when the map refuses the route."""
     p = np.asarray(position, dtype=np.float64).reshape(3)
     if not volumes.points_clear(p[None])[0]:
         raise PlanningError(f"abort: the vehicle at {np.round(p, 2).tolist()} is inside a safety volume")
@@ -159,10 +194,34 @@ def plan_abort_route(line: LineFrame, volumes: SafetyVolumes, position: np.ndarr
     # other way (1.9999999999999982 for 2.0: the derandomized CI profile found it over the axis)
     if float(volumes.footprint_distance(landing[None])[0]) < clearance - DISTANCE_EPS:
         raise PlanningError("abort: no landing point clear of the safety volumes")
-    return AbortRoute(case, tuple(legs), landing, side)
+    if seen is None:
+        return AbortRoute(case, tuple(legs), landing, side)
+    return bent_round_the_map(AbortRoute(case, tuple(legs), landing, side), seen)
+
+
+def bent_round_the_map(route: AbortRoute, seen: SeenVolumes, *, only: int | None = None) -> AbortRoute:
+    """``route`` with each leg (``only``: that leg alone) checked against the obstacle map in
+    ``seen`` and bent round what it holds, by the mission's legs' rule
+    (:func:`~insulator_rs.planning.obstacle_map.bend_polyline`; a bend never goes down, so over
+    the tower a leg stays at its height or above); the new bends appended to the route's.
+    ObstacleBlocked naming the leg, the segment or waypoint and where the obstacle was seen, when
+    no bend clears a leg or a point of it (the vehicle's position, a corner, the landing column's
+    foot) lies within the margin: the route is refused (the caller holds, see the module
+    docstring)."""
+    legs = list(route.legs)
+    bends: list[RouteBend] = []
+    for i in range(len(legs)) if only is None else (only,):
+        try:
+            legs[i], leg_bends = bend_polyline(legs[i], seen)
+        except ObstacleBlocked as exc:
+            raise ObstacleBlocked(f"abort: leg {i + 1} of the way out ({route.case}): {exc}") from exc
+        bends.extend(RouteBend(i, b) for b in leg_bends)
+    return replace(route, legs=tuple(legs), bends=route.bends + tuple(bends))
 
 
 def leg_trajectory(leg: np.ndarray, volumes: SafetyVolumes, *, v_max: np.ndarray, a_max: np.ndarray,
                    dt: float) -> MinSnapTrajectory:
-    """The min-snap, safety-checked trajectory of one straight leg, from rest to rest."""
+    """The min-snap, safety-checked trajectory of one leg (straight, or bent round the obstacle
+    map: pass the :class:`~insulator_rs.planning.obstacle_map.SeenVolumes` then, so the curve is
+    checked against the map too), from rest to rest."""
     return plan_min_snap_safe(leg, v_max, a_max, volumes, dt=dt)

@@ -22,8 +22,11 @@ planned path is also checked against what was seen.
 :class:`SeenVolumes` is the safety volumes with the map added: the same checks
 (``points_clear``, ``segments_clear``, ``polyline_clear``, ``samples_clear``), so every planner
 that takes the volumes (min-snap refinement, the routes) checks the map too, with the
-mission's safety margin kept from every occupied voxel. :func:`clear_polyline` bends a
-polyline round what the map holds.
+mission's safety margin kept from every occupied voxel. :func:`bend_polyline` bends a polyline
+round what the map holds, or refuses it, and says which segment was bent round which obstacle
+(for the log): the one rule for every path flown, the legs of the mission
+(:mod:`insulator_rs.planning.segments`) and the abort's way out (:mod:`insulator_rs.planning.abort`)
+alike.
 """
 
 from __future__ import annotations
@@ -145,6 +148,17 @@ class ObstacleMap:
         d, _ = self._tree.query(p.reshape(-1, 3))
         return np.maximum(np.asarray(d).reshape(p.shape[:-1]) - self.half_diagonal, 0.0)
 
+    def nearest(self, points_w: np.ndarray) -> np.ndarray:
+        """The centre (3,) W of the occupied voxel nearest to any of ``points_w`` (N, 3): where
+        the obstacle that a path came closest to was seen (named in the log). ObstacleMapError
+        when the map holds no occupied voxel."""
+        p = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+        self._refresh()
+        if self._tree is None:
+            raise ObstacleMapError("nearest: the map holds no occupied voxel")
+        d, k = self._tree.query(p)
+        return np.array(self._centres[int(np.asarray(k).reshape(-1)[int(np.argmin(d))])])
+
     def points_clear(self, points_w: np.ndarray, margin: float) -> np.ndarray:
         """True for each W point (..., 3) at least ``margin`` m from every occupied voxel."""
         return self.clearance(points_w) >= margin
@@ -225,9 +239,7 @@ def _bend(a: np.ndarray, b: np.ndarray, space: SeenVolumes, depth: int) -> list[
         return None
     # push the point of the segment closest to what was seen away from it; a via point keeps
     # DETOUR_SLACK from the boxes too (the curve through it swings out a little either way)
-    n = max(int(np.ceil(np.linalg.norm(b - a) / (space.obstacles.voxel / 2))), 1)
-    samples = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
-    near = samples[int(np.argmin(space.obstacles.clearance(samples)))]
+    near = _closest_approach(a, b, space.obstacles)
     reach = space.margin + 2 * space.obstacles.half_diagonal
     vias = [near + s * reach * u for s in DETOUR_STEPS for u in _detour_directions(a, b)]
     vias = [v for v in vias if space.points_clear(v[None], inflate=DETOUR_SLACK)[0]]
@@ -249,29 +261,82 @@ def _bend(a: np.ndarray, b: np.ndarray, space: SeenVolumes, depth: int) -> list[
     return None
 
 
+def _closest_approach(a: np.ndarray, b: np.ndarray, obstacles: ObstacleMap) -> np.ndarray:
+    """The point of the segment ``a`` -> ``b`` (sampled half a voxel apart) nearest to what the
+    map holds."""
+    n = max(int(np.ceil(np.linalg.norm(b - a) / (obstacles.voxel / 2))), 1)
+    samples = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+    return samples[int(np.argmin(obstacles.clearance(samples)))]
+
+
+def _seen_near(a: np.ndarray, b: np.ndarray, obstacles: ObstacleMap | None) -> np.ndarray | None:
+    """Where the map saw what the segment ``a`` -> ``b`` comes nearest to: the centre (W) of that
+    occupied voxel; None without a map or with an empty one (only the boxes then)."""
+    if obstacles is None or not len(obstacles.occupied_centres()):
+        return None
+    return obstacles.nearest(_closest_approach(a, b, obstacles))
+
+
+def _where(point: np.ndarray) -> str:
+    return str(np.round(point, 1).tolist())
+
+
+def _at(point: np.ndarray | None) -> str:
+    return "" if point is None else f" at {_where(point)}"
+
+
 def _length(points: list[np.ndarray]) -> float:
     return float(np.sum(np.linalg.norm(np.diff(np.array(points), axis=0), axis=1)))
 
 
-def clear_polyline(points: np.ndarray, space: SeenVolumes, slack: float = DETOUR_SLACK) -> np.ndarray:
+@dataclass(frozen=True)
+class Bend:
+    """One segment of a polyline bent round what the map holds: ``segment`` its index in the
+    polyline given (0: the first), ``start``/``end`` its ends, ``obstacle`` the centre (W) of the
+    occupied voxel the straight segment came nearest to (None: the map holds none; the boxes
+    alone bent it), ``points`` the via points added."""
+
+    segment: int
+    start: np.ndarray
+    end: np.ndarray
+    obstacle: np.ndarray | None
+    points: int
+
+    def describe(self) -> str:
+        """One line for the log and the summary."""
+        return (f"segment {_where(self.start)} -> {_where(self.end)} bent round the obstacle the LiDAR "
+                f"saw{_at(self.obstacle)} ({self.points} point{'s' if self.points != 1 else ''} added)")
+
+    def as_record(self) -> dict[str, Any]:
+        return {"segment": self.segment, "start": self.start.tolist(), "end": self.end.tolist(),
+                "obstacle": None if self.obstacle is None else self.obstacle.tolist(), "points_added": self.points}
+
+
+def bend_polyline(points: np.ndarray, space: SeenVolumes,
+                  slack: float = DETOUR_SLACK) -> tuple[np.ndarray, tuple[Bend, ...]]:
     """``points`` (K, 3) with detour points inserted wherever a segment comes closer than the
     margin to what the map holds: for each such segment, its point closest to the map pushed
     across, up or both, the shortest clear bend first; the bends keep ``slack`` m beyond the
-    margin (the boxes are kept as they are). ObstacleBlocked (a PlanningError), naming the segment, when no bend
-    clears it (the leg is refused) or a point itself is within the margin."""
+    margin (the boxes are kept as they are). With the segments bent (:class:`Bend`, in order).
+    ObstacleBlocked (a PlanningError), naming the segment or the waypoint and where the obstacle
+    was seen, when no bend clears a segment (the path is refused) or a point itself is within the
+    margin."""
     p = np.asarray(points, dtype=np.float64)
     blocked = ~space.points_clear(p)
     if np.any(blocked):
         i = int(np.flatnonzero(blocked)[0])
-        raise ObstacleBlocked(f"waypoint {np.round(p[i], 1).tolist()} lies within the safety margin of "
-                            f"an obstacle the LiDAR saw")
+        raise ObstacleBlocked(f"waypoint {_where(p[i])} lies within the safety margin of "
+                              f"an obstacle the LiDAR saw{_at(_seen_near(p[i], p[i], space.obstacles))}")
     wide = SeenVolumes(space.boxes, space.top, space.obstacles, space.margin + slack)
     out = [p[0]]
-    for a, b in zip(p[:-1], p[1:]):
+    bends: list[Bend] = []
+    for k, (a, b) in enumerate(zip(p[:-1], p[1:])):
         bend = [] if space.segments_clear(a[None], b[None])[0] else _bend(a, b, wide, DETOUR_DEPTH)
         if bend is None:
-            raise ObstacleBlocked(f"segment {np.round(a, 1).tolist()} -> {np.round(b, 1).tolist()}: no detour "
-                                f"round the obstacle the LiDAR saw")
+            raise ObstacleBlocked(f"segment {_where(a)} -> {_where(b)}: no detour round the obstacle the LiDAR "
+                                  f"saw{_at(_seen_near(a, b, space.obstacles))}")
+        if bend:
+            bends.append(Bend(k, a.copy(), b.copy(), _seen_near(a, b, space.obstacles), len(bend)))
         out.extend(bend)
         out.append(b)
-    return np.array(out)
+    return np.array(out), tuple(bends)

@@ -11,7 +11,7 @@ import numpy as np
 
 from insulator_rs.geodesy import LineFrame
 from insulator_rs.planning.minsnap import MinSnapTrajectory, plan_min_snap_safe
-from insulator_rs.planning.obstacle_map import SeenVolumes, clear_polyline
+from insulator_rs.planning.obstacle_map import Bend, SeenVolumes, bend_polyline
 from insulator_rs.planning.routes import route
 from insulator_rs.planning.safety import SafetyVolumes
 
@@ -36,6 +36,7 @@ class Segment:
     trajectory: MinSnapTrajectory | None
     item_times: list[float]
     detours: int = 0  # points added to bend the route round obstacles of the map
+    bends: tuple[Bend, ...] = ()  # the route's segments bent round the map, and round what
 
 
 def polyline(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, items: Sequence[Target],
@@ -67,8 +68,9 @@ def plan_segment(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, vel
     if len(pts) < 2:
         return Segment(None, [])
     planned = len(pts)
+    bends: tuple[Bend, ...] = ()
     if seen is not None:
-        pts = clear_polyline(pts, seen)
+        pts, bends = bend_polyline(pts, seen)
     traj = plan_min_snap_safe(pts, v_max, a_max, volumes if seen is None else seen, dt=SAFETY_CHECK_DT,
                               v_start=velocity,
                               max_deviation=MAX_PATH_DEVIATION, time_allocation=time_allocation)
@@ -80,4 +82,4 @@ def plan_segment(line: LineFrame, volumes: SafetyVolumes, start: np.ndarray, vel
         while j < len(traj.waypoints) and np.linalg.norm(traj.waypoints[j] - it.position) > 1e-6:
             j += 1
         item_times.append(float(knots[min(j, len(knots) - 1)]))
-    return Segment(traj, item_times, len(pts) - planned)
+    return Segment(traj, item_times, len(pts) - planned, bends)
