@@ -16,7 +16,7 @@ string is there), then asks each unboxed stretch of the projection for the same 
    stretch repeats less than :data:`MIN_REPEAT` (a string whose sheds do not show as a pattern);
 3. outward from the boxed stretch, sample by sample, each unboxed sample of the projection holds
    the string while the profile within :data:`WINDOW_PERIODS` periods of it repeats at that
-   period by at least :data:`MIN_REPEAT` and its contrast keeps at least :data:`MIN_ENERGY_STEP`
+   period by at least :data:`MIN_CONTINUE` and its contrast keeps at least :data:`MIN_ENERGY_STEP`
    of the previous sample's (the first that does not ends the string there).
 
 Why: on tower B's 12 MP close-ups the shipped network boxes the sheds against the sky and stops
@@ -37,6 +37,12 @@ from scipy.ndimage import median_filter
 #: Normalized autocorrelation at the shed period that counts as the string's pattern (the boxed
 #: stretch of a good 12 MP close-up repeats at 0.6-1.0; past the string's end -0.5..0.1).
 MIN_REPEAT = 0.5
+#: The repetition a window past the boxed stretch must keep to go on: lower than the learned
+#: stretch's, since a member of the lattice behind the string or the conductor clamp at its end
+#: shares the window (tower B's good close-ups: 0.2-0.4 over the lowest sheds, against the ground
+#: with the tower's leg behind); a window with no string at its centre is refused by
+#: :data:`MIN_ENERGY_STEP`.
+MIN_CONTINUE = 0.3
 #: Half-width of the window each sample is judged on, in shed periods (a window holds 2.5 periods:
 #: enough pairs for a steady figure, short enough to end near where the string ends).
 WINDOW_PERIODS = 1.25
@@ -152,7 +158,7 @@ def shed_evidence(grey: np.ndarray, string_px: np.ndarray, boxed: np.ndarray,
     def holds(i: int, before: float) -> bool:
         lo, hi = max(0, int(at[i] - half)), min(len(profile), int(at[i] + half) + 1)
         r, pairs = _repeat(profile[lo:hi], period) if hi - lo > period else (0.0, 0)
-        return (pairs >= MIN_PAIRS_PERIODS * period and r >= MIN_REPEAT
+        return (pairs >= MIN_PAIRS_PERIODS * period and r >= MIN_CONTINUE
                 and energy(i) >= MIN_ENERGY_STEP * before)
 
     # outward from the boxed stretch, sample by sample, while the pattern holds: the string goes
