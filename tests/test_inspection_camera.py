@@ -241,3 +241,78 @@ def test_a_rig_without_an_inspection_camera_flies_as_before(tmp_path):
     assert all("focal_length_px" not in p and p["camera"]["fx"] == pytest.approx(140.0) for p in photos)
     exif = Image.open(out / photos[0]["file"]).getexif()
     assert exif[0x0110] == "simulated camera"
+
+
+def _write_cv_calibration(path: Path, fx: float, fy: float, cx: float, cy: float, dist: list[float],
+                          size: tuple[int, int] = (4000, 3000)) -> None:
+    """An OpenCV FileStorage calibration written by cv2 itself (the rig reads it back)."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", size[0])
+    fs.write("image_height", size[1])
+    fs.write("camera_matrix", np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
+    fs.write("distortion_coefficients", np.array([dist]))
+    fs.release()
+
+
+# The widest step is the simulator's (2903.2 px, no distortion); two more steps, as a zoom lens's
+# calibration gives them: the principal point wandering a few pixels, the distortion shrinking.
+STEPS = [(7800.0, 7790.0, 2004.0, 1496.0, [-0.04, 0.01, 0.0, 0.0, 0.0]),
+         (14000.0, 13990.0, 2010.0, 1490.0, [-0.01, 0.002, 0.0, 0.0, 0.0])]
+
+
+def _stepped_rig(tmp_path: Path, steps=STEPS, extra: str = "") -> Path:
+    names = []
+    for i, (fx, fy, cx, cy, dist) in enumerate(steps):
+        _write_cv_calibration(tmp_path / f"step{i}.yaml", fx, fy, cx, cy, dist)
+        names.append(f'"step{i}.yaml"')
+    return write_zoom_rig(tmp_path, f"focal_length_px = [2903.2258, 14000.0]\nzoom_calibrations = [{', '.join(names)}]\n"
+                          + extra)
+
+
+def test_a_calibrated_zoom_step_gives_its_own_intrinsics_and_between_steps_they_are_interpolated(tmp_path):
+    """Reference: each step's calibration as written by cv2, and numpy.interp over the steps' mean
+    focal lengths for every intrinsic between them."""
+    cam = load_rig(_stepped_rig(tmp_path)).inspection
+    wide = cam.camera
+    table = [(wide.fx, wide.fy, wide.cx, wide.cy, list(wide.dist) + [0.0] * (5 - len(wide.dist))), *STEPS]
+    focals = np.array([0.5 * (s[0] + s[1]) for s in table])
+    for f, step in zip(focals, table):  # at a calibrated step: that calibration
+        k = cam.at_focal(float(f))
+        assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx(step[:4], rel=1e-12)
+        np.testing.assert_allclose(list(k.dist)[:5], step[4], atol=1e-15)
+    for f in (4000.0, 5352.0, 9000.0, 13_500.0):
+        k = cam.at_focal(f)
+        assert 0.5 * (k.fx + k.fy) == pytest.approx(f, rel=1e-12)
+        for j, name in ((2, "cx"), (3, "cy")):
+            assert getattr(k, name) == pytest.approx(np.interp(f, focals, [s[j] for s in table]), rel=1e-12)
+        aspect = np.interp(f, focals, [s[0] for s in table]) / np.interp(f, focals, [s[1] for s in table])
+        assert k.fx / k.fy == pytest.approx(aspect, rel=1e-12)
+        for d in range(5):
+            assert list(k.dist)[d] == pytest.approx(np.interp(f, focals, [s[4][d] for s in table]), abs=1e-15)
+
+
+def test_without_zoom_steps_the_widest_calibration_is_scaled(tmp_path):
+    cam = load_rig(write_zoom_rig(tmp_path, "focal_length_px = [2903.2258, 14000.0]\n")).inspection
+    assert cam.zoom_steps == ()
+    k = cam.at_focal(9000.0)
+    assert k.fx == pytest.approx(9000.0 * cam.camera.fx / (0.5 * (cam.camera.fx + cam.camera.fy)))
+    assert (k.cx, k.cy) == (cam.camera.cx, cam.camera.cy)
+
+
+@pytest.mark.parametrize("steps, extra, message", [
+    ([STEPS[1], STEPS[0]], "", r"zoom_calibrations\[1\].*not longer than"),  # out of order
+    ([(20000.0, 20000.0, 2000.0, 1500.0, [0.0] * 5)], "", r"zoom_calibrations\[0\].*past the zoom"),
+])
+def test_bad_zoom_steps_are_named(tmp_path, steps, extra, message):
+    with pytest.raises(ConfigError, match=message):
+        load_rig(_stepped_rig(tmp_path, steps, extra))
+
+
+def test_a_zoom_step_of_another_image_size_is_named(tmp_path):
+    rig = _stepped_rig(tmp_path)
+    _write_cv_calibration(tmp_path / "step1.yaml", *STEPS[1][:4], STEPS[1][4], size=(1920, 1080))
+    with pytest.raises(ConfigError, match=r"zoom_calibrations\[1\].*1920x1080"):
+        load_rig(rig)
+    bad = write_zoom_rig(tmp_path, 'focal_length_px = [2903.2258, 14000.0]\nzoom_calibrations = "step0.yaml"\n')
+    with pytest.raises(ConfigError, match=r"inspection_camera\.zoom_calibrations: expected a list"):
+        load_rig(bad)

@@ -1,11 +1,18 @@
 """The inspection camera: a zoom (or fixed-lens) camera on a 3-axis gimbal, apart from the
 detection camera (the paper flew a GoPro on a gimbal beside its Basler detection camera).
 
-Its calibration is taken at the widest zoom. At a focal length ``f`` px (the mean of fx and
-fy) the intrinsics are the calibration's with fx and fy scaled by ``f / f_min`` about the same
-principal point and the same distortion coefficients: a zoom lens keeps its optical centre
-within a few pixels and its distortion shrinks as it zooms in, so keeping the widest's
-coefficients errs on the side of more distortion (the simulator's lens has none).
+Its calibration is taken at the widest zoom, and, for a zoom lens, may be taken at more zoom
+steps (the rig's ``zoom_calibrations``): no real lens keeps its principal point and distortion
+through its range. At a focal length ``f`` px (the mean of fx and fy):
+
+* between two calibrated steps, every intrinsic (fx, fy, cx, cy, the distortion coefficients) is
+  interpolated linearly in ``f`` between the two, and fx and fy are then scaled together so that
+  their mean is ``f`` (it is already, to rounding: both are linear in ``f``);
+* past the longest calibrated step (or with the widest calibration alone), the nearest step's
+  intrinsics with fx and fy scaled by ``f / f_step`` about the same principal point and the same
+  distortion coefficients: a zoom lens keeps its optical centre within a few pixels and its
+  distortion shrinks as it zooms in, so keeping the wider step's coefficients errs on the side of
+  more distortion (the simulator's lens has none).
 
 The gimbal stabilises roll and pitch (the camera stays level whatever the airframe's tilt), is
 aimed in pitch and in yaw relative to the body heading, within :class:`GimbalLimits`.
@@ -55,6 +62,8 @@ class InspectionCamera:
     model: str | None = None
     pixel_pitch_um: float | None = None
     dedicated: bool = True
+    #: intrinsics calibrated at further zoom steps, longer than ``camera``'s, shortest first
+    zoom_steps: tuple[CameraModel, ...] = ()
 
     @property
     def zoom(self) -> bool:
@@ -70,9 +79,11 @@ class InspectionCamera:
         lo, hi = self.focal_px
         if not (math.isfinite(focal_px) and lo * (1 - FOCAL_TOLERANCE) <= focal_px <= hi * (1 + FOCAL_TOLERANCE)):
             raise ValueError(f"focal_px: {focal_px!r} px is outside the zoom range [{lo:.1f}, {hi:.1f}] px")
-        c = self.camera
-        k = self.clamp_focal(focal_px) / (0.5 * (c.fx + c.fy))
-        return CameraModel(c.fx * k, c.fy * k, c.cx, c.cy, c.width, c.height, dist=[float(d) for d in c.dist])
+        return intrinsics_at(self.calibrated_steps(), self.clamp_focal(focal_px))
+
+    def calibrated_steps(self) -> tuple[CameraModel, ...]:
+        """Every calibrated zoom step, the widest (``camera``) first."""
+        return (self.camera, *self.zoom_steps)
 
     def focal_length_mm(self, focal_px: float) -> float | None:
         """The focal length in mm (px x pixel pitch), None where the pixel pitch is not given."""
@@ -81,3 +92,32 @@ class InspectionCamera:
     def exif(self, focal_px: float) -> dict[str, object]:
         """The EXIF camera fields of a photo taken at ``focal_px``: make, model, focal length (mm)."""
         return {"make": self.make, "model": self.model, "focal_length_mm": self.focal_length_mm(focal_px)}
+
+
+def mean_focal(camera: CameraModel) -> float:
+    """The mean of fx and fy (px): what a zoom step is known by."""
+    return 0.5 * (camera.fx + camera.fy)
+
+
+def intrinsics_at(steps: tuple[CameraModel, ...], focal_px: float) -> CameraModel:
+    """The intrinsics at the mean focal length ``focal_px`` from calibrated zoom ``steps``
+    (shortest first, one image size; the module docstring's rule)."""
+    focals = [mean_focal(c) for c in steps]
+    upper = next((i for i, f in enumerate(focals) if f >= focal_px), len(steps))
+    if upper == 0 or upper == len(steps):  # at or past an end: the nearest step scaled
+        c = steps[0] if upper == 0 else steps[-1]
+        k = focal_px / mean_focal(c)
+        return CameraModel(c.fx * k, c.fy * k, c.cx, c.cy, c.width, c.height, dist=[float(d) for d in c.dist])
+    a, b = steps[upper - 1], steps[upper]
+    t = (focal_px - focals[upper - 1]) / (focals[upper] - focals[upper - 1])
+
+    def lerp(x: float, y: float) -> float:
+        return (1.0 - t) * x + t * y
+
+    fx, fy = lerp(a.fx, b.fx), lerp(a.fy, b.fy)
+    k = focal_px / (0.5 * (fx + fy))
+    da, db = list(a.dist), list(b.dist)
+    n = max(len(da), len(db))
+    da, db = da + [0.0] * (n - len(da)), db + [0.0] * (n - len(db))
+    return CameraModel(fx * k, fy * k, lerp(a.cx, b.cx), lerp(a.cy, b.cy), a.width, a.height,
+                       dist=[lerp(x, y) for x, y in zip(da, db)])

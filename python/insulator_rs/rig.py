@@ -22,6 +22,8 @@ shipped rig such as ``"simulator"``). The form (see ``rigs/simulator.toml``)::
     pixel_pitch_um = 1.55         # sensor pixel size (needed with focal_length_mm)
     focal_length_mm = [4.5, 45.0] # the zoom range; or focal_length_px = [min, max]; neither: fixed lens.
                                   # The wide end must be the calibration's focal length (within 5 %)
+    zoom_calibrations = ["zoom_12mm.yaml", "zoom_45mm.yaml"]  # optional: calibrated at further zoom
+                                  # steps, wide to long; between steps every intrinsic is interpolated
     T_b_c = [[...], ...]          # optional: the camera at zero gimbal angles on a level body
     gimbal_pitch_deg = [-90, 30]  # gimbal limits (degrees; pitch down negative, yaw from the body
     gimbal_yaw_deg = [-30, 30]    # heading, CCW); roll and pitch are stabilised
@@ -56,7 +58,7 @@ from insulator_rs._core import CameraModel
 from insulator_rs._toml import tomllib
 from insulator_rs.calibration import load_calibration
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.inspection_camera import GimbalLimits, InspectionCamera
+from insulator_rs.inspection_camera import GimbalLimits, InspectionCamera, mean_focal
 from insulator_rs.poses import check_pose
 from insulator_rs.textfile import read_config_text
 
@@ -67,7 +69,7 @@ SIMULATOR_RIG = "simulator"
 MID360_VERTICAL_FOV_DEG = (-7.0, 52.0)
 #: The fields of ``[inspection_camera]``.
 INSPECTION_FIELDS = {"calibration", "make", "model", "pixel_pitch_um", "focal_length_px", "focal_length_mm",
-                     "T_b_c", "gimbal_pitch_deg", "gimbal_yaw_deg"}
+                     "T_b_c", "gimbal_pitch_deg", "gimbal_yaw_deg", "zoom_calibrations"}
 #: The zoom range's wide end and the calibration (taken at the widest zoom) may differ this much
 #: (relative): a lens's stated focal length is rounded.
 ZOOM_CALIBRATION_TOLERANCE = 0.05
@@ -291,7 +293,39 @@ def _inspection_camera(source: str, p: Path, t: dict[str, Any]) -> InspectionCam
     assert pitch is not None and yaw is not None
     gimbal = GimbalLimits((math.radians(pitch[0]), math.radians(pitch[1])),
                           (math.radians(yaw[0]), math.radians(yaw[1])))
-    return InspectionCamera(cam, T_b_c, focal, gimbal, lens.make, lens.model, lens.pixel_pitch_um)
+    steps = _zoom_steps(source, p, t, cam, focal)
+    return InspectionCamera(cam, T_b_c, focal, gimbal, lens.make, lens.model, lens.pixel_pitch_um,
+                            zoom_steps=steps)
+
+
+def _zoom_steps(source: str, p: Path, t: dict[str, Any], widest: CameraModel,
+                focal: tuple[float, float]) -> tuple[CameraModel, ...]:
+    """``[inspection_camera] zoom_calibrations``: calibration files (paths relative to the rig
+    file) taken at further zoom steps, each of the widest calibration's image size, their focal
+    lengths rising from past the widest's to at most the zoom range's long end."""
+    if "zoom_calibrations" not in t:
+        return ()
+    key = "inspection_camera.zoom_calibrations"
+    files = t["zoom_calibrations"]
+    if not (isinstance(files, list) and files and all(isinstance(f, str) and f for f in files)):
+        raise ConfigError(f"{source}: {key}: expected a list of calibration files, got {files!r}")
+    steps: list[CameraModel] = []
+    previous = mean_focal(widest)
+    for i, name in enumerate(files):
+        cam = _calibration(source, p, {"calibration": name}, f"{key}[{i}]").camera
+        f = mean_focal(cam)
+        if (cam.width, cam.height) != (widest.width, widest.height):
+            raise ConfigError(f"{source}: {key}[{i}]: {name}: {cam.width}x{cam.height} px, the widest "
+                              f"calibration's is {widest.width}x{widest.height} px")
+        if not f > previous:
+            raise ConfigError(f"{source}: {key}[{i}]: {name}: focal length {f:.1f} px is not longer than "
+                              f"the step before ({previous:.1f} px): list the steps from wide to long")
+        if f > focal[1] * (1 + ZOOM_CALIBRATION_TOLERANCE):
+            raise ConfigError(f"{source}: {key}[{i}]: {name}: focal length {f:.1f} px is past the zoom "
+                              f"range's long end ({focal[1]:.1f} px)")
+        steps.append(cam)
+        previous = f
+    return tuple(steps)
 
 
 def _lidar_fov(source: str, lidar_t: dict[str, Any]) -> tuple[float, float]:
