@@ -3,10 +3,11 @@
 
 use fusion_core::{InsulatorString, StringParams};
 use numpy::{IntoPyArray, PyArray1};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::errors::detach;
-use crate::pyutils::{extract_cloud, frozen_array, vec3_text, with_cloud};
+use crate::pyutils::{extract_cloud, extract_f64_array, format_shape, frozen_array, vec3_text, with_cloud};
 
 /// One insulator string found in a cloud: ``center`` (3,) m and ``axis`` (3,) unit (largest
 /// |component| positive) in the cloud's frame, ``length`` m of the shed stack, ``radius`` m of
@@ -90,6 +91,20 @@ impl PyInsulatorString {
     }
 }
 
+/// The vertical: three numbers (a tuple, a list, an array), refused by name otherwise.
+#[derive(Clone, Copy)]
+struct Up([f64; 3]);
+
+impl<'py> FromPyObject<'py> for Up {
+    fn extract_bound(obj: &Bound<'py, PyAny>) -> PyResult<Self> {
+        let (values, shape) = extract_f64_array(obj, "up")?;
+        match values.as_slice() {
+            [x, y, z] if shape.len() == 1 => Ok(Up([*x, *y, *z])),
+            _ => Err(PyValueError::new_err(format!("up: expected 3 numbers, got shape {}", format_shape(&shape)))),
+        }
+    }
+}
+
 /// The insulator strings in ``points`` ((N,3) float32/float64, m, any horizontal frame),
 /// strongest first; ``up`` is the vertical (3 numbers). An empty or flat cloud gives ``[]``.
 ///
@@ -99,7 +114,7 @@ impl PyInsulatorString {
 #[pyo3(signature = (
     points,
     *,
-    up = [0.0, 0.0, 1.0],
+    up = Up([0.0, 0.0, 1.0]),
     voxel_size = StringParams::default().voxel_size,
     min_length = StringParams::default().min_length,
     max_length = StringParams::default().max_length,
@@ -109,12 +124,13 @@ text_signature = "(points, *, up=(0.0, 0.0, 1.0), voxel_size=0.04, min_length=0.
 fn find_insulator_strings(
     py: Python<'_>,
     points: &Bound<'_, PyAny>,
-    up: [f64; 3],
+    up: Up,
     voxel_size: f64,
     min_length: f64,
     max_length: f64,
     min_score: f64,
 ) -> PyResult<Vec<PyInsulatorString>> {
+    let Up(up) = up;
     let params = StringParams { voxel_size, min_length, max_length, min_score };
     let cloud = extract_cloud(points, "points")?;
     let view = cloud.view()?;
