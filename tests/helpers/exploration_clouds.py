@@ -6,7 +6,9 @@ shipped ``missions/<tower>.toml``) at the mission's horizontal speed limit, faci
 each waypoint says, and casts one simulated Mid-360 frame every ``SURVEY_PERIOD`` s, as the
 flight's obstacle map surveys. Returns farther than ``SURVEY_RANGE`` from the sensor or lower
 than ``GROUND_BAND`` above the ground are dropped, as the map drops them. ``frame_stride`` = 2
-keeps every other frame: half an exploration's density. Deterministic.
+keeps every other frame: half an exploration's density. A shorter ``period`` keeps more of
+the LiDAR's frames (every one at its frame period: about five times the map's density).
+Deterministic.
 """
 
 from __future__ import annotations
@@ -28,10 +30,10 @@ from insulator_rs.sim.towers import Tower, load_tower
 MISSIONS_DIR = Path(insulator_rs.__file__).resolve().parent / "missions"
 
 
-def _survey_poses(geom: MissionGeometry, speed: float) -> list[np.ndarray]:
-    """T_w_b (4x4) every SURVEY_PERIOD s along the exploration path flown at ``speed`` m/s,
+def _survey_poses(geom: MissionGeometry, speed: float, period: float) -> list[np.ndarray]:
+    """T_w_b (4x4) every ``period`` s along the exploration path flown at ``speed`` m/s,
     level, with the yaw of the waypoint each leg flies to."""
-    step = speed * SURVEY_PERIOD
+    step = speed * period
     poses: list[np.ndarray] = []
     carry = 0.0  # m already flown past the last survey on the previous leg
     for a, b in zip(geom.path[:-1], geom.path[1:]):
@@ -50,18 +52,19 @@ def _survey_poses(geom: MissionGeometry, speed: float) -> list[np.ndarray]:
 
 
 @functools.cache
-def _survey_frames(name: str) -> tuple[Tower, tuple[np.ndarray, ...]]:
-    """The tower and the returns (W) of every survey frame of one exploration, in flight order."""
+def _survey_frames(name: str, period: float) -> tuple[Tower, tuple[np.ndarray, ...]]:
+    """The tower and the returns (W) of one frame every ``period`` s of one exploration, in
+    flight order."""
     mission = load_mission(MISSIONS_DIR / f"{name}.toml")
     geom = MissionGeometry.from_mission(mission)
     tower = load_tower(name)
     lidar = Mid360()
     ground_z = float(geom.takeoff[2])
     frames: list[np.ndarray] = []
-    for k, T_w_b in enumerate(_survey_poses(geom, float(mission.vehicle.v_max_horizontal))):
+    for k, T_w_b in enumerate(_survey_poses(geom, float(mission.vehicle.v_max_horizontal), period)):
         if T_w_b[2, 3] < ground_z + GROUND_BAND:  # on the ground at take-off and landing
             continue
-        frame = lidar.scan(tower.mesh, (T_w_b, T_w_b), SURVEY_PERIOD * k, seed=k)
+        frame = lidar.scan(tower.mesh, (T_w_b, T_w_b), period * k, seed=k)
         sensor = (T_w_b @ lidar.T_b_l)[:3, 3]
         pts = frame.points_w
         keep = (np.linalg.norm(pts - sensor, axis=1) <= SURVEY_RANGE) & (pts[:, 2] >= ground_z + GROUND_BAND)
@@ -69,8 +72,10 @@ def _survey_frames(name: str) -> tuple[Tower, tuple[np.ndarray, ...]]:
     return tower, tuple(frames)
 
 
-def exploration_cloud(name: str, frame_stride: int = 1) -> tuple[Tower, np.ndarray]:
+def exploration_cloud(name: str, frame_stride: int = 1, *,
+                      period: float = SURVEY_PERIOD) -> tuple[Tower, np.ndarray]:
     """(tower, (N,3) float64 cloud in W) of one exploration of the shipped tower ``name``,
-    keeping every ``frame_stride``-th survey frame."""
-    tower, frames = _survey_frames(name)
+    keeping every ``frame_stride``-th frame of one every ``period`` s (default: the map's
+    survey period; ``Mid360().frame_period`` keeps every return the flight's LiDAR makes)."""
+    tower, frames = _survey_frames(name, period)
     return tower, np.concatenate(frames[::frame_stride])

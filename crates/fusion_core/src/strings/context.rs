@@ -37,7 +37,12 @@ const SHELL_END_MARGIN: f64 = 0.35;
 const SHELL_MAX_FRACTION: f64 = 0.03;
 const SHELL_MIN_ALLOWED: usize = 3;
 /// For every segment, the length (m) of the line it is a piece of (itself alone: its extent).
-pub(super) fn line_lengths(segments: &[Segment]) -> Vec<f64> {
+/// Only pieces of at least `min_piece` m (their shed stack's length) join lines.
+///
+/// WHY the floor: the two strings of a tension tip are 12 deg apart, too far to continue each
+/// other, but a short piece of the tip's steel between them, 6 deg from each, chained them into
+/// one line; a leg's panels are each as long as a string.
+pub(super) fn line_lengths(segments: &[Segment], min_piece: f64) -> Vec<f64> {
     let n = segments.len();
     let mut parent: Vec<usize> = (0..n).collect();
     fn root(parent: &mut [usize], mut x: usize) -> usize {
@@ -51,7 +56,7 @@ pub(super) fn line_lengths(segments: &[Segment]) -> Vec<f64> {
     for i in 0..n {
         for j in i + 1..n {
             let (a, b) = (&segments[i], &segments[j]);
-            if dot(a.axis, b.axis).abs() < cos_max {
+            if a.length < min_piece || b.length < min_piece || dot(a.axis, b.axis).abs() < cos_max {
                 continue;
             }
             let (along, off) = axial_radial(b.center, a.center, a.axis);
@@ -114,7 +119,7 @@ mod tests {
     use super::*;
 
     fn piece(center: [f64; 3], axis: [f64; 3], half: f64) -> Segment {
-        Segment { center, axis, length: 2.0 * half, extent: (-half, half), radius: 0.1, members: vec![0; 100], contrast: 0.0 }
+        Segment { center, axis, length: 2.0 * half, extent: (-half, half), radius: 0.1, members: vec![0; 100], contrast: 0.0, cuts: Vec::new() }
     }
 
     #[test]
@@ -127,9 +132,12 @@ mod tests {
             piece([1.0, 0.0, 1.0], up, 1.0),   // parallel, 1 m aside
             piece([0.0, 0.0, 5.5], [1.0, 0.0, 0.0], 1.0), // across
         ];
-        let l = line_lengths(&segs);
+        let l = line_lengths(&segs, 0.5);
         assert!((l[0] - 4.5).abs() < 1e-9 && (l[1] - 4.5).abs() < 1e-9, "{l:?}");
         assert!((l[2] - 2.0).abs() < 1e-9 && (l[3] - 2.0).abs() < 1e-9 && (l[4] - 2.0).abs() < 1e-9);
+        // Pieces shorter than the floor join nothing.
+        let l = line_lengths(&segs, 2.5);
+        assert!(l.iter().all(|&x| (x - 2.0).abs() < 1e-9), "{l:?}");
     }
 
     #[test]

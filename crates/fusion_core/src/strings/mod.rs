@@ -178,7 +178,7 @@ pub fn find_insulator_strings<P: PointCloud + ?Sized>(points: &P, up: [f64; 3], 
             seg.members.iter().for_each(|&i| owner[i as usize] = s as u32);
         }
     }
-    let line_lengths = context::line_lengths(&segments);
+    let line_lengths = context::line_lengths(&segments, params.min_length);
 
     let mut found: Vec<InsulatorString> = segments
         .iter()
