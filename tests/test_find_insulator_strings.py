@@ -7,6 +7,9 @@ every survey period (``helpers.exploration_clouds``): the density one exploratio
 the obstacle map, half of it (every other frame), and every frame the LiDAR makes (five times
 the map's density: dense clouds join what sparse ones leave apart).
 
+A generated case adds clutter to tower B: smooth cylinders of a string's size, a twin-conductor
+bundle and a bird-guard spike.
+
 A found string matches a true one when its centre is within MATCH_RADIUS of the truth's centre
 and its axis within MATCH_ANGLE_DEG; each truth takes at most one found string. Tolerances:
 every string found and no false find, at every density; centre error within MATCH_RADIUS
@@ -27,6 +30,7 @@ import insulator_rs as ir
 from insulator_rs._core import MAX_STRING_POINTS, find_insulator_strings_defaults
 from insulator_rs.flight.leg_follower import SURVEY_PERIOD
 from insulator_rs.sim.lidar import Mid360
+from insulator_rs.sim.scene import ObstacleSpec
 from insulator_rs.sim.towers import Tower
 
 MATCH_RADIUS = 0.5  # m
@@ -195,3 +199,35 @@ def _one_string_scene() -> tuple[np.ndarray, np.ndarray]:
         parts.append(np.column_stack([1.0 + r * np.cos(phi), 2.0 + r * np.sin(phi), z]))
     cloud = np.concatenate(parts) + rng.normal(0, 0.005, (19 * 150, 3))
     return np.array([1.0, 2.0, 10.0]), cloud
+
+
+# Clutter added to tower B's scene: two smooth cylinders of a string's size hanging in clear
+# air (what every test but the shed comb would take for a string), a twin-conductor bundle
+# below the lower arms, and a bird-guard spike on an arm tip.
+SMOOTH_DECOYS = (
+    ObstacleSpec("smooth pole, a suspension string's size", (5.6, -1.2, 14.8), (5.6, -1.2, 16.3), 0.1),
+    ObstacleSpec("smooth rod, a tension string's size", (-5.0, 1.0, 12.0), (-4.0, 2.7, 12.2), 0.12),
+)
+CLUTTER = SMOOTH_DECOYS + (
+    ObstacleSpec("bundle conductor a", (-20.0, -27.0, 13.0), (20.0, 27.0, 13.0), 0.015),
+    ObstacleSpec("bundle conductor b", (-19.64, -27.27, 13.0), (20.36, 26.73, 13.0), 0.015),
+    ObstacleSpec("bird guard spike", (3.7, -2.8, 17.2), (3.7, -2.8, 17.9), 0.01),
+)
+
+
+@pytest.mark.slow
+def test_clutter_is_not_taken_for_strings_and_the_shed_comb_is_what_tells() -> None:
+    """Tower B with CLUTTER, one exploration: every string, no false find. With the shed
+    contrast floor off (min_score=0), both smooth decoys come back: they pass every other
+    test, so the shed comb is what rejects them (measured scores 2-4; strings 19-50)."""
+    tower, cloud = exploration_cloud("tower_b", obstacles=CLUTTER)
+    found = ir.find_insulator_strings(cloud)
+    result = score(tower, found)
+    print(result.line(f"tower_b with clutter, {len(cloud)} points"))
+    assert result.recall == 1.0 and result.false == 0, result
+    loose = ir.find_insulator_strings(cloud, min_score=0.0)
+    for decoy in SMOOTH_DECOYS:
+        middle = 0.5 * (np.array(decoy.start) + np.array(decoy.end))
+        nearest = min(loose, key=lambda s: float(np.linalg.norm(s.center - middle)))
+        assert np.linalg.norm(nearest.center - middle) < MATCH_RADIUS, decoy.name
+        assert nearest.score < DEFAULTS["min_score"], (decoy.name, nearest)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,8 @@ from insulator_rs.mission.config import load_mission
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.planning.obstacle_map import GROUND_BAND, SURVEY_RANGE
 from insulator_rs.sim.lidar import Mid360
-from insulator_rs.sim.towers import Tower, load_tower
+from insulator_rs.sim.scene import ObstacleSpec, load_scene
+from insulator_rs.sim.towers import Tower, build_tower
 
 MISSIONS_DIR = Path(insulator_rs.__file__).resolve().parent / "missions"
 
@@ -52,12 +54,14 @@ def _survey_poses(geom: MissionGeometry, speed: float, period: float) -> list[np
 
 
 @functools.cache
-def _survey_frames(name: str, period: float) -> tuple[Tower, tuple[np.ndarray, ...]]:
-    """The tower and the returns (W) of one frame every ``period`` s of one exploration, in
-    flight order."""
+def _survey_frames(name: str, period: float,
+                   obstacles: tuple[ObstacleSpec, ...]) -> tuple[Tower, tuple[np.ndarray, ...]]:
+    """The tower (with ``obstacles`` added to its scene) and the returns (W) of one frame every
+    ``period`` s of one exploration, in flight order."""
     mission = load_mission(MISSIONS_DIR / f"{name}.toml")
     geom = MissionGeometry.from_mission(mission)
-    tower = load_tower(name)
+    scene = load_scene(name)
+    tower = build_tower(replace(scene, obstacles=scene.obstacles + obstacles))
     lidar = Mid360()
     ground_z = float(geom.takeoff[2])
     frames: list[np.ndarray] = []
@@ -72,10 +76,11 @@ def _survey_frames(name: str, period: float) -> tuple[Tower, tuple[np.ndarray, .
     return tower, tuple(frames)
 
 
-def exploration_cloud(name: str, frame_stride: int = 1, *,
-                      period: float = SURVEY_PERIOD) -> tuple[Tower, np.ndarray]:
+def exploration_cloud(name: str, frame_stride: int = 1, *, period: float = SURVEY_PERIOD,
+                      obstacles: tuple[ObstacleSpec, ...] = ()) -> tuple[Tower, np.ndarray]:
     """(tower, (N,3) float64 cloud in W) of one exploration of the shipped tower ``name``,
     keeping every ``frame_stride``-th frame of one every ``period`` s (default: the map's
-    survey period; ``Mid360().frame_period`` keeps every return the flight's LiDAR makes)."""
-    tower, frames = _survey_frames(name, period)
+    survey period; ``Mid360().frame_period`` keeps every return the flight's LiDAR makes);
+    ``obstacles`` (clutter) are added to the scene, not to the mission."""
+    tower, frames = _survey_frames(name, period, obstacles)
     return tower, np.concatenate(frames[::frame_stride])

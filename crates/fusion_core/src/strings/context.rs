@@ -73,13 +73,13 @@ pub(super) fn line_lengths(segments: &[Segment], min_piece: f64) -> Vec<f64> {
             }
         }
     }
+    let roots: Vec<usize> = (0..n).map(|i| root(&mut parent, i)).collect();
     let mut lengths = vec![0.0; n];
     for (i, length) in lengths.iter_mut().enumerate() {
         let a = &segments[i];
         let (mut lo, mut hi) = (a.extent.0, a.extent.1);
-        for j in 0..n {
-            if j != i && root(&mut parent, j) == root(&mut parent, i) {
-                let b = &segments[j];
+        for (j, b) in segments.iter().enumerate() {
+            if j != i && roots[j] == roots[i] {
                 let s = dot(a.axis, b.axis).signum();
                 let (along, _) = axial_radial(b.center, a.center, a.axis);
                 for e in [b.extent.0, b.extent.1] {
@@ -107,7 +107,7 @@ pub(super) fn shell_is_clear(seg: &Segment, cloud: &[[f64; 3]], cells: &Cells, c
     let mut found = 0usize;
     cells.for_each_in_box(lo, hi, |i| {
         let (t, r) = axial_radial(cloud[i], seg.center, seg.axis);
-        if t.abs() <= reach && r >= SHELL_INNER && r <= SHELL_OUTER && counts(i) {
+        if t.abs() <= reach && (SHELL_INNER..=SHELL_OUTER).contains(&r) && counts(i) {
             found += 1;
         }
     });

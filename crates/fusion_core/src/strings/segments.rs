@@ -171,6 +171,7 @@ fn dips(ts: &[f64], extent: (f64, f64)) -> Vec<f64> {
 /// * kept as a segment when it is one line without a gap (radius at most MAX_LINE_RADIUS);
 /// * else split by RANSAC: the best line's inliers, cut at their gaps of more than `eps` (m),
 ///   and the rest, each taken again.
+///
 /// Pieces under `min_points` are dropped; at most MAX_PIECES_PER_CLUSTER pieces are looked at.
 ///
 /// WHY the line split: the fitting between an arm tip and a string's first shed is a short

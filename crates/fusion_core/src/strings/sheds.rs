@@ -21,7 +21,8 @@ pub(super) const MAX_PITCH: f64 = 0.25;
 /// spectrum (about 1 for a uniform segment, tens for a shed stack). 0 for fewer than two bins.
 pub(super) fn shed_contrast(t: &[f64], t0: f64, t1: f64) -> f64 {
     let n = ((t1 - t0) / BIN).floor();
-    if !(n >= 2.0) {
+    // NaN (a non-finite extent) is refused with the short ones.
+    if n.is_nan() || n < 2.0 {
         return 0.0;
     }
     let n = n as usize;
