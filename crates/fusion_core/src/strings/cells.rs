@@ -83,7 +83,7 @@ impl Cells {
         let a = cell_of(&lo, self.side);
         let b = cell_of(&hi, self.side);
         // A box spanning more cells than are occupied is walked by the occupied cells instead.
-        let span = (0..3).map(|k| (b[k] - a[k] + 1).max(0) as u128).product::<u128>();
+        let span = (0..3).map(|k| b[k].saturating_sub(a[k]).saturating_add(1).max(0) as u128).product::<u128>();
         if span > self.members.len() as u128 {
             for (key, idx) in &self.members {
                 if (0..3).all(|k| key[k] >= a[k] && key[k] <= b[k]) {

@@ -320,6 +320,17 @@ mod tests {
         assert!(find_insulator_strings(plane.as_slice(), [0.0, 0.0, 1.0], &StringParams::default()).unwrap().is_empty());
     }
 
+    #[test]
+    fn extreme_coordinates_neither_panic_nor_hang() {
+        let (mut pts, _) = scene([0.0; 3]);
+        pts.push([1e300, -1e300, 1e300]);
+        pts.push([-1e300, 1e300, -1e300]);
+        let found = find_insulator_strings(pts.as_slice(), [0.0, 0.0, 1.0], &StringParams::default()).unwrap();
+        assert!(found.len() <= 1);
+        let far: Vec<[f64; 3]> = (0..100).map(|k| [1e300 * f64::from(k % 2), -1e299, f64::from(k)]).collect();
+        assert!(find_insulator_strings(far.as_slice(), [0.0, 0.0, 1.0], &StringParams::default()).unwrap().is_empty());
+    }
+
     /// A cloud that claims more points than MAX_POINTS without holding them.
     struct Huge;
     impl PointCloud for Huge {
