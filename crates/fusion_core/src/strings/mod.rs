@@ -3,16 +3,22 @@
 //! The cloud (metres, any horizontal frame, `up` given) is thinned to one point per voxel;
 //! every point gets the shape of its neighbourhood (`local_shape`); points whose neighbourhood
 //! is line-like and as thick across as a shed stack (thicker than a wire or a brace, thinner
-//! than a joint) are clustered with DBSCAN; each cluster becomes a segment (`segments`: PCA
-//! axis, the extent of its shed rims, its radius, its shed contrast), and a segment is a
-//! string when
-//! * it shows sheds: points bunched at a shed pitch along the axis (`sheds`);
-//! * it is as long as a string (`min_length..=max_length`) and is not a piece of a longer line
-//!   (a leg cut at its joints);
+//! than a joint) are clustered with DBSCAN; each cluster is cut into straight runs of sheds
+//! (`segments`: at rim gaps and point dips where fittings join two stacks or a stack and its
+//! tip, by RANSAC where an arm and a string form an L), and each run becomes a segment (PCA
+//! axis, the extent of its shed rims, its radius, its shed contrast). A segment is a string when
+//! * it shows sheds: points bunched at a shed pitch along the axis (`sheds`); this is the test
+//!   that rejects smooth cylinders of a string's size, legs, chords and struts;
+//! * its stack is as long as a string (`min_length..=max_length`) and it is not a piece of a
+//!   longer line (a leg cut at its joints);
 //! * the shell round its middle is clear: not a chord webbed into an arm (`context`).
 //!
 //! Submodules: `cells` (voxels, cell buckets), `local_shape`, `segments`, `sheds`, `context`.
 //! Nothing here knows of a camera, a simulator or a flight.
+//!
+//! Measured on the simulator's towers A (12 tension strings, doubled at each tip) and B (4
+//! suspension strings) scanned along the exploration path: every string, no false find, at
+//! 60k-820k points; strings score 19-50, everything else 5.4 at most.
 
 mod cells;
 mod context;
