@@ -18,6 +18,7 @@ mod pyutils;
 mod raycast;
 mod ransac;
 mod resize;
+mod strings;
 mod transform;
 
 #[pymodule]
@@ -35,5 +36,6 @@ fn _core(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     raycast::register(m)?;
     livox::register(m)?;
     resize::register(m)?;
+    strings::register(py, m)?;
     Ok(())
 }

@@ -18,12 +18,14 @@ _Points = NDArray[np.float32] | NDArray[np.float64]
 __all__ = [
     "AmbiguousLocalizationError",
     "CameraModel",
+    "InsulatorString",
     "LineFit",
     "Localization",
     "LivoxScan",
     "LivoxScanAssembler",
     "LivoxReceiver",
     "LocalizationError",
+    "MAX_STRING_POINTS",
     "NEAR_LIMIT",
     "SCALE_TOLERANCE",
     "NOISE",
@@ -34,6 +36,8 @@ __all__ = [
     "dbscan",
     "deskew",
     "deskew_points_in_boxes",
+    "find_insulator_strings",
+    "find_insulator_strings_defaults",
     "localize",
     "livox_decode_command",
     "livox_discovery_request",
@@ -56,6 +60,7 @@ __all__ = [
 NEAR_LIMIT: Final[float]
 SCALE_TOLERANCE: Final[float]
 NOISE: Final[int]
+MAX_STRING_POINTS: Final[int]
 
 @final
 class CameraModel:
@@ -197,6 +202,35 @@ def localize_defaults(method: None = None) -> dict[str, float | int]: ...
 @overload
 def localize_defaults(method: str) -> dict[str, float | int | None]: ...
 def localize_methods() -> list[str]: ...
+@final
+class InsulatorString:
+    """An insulator string found by ``find_insulator_strings`` (m, rad; the cloud's frame)."""
+
+    @property
+    def center(self) -> NDArray[np.float64]: ...
+    @property
+    def axis(self) -> NDArray[np.float64]: ...
+    @property
+    def length(self) -> float: ...
+    @property
+    def radius(self) -> float: ...
+    @property
+    def n_points(self) -> int: ...
+    @property
+    def score(self) -> float: ...
+    @property
+    def elevation(self) -> float: ...
+
+def find_insulator_strings(
+    points: _Points,
+    *,
+    up: tuple[float, float, float] | NDArray[np.float64] = (0.0, 0.0, 1.0),
+    voxel_size: float = ...,
+    min_length: float = ...,
+    max_length: float = ...,
+    min_score: float = ...,
+) -> list[InsulatorString]: ...
+def find_insulator_strings_defaults() -> list[tuple[str, float]]: ...
 
 # --- scene ray casting (src/raycast.rs, the simulator's LiDAR and camera) ---
 

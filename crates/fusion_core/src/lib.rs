@@ -12,6 +12,7 @@ pub mod error;
 pub mod points;
 pub mod projection;
 pub mod resize;
+pub mod strings;
 pub mod transform;
 #[cfg(test)]
 mod test_scenes;
@@ -26,6 +27,7 @@ pub use error::{FusionError, Result};
 pub use points::{collect_finite, FinitePoints, PointCloud, StridedPoints};
 pub use projection::{project_points, Projection};
 pub use resize::resize_linear;
+pub use strings::{find_insulator_strings, InsulatorString, StringParams};
 pub use transform::{chain, rigid_from_matrix};
 pub mod localize;
 pub mod pca;
