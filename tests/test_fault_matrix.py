@@ -11,6 +11,7 @@ client cells fly our simulated PX4 over real UDP. The whole matrix: ``insulator-
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -187,6 +188,43 @@ def test_a_fault_cell_stays_clear_ends_landed_and_is_reported(setup, tmp_path, f
         assert cell.ended.startswith("landed: PX4") and cell.max_altitude_m > 12.0  # PX4 came back over the top
     assert cell.report_names_fault, f"{cell.status} / {cell.reason}"
     assert cell.recording_intact, cell.recording
+
+
+@pytest.mark.slow
+def test_a_companion_process_killed_with_sigkill_mid_inspection_is_flown_home_by_px4(setup, tmp_path):
+    """``insulator-rs inspect --connection`` in a process of its own, against our simulated PX4
+    started here, ended by a real SIGKILL mid-inspection: PX4's offboard loss (COM_OBL_RC_ACT set
+    to Return by that process before take-off) climbs over the tower, returns and lands; the true
+    trajectory keeps the margin from the true mesh, the report stays as the kill left it, the
+    recording reads back up to its last flush."""
+    cell = FM.fly_cell(setup, "process killed", "inspection", MOMENTS["inspection"], tmp_path / "cell")
+    assert cell.ended == "landed: PX4 (RTL)", cell.ended
+    assert cell.clearance_m >= setup.margin, f"{cell.clearance_m} m from the {cell.nearest}"
+    assert cell.max_altitude_m > 12.0  # the return went over the 12 m tower
+    assert cell.status == "running" and cell.recording_intact, cell.recording  # killed by SIGKILL, not ended
+
+
+def test_the_relayed_ground_station_goes_with_the_companion():
+    from insulator_rs.sim.px4_gcs import GcsLink, RelayedGroundStation
+
+    link = GcsLink()
+    gcs = RelayedGroundStation(link.address).start()
+    try:
+        deadline = time.monotonic() + 3.0
+        while link.last_heartbeat is None and time.monotonic() < deadline:
+            link.receive(1, 1)
+            time.sleep(0.05)
+        assert link.last_heartbeat is not None
+        FM._with_the_relay(gcs, lambda: None)()
+        time.sleep(0.1)
+        link.receive(1, 1)
+        heard = link.last_heartbeat
+        time.sleep(1.5)  # more than the HEARTBEAT period
+        link.receive(1, 1)
+        assert link.last_heartbeat == heard
+    finally:
+        gcs.close()
+        link.close()
 
 
 class Unheard:

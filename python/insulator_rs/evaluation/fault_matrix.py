@@ -11,9 +11,15 @@ from each moment:
   middle of the over-the-top crossing), return (the middle of the way home and the landing);
 * faults, each an adapter round a port (:mod:`insulator_rs.sim.faults`): link loss and client
   killed against our simulated PX4 over real UDP (``--vehicle mavlink``: PX4's own failsafes,
-  COM_OF_LOSS_T, COM_OBL_RC_ACT, RTL_RETURN_ALT, take over); the LiDAR silent, the camera frozen,
-  the detector raising, the pack dropping to its reserve, GPS (the position estimate) lost and
-  the operator's abort in process.
+  COM_OF_LOSS_T, COM_OBL_RC_ACT, RTL_RETURN_ALT, NAV_DLL_ACT, take over); the LiDAR silent, the
+  camera frozen, the detector raising, the pack dropping to its reserve, GPS (the position
+  estimate) lost and the operator's abort in process; "process killed": the companion is
+  ``insulator-rs inspect --connection`` in a process of its own, flying our simulated PX4 started
+  here, ended by a real SIGKILL (``kill -9``);
+* the MAVLink cells have a ground station on PX4's GCS link, relayed by the companion
+  (:class:`~insulator_rs.sim.px4_gcs.RelayedGroundStation`): the companion sets NAV_DLL_ACT to
+  Return, and the link lost or the companion dead takes the ground station's link down too, so
+  PX4's GCS connection loss returns where no offboard loss fires (the take-off climb).
 
 For each cell, from the scene's TRUE geometry (its mesh: steel, insulators, fittings and
 conductors; not the mission's boxes) and the airframe's TRUE trajectory (the simulator's, up to
@@ -44,14 +50,14 @@ from insulator_rs.ports.vehicle import VehicleState
 
 PACKAGE = Path(__file__).resolve().parents[1]
 FAULTS = ("link loss", "LiDAR silent", "camera frozen", "detector error", "low battery", "GPS loss",
-          "operator abort", "client killed")
+          "operator abort", "client killed", "process killed")
 MOMENTS = ("take-off", "exploration", "inspection", "crossing", "return")
 #: the faults flown against our simulated PX4 over UDP: the companion's link or process is the fault
-MAVLINK_FAULTS = ("link loss", "client killed")
+MAVLINK_FAULTS = ("link loss", "client killed", "process killed")
 #: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
 REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
-                "operator abort": ("operator",), "client killed": ("running",)}
+                "operator abort": ("operator",), "client killed": ("running",), "process killed": ("running",)}
 SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
@@ -59,6 +65,7 @@ LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landi
 HOVER_WAIT = 30.0  # s of vehicle time in HOLD after which the autopilot is taken to hover for the pilot
 WATCH_PERIOD = 0.02  # wall s between looks at our simulated PX4 once the companion is gone
 FLIGHT_ARGS = {"detect_period": 0.5, "detect_scale": 0.2, "photo_scale": 0.2, "seed": 0}
+PROCESS_START_WAIT = 120.0  # wall s for the companion process to start, set PX4 up and arm
 
 
 @dataclass
@@ -199,6 +206,8 @@ def _readable_messages(path: Path) -> int:
 def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
              say: Callable[[str], None] = lambda _: None) -> Cell:
     """Fly ``fault`` from ``at`` s after arming (None: the clean flight) into ``out``; measure it."""
+    if fault == "process killed":
+        return fly_process_cell(setup, moment, at, out, say)
     from insulator_rs.sim.mission_airframe import kinematic_vehicle
     from insulator_rs.flight.loop import FlightLoop, FlightSettings
     from insulator_rs.mission.config import load_mission
@@ -214,13 +223,12 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     airframe_vehicle = kinematic_vehicle(mission, seed)
     mavlink = fault in MAVLINK_FAULTS
     simulator: Any = None
+    ground_station: Any = None
     base: Any
     if mavlink:
         from insulator_rs.mavlink.client import MavlinkVehicle
-        from insulator_rs.sim.px4 import SimulatedPx4
 
-        origin = (mission.tower.lat, mission.tower.lon, mission.tower.alt)
-        simulator = SimulatedPx4(time_scale=TIME_SCALE, vehicle=airframe_vehicle, origin=origin).start()
+        simulator, ground_station = _simulated_px4(mission, airframe_vehicle)
         host, port = simulator.address
         # the client does not own the simulator: a killed client leaves PX4 flying
         base = MavlinkVehicle(f"udpout:{host}:{port}", time_scale=TIME_SCALE)
@@ -239,8 +247,9 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
 
     clock = F.FaultClock()
     loop_ref: list[FlightLoop] = []
-    actions: dict[str, Callable[[], Callable[[], None]]] = {"link loss": lambda: F.link_loss(simulator),
-               "client killed": lambda: F.kill_client(base),
+    actions: dict[str, Callable[[], Callable[[], None]]] = {
+               "link loss": lambda: _with_the_relay(ground_station, F.link_loss(simulator)),
+               "client killed": lambda: _with_the_relay(ground_station, F.kill_client(base)),
                "GPS loss": lambda: F.gps_loss(airframe),
                "low battery": lambda: F.battery_drop(
                    airframe, mission.inspection.battery_reserve + LOW_BATTERY_ABOVE_RESERVE),
@@ -277,6 +286,7 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
         if mavlink:
             if not killed:
                 base.close()
+            ground_station.close()
             simulator.stop()
     if killed:
         (out / "flight.mcap").write_bytes(saved)
@@ -299,6 +309,111 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
                 flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
     say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
         f"({nearest}), {ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
+    return cell
+
+
+def _simulated_px4(mission: Any, airframe_vehicle: Any) -> tuple[Any, Any]:
+    """Our simulated PX4 flying ``airframe_vehicle`` (started), with a GCS link and a ground
+    station on it relayed by the companion (started): PX4 arms with NAV_DLL_ACT set."""
+    from insulator_rs.sim.px4 import SimulatedPx4
+    from insulator_rs.sim.px4_gcs import RelayedGroundStation
+
+    origin = (mission.tower.lat, mission.tower.lon, mission.tower.alt)
+    simulator = SimulatedPx4(time_scale=TIME_SCALE, vehicle=airframe_vehicle, origin=origin, gcs_port=0)
+    gcs_link = simulator.gcs
+    if gcs_link is None:
+        raise RuntimeError("the simulated PX4 was started without its GCS link")
+    return simulator.start(), RelayedGroundStation(gcs_link.address).start()
+
+
+def _with_the_relay(ground_station: Any, fault: Callable[[], None]) -> Callable[[], None]:
+    """``fault`` (the companion's link lost, the companion dead) takes the ground station's link,
+    relayed by the companion, down with it."""
+    def both() -> None:
+        ground_station.cut()
+        fault()
+    return both
+
+
+def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
+                     say: Callable[[str], None] = lambda _: None) -> Cell:
+    """The companion as a process of its own (``python -m insulator_rs.app.cli inspect
+    --connection``, the sensors simulated from the scene at the pose PX4 reports) flying our
+    simulated PX4 started here; ``at`` s after PX4 armed it is sent SIGKILL (``kill -9``: no
+    handler, no report written after, the recorder never closed) and the ground station it relays
+    goes with it; PX4's failsafes fly the rest. Measured as :func:`fly_cell` measures."""
+    import os
+    import signal
+    import subprocess
+
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.sim.mission_airframe import kinematic_vehicle
+
+    wall0 = wallclock.perf_counter()
+    mission = load_mission(setup.mission)
+    simulator, ground_station = _simulated_px4(mission, kinematic_vehicle(mission, int(FLIGHT_ARGS["seed"])))
+    host, port = simulator.address
+    out.mkdir(parents=True, exist_ok=True)
+    report, recording = out / "report", out / "flight.mcap"
+    command = [sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--scene", str(setup.scene),
+               "--mission", str(setup.mission), "--out", str(report), "--record", str(recording),
+               "--connection", f"udpout:{host}:{port}", "--sim-sensors", "--time-scale", f"{TIME_SCALE:g}",
+               "--detector", "standin", "--quiet", "--overwrite",
+               *(a for k, v in FLIGHT_ARGS.items() for a in (f"--{k.replace('_', '-')}", str(v)))]
+    truth: list[np.ndarray] = []
+
+    def look() -> None:
+        truth.append(simulator.with_vehicle(lambda v: v.model.position.copy()))
+
+    def vehicle_now() -> tuple[bool, float]:
+        return simulator.with_vehicle(lambda v: (bool(v.armed), float(v.clock.now)))
+
+    log = (out / "companion.log").open("w", encoding="utf-8")
+    process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+    killed = False
+    try:
+        armed_at: float | None = None
+        deadline = wallclock.monotonic() + PROCESS_START_WAIT
+        while process.poll() is None:
+            look()
+            armed, now = vehicle_now()
+            if armed_at is None and armed:
+                armed_at = now
+                deadline = wallclock.monotonic() + 2 * LANDING_WAIT / TIME_SCALE
+            if armed_at is not None and now - armed_at >= at:
+                os.kill(process.pid, signal.SIGKILL)
+                ground_station.cut()
+                killed = True
+                break
+            if wallclock.monotonic() > deadline:
+                raise RuntimeError(f"the companion process did not reach {at:g} s after arming in time (see "
+                                   f"{out / 'companion.log'})")
+            wallclock.sleep(WATCH_PERIOD)
+        process.wait(timeout=30.0)
+        ended = _watch_landing(simulator.with_vehicle, look, None, setup, None, killed)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        log.close()
+        ground_station.close()
+        simulator.stop()
+    summary = json.loads((report / "summary.json").read_text(encoding="utf-8"))
+    reason = (summary.get("abort") or {}).get("reason") or (summary.get("failsafe") or {}).get("reason") or ""
+    read = _readable_messages(recording) if recording.is_file() else 0
+    clearance, nearest = setup.structure.clearance(np.array(truth))
+    cell = Cell(fault="process killed", moment=moment, at_s=at, vehicle="simulated PX4 (UDP), companion process",
+                clearance_m=round(clearance, 2), nearest=nearest,
+                max_altitude_m=round(float(np.max(np.array(truth)[:, 2])), 1),
+                ended=ended if killed else f"not killed: the process ended first (exit code {process.returncode})",
+                status=summary["status"], reason=reason,
+                report_names_fault=any(w in f"{summary['status']} {reason}".lower()
+                                       for w in REPORT_WORDS["process killed"]),
+                recording=f"{read} messages read back (the process killed: what it flushed)",
+                recording_intact=killed and process.returncode == -signal.SIGKILL and read > 0,
+                flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
+    say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
+        f"({nearest}), {cell.ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
     return cell
 
 

@@ -19,7 +19,8 @@ offboard-loss timeout and action, the return altitude, the disarm delays, the ta
 altitude, the landing speed). Not modelled (stored and answered, no effect): the geofence,
 RTL_DESCEND_ALT (the simulated return descends at the landing speed from the return altitude,
 as PX4 does with RTL_DESCEND_ALT at the return altitude), the return cone (the simulated return
-always climbs to RTL_RETURN_ALT: PX4 with RTL_CONE_ANG 0), and COM_OBL_RC_ACT values other than 0 (Position), 3 (Return), 4 (Land) and 5 (Hold).
+always climbs to RTL_RETURN_ALT: PX4 with RTL_CONE_ANG 0), COM_OBL_RC_ACT values other than 0
+(Position), 3 (Return), 4 (Land) and 5 (Hold), and NAV_DLL_ACT 5 (Terminate) and 6 (Lockdown).
 """
 
 from __future__ import annotations
