@@ -1,10 +1,11 @@
 """The fault matrix (issue 19 item 6): every fault at every moment of the flight, in the simulator.
 
 ``python -m insulator_rs.evaluation.fault_matrix --out DIR`` (or ``insulator-rs eval faults``)
-flies the small scene (tower B's design cut to a 12 m body with one cross-arm: a take-off, passes,
-two inspection detours, an over-the-top crossing and the way home in 125 s) once clean, reads
-the five moments off that flight's own state log (``trajectory.csv``), then flies each fault
-from each moment:
+flies a scene (``--scene small``, the default: tower B's design cut to a 12 m body with one
+cross-arm, a take-off, passes, two inspection detours, an over-the-top crossing and the way home
+in 125 s; ``--scene tower_b``: the shipped tower B and its mission, 26 m with its cross-arms and
+conductors, an 11-minute flight, so each cell costs minutes) once clean, reads the five moments
+off that flight's own state log (``trajectory.csv``), then flies each fault from each moment:
 
 * moments (s after arming): take-off (the climb, 1 m up), exploration (the middle of the longest
   pass), inspection (the middle of the first detour to an inspection waypoint), crossing (the
@@ -90,6 +91,21 @@ class Cell:
 
 
 # -- the scene -----------------------------------------------------------------------------------
+#: the scenes the matrix flies: name -> what the table says of it
+SCENES = {"small": "small (tower B's design, 12 m body, one cross-arm)",
+          "tower_b": "tower B (26 m, its cross-arms and conductors, the shipped mission)"}
+
+
+def scene_files(name: str, folder: Path) -> tuple[Path, Path]:
+    """The scene and mission files of the matrix's scene ``name`` (one of :data:`SCENES`); the
+    small scene's are written in ``folder``."""
+    if name == "small":
+        return small_scene(folder, PACKAGE / "scenes", PACKAGE / "missions")
+    if name == "tower_b":
+        return PACKAGE / "scenes" / "tower_b.toml", PACKAGE / "missions" / "tower_b.toml"
+    raise ValueError(f"scene: {name!r} is not one of {', '.join(SCENES)}")
+
+
 def small_scene(folder: Path, scenes: Path, missions: Path) -> tuple[Path, Path]:
     """Tower B's design cut down to a 12 m body with one cross-arm (two insulators), and its
     mission (the passes 6 m from the line, 3 m/s): the files written in ``folder``."""
@@ -456,11 +472,13 @@ def _watch_landing(airframe: Callable[[Callable[[Any], Any]], Any], look: Callab
 
 # -- the matrix -----------------------------------------------------------------------------------
 def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str] = MOMENTS,
-               say: Callable[[str], None] = print) -> dict[str, Any]:
+               say: Callable[[str], None] = print, scene_name: str = "small") -> dict[str, Any]:
     """The clean flight, then every (fault, moment) cell; results written in ``out``."""
     from insulator_rs.mission.config import load_mission
     from insulator_rs.sim.towers import load_tower
 
+    if scene_name not in SCENES:
+        raise ValueError(f"scene: {scene_name!r} is not one of {', '.join(SCENES)}")
     for name in faults:
         if name not in FAULTS:
             raise ValueError(f"fault: {name!r} is not one of {', '.join(FAULTS)}")
@@ -474,7 +492,7 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
                          "(pip install 'insulator_rs[bags]')")
     wall0 = wallclock.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    scene, mission = small_scene(out / "scene", PACKAGE / "scenes", PACKAGE / "missions")
+    scene, mission = scene_files(scene_name, out / "scene")
     tower = load_tower(str(scene))
     setup = Setup(scene, mission, tower, Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
     flights = out / "flights"
@@ -483,7 +501,7 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
     say(f"moments (s after arming): {moments_s}")
     cells = [fly_cell(setup, f, m, moments_s[m], flights / f"{f.replace(' ', '_')}-{m}", say)
              for f in faults for m in moments]
-    result = {"scene": "small (tower B's design, 12 m body, one cross-arm)", "margin_m": setup.margin,
+    result = {"scene": SCENES[scene_name], "margin_m": setup.margin,
               "surface_step_m": SURFACE_STEP, "moments_s": moments_s, "clean": asdict(clean),
               "cells": [asdict(c) for c in cells], "below_margin": sum(c.clearance_m < setup.margin for c in cells),
               "not_landed": sum(not c.ended.startswith("landed") for c in cells),
@@ -562,6 +580,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from insulator_rs.report import parse_out_folder
 
     p.add_argument("--out", type=parse_out_folder, required=True, help="folder for the table, JSON, plot and flights")
+    p.add_argument("--scene", choices=tuple(SCENES), default="small",
+                   help="small: the 12 m cut of tower B (default, 125 s flights); tower_b: the shipped tower B "
+                        "(11-minute flights: each cell costs minutes)")
     p.add_argument("--faults", default=",".join(FAULTS), help=f"comma-separated subset of: {', '.join(FAULTS)}")
     p.add_argument("--moments", default=",".join(MOMENTS), help=f"comma-separated subset of: {', '.join(MOMENTS)}")
 
@@ -570,7 +591,7 @@ def run(args: argparse.Namespace) -> int:
     faults = [f.strip() for f in args.faults.split(",") if f.strip()]
     moments = [m.strip() for m in args.moments.split(",") if m.strip()]
     try:
-        result = run_matrix(args.out, faults, moments)
+        result = run_matrix(args.out, faults, moments, scene_name=args.scene)
     except ValueError as exc:
         print(f"insulator-rs eval faults: error: {exc}", file=sys.stderr)
         return 2
