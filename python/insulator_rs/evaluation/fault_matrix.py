@@ -66,6 +66,7 @@ LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landi
 HOVER_WAIT = 30.0  # s of vehicle time in HOLD after which the autopilot is taken to hover for the pilot
 WATCH_PERIOD = 0.02  # wall s between looks at our simulated PX4 once the companion is gone
 FLIGHT_ARGS = {"detect_period": 0.5, "detect_scale": 0.2, "photo_scale": 0.2, "seed": 0}
+CLIMB_HEIGHT = 1.0  # m above the take-off point: the take-off moment (the climb under way)
 PROCESS_START_WAIT = 120.0  # wall s for the companion process to start, set PX4 up and arm
 
 
@@ -187,7 +188,7 @@ def moments_from(trajectory_csv: Path) -> dict[str, float]:
         return round((max(spans) if longest else spans[0])[1], 1)
 
     z0 = rows[0][1]
-    climb = next(t for t, z, s in rows if s == "idle" and z - z0 >= 1.0)
+    climb = next(t for t, z, s in rows if s == "idle" and z - z0 >= CLIMB_HEIGHT)
     return {"take-off": round(climb, 1), "exploration": middle("explore", longest=True),
             "inspection": middle("inspect"), "crossing": middle("cross"), "return": middle("finish")}
 
@@ -355,9 +356,10 @@ def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
                      say: Callable[[str], None] = lambda _: None) -> Cell:
     """The companion as a process of its own (``python -m insulator_rs.app.cli inspect
     --connection``, the sensors simulated from the scene at the pose PX4 reports) flying our
-    simulated PX4 started here; ``at`` s after PX4 armed it is sent SIGKILL (``kill -9``: no
-    handler, no report written after, the recorder never closed) and the ground station it relays
-    goes with it; PX4's failsafes fly the rest. Measured as :func:`fly_cell` measures."""
+    simulated PX4 started here; ``at`` s after PX4 armed (the take-off moment: once the vehicle is
+    :data:`CLIMB_HEIGHT` m up) it is sent SIGKILL (``kill -9``: no handler, no report written
+    after, the recorder never closed) and the ground station it relays goes with it; PX4's
+    failsafes fly the rest. Measured as :func:`fly_cell` measures."""
     import os
     import signal
     import subprocess
@@ -381,8 +383,9 @@ def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
     def look() -> None:
         truth.append(simulator.with_vehicle(lambda v: v.model.position.copy()))
 
-    def vehicle_now() -> tuple[bool, float]:
-        return simulator.with_vehicle(lambda v: (bool(v.armed), float(v.clock.now)))
+    def vehicle_now() -> tuple[bool, float, float]:
+        return simulator.with_vehicle(lambda v: (bool(v.armed), float(v.clock.now),
+                                                 float(v.model.position[2] - v.home[2])))
 
     log = (out / "companion.log").open("w", encoding="utf-8")
     process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
@@ -392,14 +395,17 @@ def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
         deadline = wallclock.monotonic() + PROCESS_START_WAIT
         while process.poll() is None:
             look()
-            armed, now = vehicle_now()
+            armed, now, height = vehicle_now()
             if armed_at is None and armed:
                 armed_at = now
                 deadline = wallclock.monotonic() + 2 * LANDING_WAIT / TIME_SCALE
-            if armed_at is not None and now - armed_at >= at:
+            # the take-off moment is the climb under way: over MAVLink from another process the
+            # take-off command comes later after arming than in process (its round trips)
+            due = height >= CLIMB_HEIGHT if moment == "take-off" else armed_at is not None and now - armed_at >= at
+            if armed_at is not None and due:
                 os.kill(process.pid, signal.SIGKILL)
                 ground_station.cut()
-                killed = True
+                killed, at = True, round(now - armed_at, 1)  # when it came, by PX4's clock
                 break
             if wallclock.monotonic() > deadline:
                 raise RuntimeError(f"the companion process did not reach {at:g} s after arming in time (see "
