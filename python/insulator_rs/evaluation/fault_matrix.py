@@ -310,9 +310,7 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     written, durable = sum(recorder.counts.values()), recorder.durable
     read = _readable_messages(out / "flight.mcap")
     summary = json.loads((out / "report" / "summary.json").read_text(encoding="utf-8"))
-    reason = (summary.get("abort") or {}).get("reason") or ""
-    if summary.get("failsafe"):
-        reason = reason or summary["failsafe"]["reason"]
+    reason = _reported_reason(summary)
     said = f"{summary['status']} {reason}".lower()
     clearance, nearest = setup.structure.clearance(np.array(truth))
     cell = Cell(fault=fault or "none", moment=moment, at_s=at,
@@ -324,9 +322,18 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
                 recording=f"{read} of {written} messages" + (f" ({durable} flushed before the kill)" if killed else ""),
                 recording_intact=read >= (durable if killed else written),
                 flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
-    say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
-        f"({nearest}), {ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
+    say(_one_line(cell))
     return cell
+
+
+def _reported_reason(summary: dict[str, Any]) -> str:
+    """What summary.json gives as the cause: the abort's reason, else the failsafe's, else ""."""
+    return str((summary.get("abort") or {}).get("reason") or (summary.get("failsafe") or {}).get("reason") or "")
+
+
+def _one_line(cell: Cell) -> str:
+    return (f"{cell.fault:>14} @ {cell.moment:<11} ({cell.at_s:5.1f} s): clearance {cell.clearance_m:5.2f} m "
+            f"({cell.nearest}), {cell.ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
 
 
 def _simulated_px4(mission: Any, airframe_vehicle: Any) -> tuple[Any, Any]:
@@ -421,7 +428,7 @@ def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
         ground_station.close()
         simulator.stop()
     summary = json.loads((report / "summary.json").read_text(encoding="utf-8"))
-    reason = (summary.get("abort") or {}).get("reason") or (summary.get("failsafe") or {}).get("reason") or ""
+    reason = _reported_reason(summary)
     read = _readable_messages(recording) if recording.is_file() else 0
     clearance, nearest = setup.structure.clearance(np.array(truth))
     cell = Cell(fault="process killed", moment=moment, at_s=at, vehicle="simulated PX4 (UDP), companion process",
@@ -434,8 +441,7 @@ def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
                 recording=f"{read} messages read back (the process killed: what it flushed)",
                 recording_intact=killed and process.returncode == -signal.SIGKILL and read > 0,
                 flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
-    say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
-        f"({nearest}), {cell.ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
+    say(_one_line(cell))
     return cell
 
 
