@@ -4,13 +4,16 @@ matrix found unanswered, and a representative subset of its cells flown end to e
 The cells fly the small scene (``insulator_rs.evaluation.fault_matrix``): the clearance is measured
 from the scene's TRUE mesh (steel, insulators, fittings, conductors) to the airframe's TRUE
 trajectory up to the landing, whoever flew it (our route out or PX4's failsafe); the link and
-client cells fly our simulated PX4 over real UDP. The whole matrix: ``insulator-rs eval faults``
-(README, "Security and failure behaviour").
+client cells fly our simulated PX4 over real UDP, with a ground station relayed by the companion
+(PX4's NAV_DLL_ACT set); one cell runs the companion as a process of its own and kills it with
+SIGKILL. The whole matrix: ``insulator-rs eval faults`` (README, "Security and failure
+behaviour"); tower B's: ``insulator-rs eval faults --scene tower_b``.
 """
 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -185,6 +188,72 @@ def test_a_fault_cell_stays_clear_ends_landed_and_is_reported(setup, tmp_path, f
     assert cell.ended.startswith("landed"), cell.ended
     if fault in FM.MAVLINK_FAULTS:
         assert cell.ended.startswith("landed: PX4") and cell.max_altitude_m > 12.0  # PX4 came back over the top
+    assert cell.report_names_fault, f"{cell.status} / {cell.reason}"
+    assert cell.recording_intact, cell.recording
+
+
+@pytest.mark.slow
+def test_a_companion_process_killed_with_sigkill_mid_inspection_is_flown_home_by_px4(setup, tmp_path):
+    """``insulator-rs inspect --connection`` in a process of its own, against our simulated PX4
+    started here, ended by a real SIGKILL mid-inspection: PX4's offboard loss (COM_OBL_RC_ACT set
+    to Return by that process before take-off) climbs over the tower, returns and lands; the true
+    trajectory keeps the margin from the true mesh, the report stays as the kill left it, the
+    recording reads back up to its last flush."""
+    cell = FM.fly_cell(setup, "process killed", "inspection", MOMENTS["inspection"], tmp_path / "cell")
+    assert cell.ended == "landed: PX4 (RTL)", cell.ended
+    assert cell.clearance_m >= setup.margin, f"{cell.clearance_m} m from the {cell.nearest}"
+    assert cell.max_altitude_m > 12.0  # the return went over the 12 m tower
+    assert cell.status == "running" and cell.recording_intact, cell.recording  # killed by SIGKILL, not ended
+
+
+def test_the_relayed_ground_station_goes_with_the_companion():
+    from insulator_rs.sim.px4_gcs import GcsLink, RelayedGroundStation
+
+    link = GcsLink()
+    gcs = RelayedGroundStation(link.address).start()
+    try:
+        deadline = time.monotonic() + 3.0
+        while link.last_heartbeat is None and time.monotonic() < deadline:
+            link.receive(1, 1)
+            time.sleep(0.05)
+        assert link.last_heartbeat is not None
+        FM._with_the_relay(gcs, lambda: None)()
+        time.sleep(0.1)
+        link.receive(1, 1)
+        heard = link.last_heartbeat
+        time.sleep(1.5)  # more than the HEARTBEAT period
+        link.receive(1, 1)
+        assert link.last_heartbeat == heard
+    finally:
+        gcs.close()
+        link.close()
+
+
+# s after arming on tower B's clean flight (FM.moments_from; insulator-rs eval faults --scene tower_b)
+TOWER_B_MOMENTS = {"take-off": 0.8, "exploration": 457.0, "inspection": 62.9, "crossing": 245.0, "return": 580.6}
+
+
+@pytest.fixture(scope="module")
+def tower_b(tmp_path_factory):
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.sim.towers import load_tower
+
+    scene, mission = FM.scene_files("tower_b", tmp_path_factory.mktemp("tower_b"))  # the shipped files
+    tower = load_tower(str(scene))
+    return FM.Setup(scene, mission, tower, FM.Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
+
+
+# tower B's two places the small scene lacks: the companion killed over the 26 m top in the crossing
+# (PX4 climbs to its return altitude there and comes home), the operator's abort beside an arm
+TOWER_B_CELLS = [("client killed", "crossing"), ("operator abort", "inspection")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault,moment", TOWER_B_CELLS, ids=[f"{f}@{m}" for f, m in TOWER_B_CELLS])
+def test_a_tower_b_fault_cell_stays_clear_and_ends_landed(tower_b, tmp_path, fault, moment):
+    cell = FM.fly_cell(tower_b, fault, moment, TOWER_B_MOMENTS[moment], tmp_path / "cell")
+    assert cell.clearance_m >= tower_b.margin, f"{cell.clearance_m} m from the {cell.nearest}"
+    assert cell.ended == ("landed: PX4 (RTL)" if fault in FM.MAVLINK_FAULTS else "landed: our route"), cell.ended
     assert cell.report_names_fault, f"{cell.status} / {cell.reason}"
     assert cell.recording_intact, cell.recording
 

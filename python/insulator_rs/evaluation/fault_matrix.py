@@ -1,19 +1,26 @@
 """The fault matrix (issue 19 item 6): every fault at every moment of the flight, in the simulator.
 
 ``python -m insulator_rs.evaluation.fault_matrix --out DIR`` (or ``insulator-rs eval faults``)
-flies the small scene (tower B's design cut to a 12 m body with one cross-arm: a take-off, passes,
-two inspection detours, an over-the-top crossing and the way home in 125 s) once clean, reads
-the five moments off that flight's own state log (``trajectory.csv``), then flies each fault
-from each moment:
+flies a scene (``--scene small``, the default: tower B's design cut to a 12 m body with one
+cross-arm, a take-off, passes, two inspection detours, an over-the-top crossing and the way home
+in 125 s; ``--scene tower_b``: the shipped tower B and its mission, 26 m with its cross-arms and
+conductors, an 11-minute flight, so each cell costs minutes) once clean, reads the five moments
+off that flight's own state log (``trajectory.csv``), then flies each fault from each moment:
 
 * moments (s after arming): take-off (the climb, 1 m up), exploration (the middle of the longest
   pass), inspection (the middle of the first detour to an inspection waypoint), crossing (the
   middle of the over-the-top crossing), return (the middle of the way home and the landing);
 * faults, each an adapter round a port (:mod:`insulator_rs.sim.faults`): link loss and client
   killed against our simulated PX4 over real UDP (``--vehicle mavlink``: PX4's own failsafes,
-  COM_OF_LOSS_T, COM_OBL_RC_ACT, RTL_RETURN_ALT, take over); the LiDAR silent, the camera frozen,
-  the detector raising, the pack dropping to its reserve, GPS (the position estimate) lost and
-  the operator's abort in process.
+  COM_OF_LOSS_T, COM_OBL_RC_ACT, RTL_RETURN_ALT, NAV_DLL_ACT, take over); the LiDAR silent, the
+  camera frozen, the detector raising, the pack dropping to its reserve, GPS (the position
+  estimate) lost and the operator's abort in process; "process killed": the companion is
+  ``insulator-rs inspect --connection`` in a process of its own, flying our simulated PX4 started
+  here, ended by a real SIGKILL (``kill -9``);
+* the MAVLink cells have a ground station on PX4's GCS link, relayed by the companion
+  (:class:`~insulator_rs.sim.px4_gcs.RelayedGroundStation`): the companion sets NAV_DLL_ACT to
+  Return, and the link lost or the companion dead takes the ground station's link down too, so
+  PX4's GCS connection loss returns where no offboard loss fires (the take-off climb).
 
 For each cell, from the scene's TRUE geometry (its mesh: steel, insulators, fittings and
 conductors; not the mission's boxes) and the airframe's TRUE trajectory (the simulator's, up to
@@ -44,14 +51,14 @@ from insulator_rs.ports.vehicle import VehicleState
 
 PACKAGE = Path(__file__).resolve().parents[1]
 FAULTS = ("link loss", "LiDAR silent", "camera frozen", "detector error", "low battery", "GPS loss",
-          "operator abort", "client killed")
+          "operator abort", "client killed", "process killed")
 MOMENTS = ("take-off", "exploration", "inspection", "crossing", "return")
 #: the faults flown against our simulated PX4 over UDP: the companion's link or process is the fault
-MAVLINK_FAULTS = ("link loss", "client killed")
+MAVLINK_FAULTS = ("link loss", "client killed", "process killed")
 #: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
 REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
-                "operator abort": ("operator",), "client killed": ("running",)}
+                "operator abort": ("operator",), "client killed": ("running",), "process killed": ("running",)}
 SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
@@ -59,6 +66,8 @@ LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landi
 HOVER_WAIT = 30.0  # s of vehicle time in HOLD after which the autopilot is taken to hover for the pilot
 WATCH_PERIOD = 0.02  # wall s between looks at our simulated PX4 once the companion is gone
 FLIGHT_ARGS = {"detect_period": 0.5, "detect_scale": 0.2, "photo_scale": 0.2, "seed": 0}
+CLIMB_HEIGHT = 1.0  # m above the take-off point: the take-off moment (the climb under way)
+PROCESS_START_WAIT = 120.0  # wall s for the companion process to start, set PX4 up and arm
 
 
 @dataclass
@@ -83,6 +92,21 @@ class Cell:
 
 
 # -- the scene -----------------------------------------------------------------------------------
+#: the scenes the matrix flies: name -> what the table says of it
+SCENES = {"small": "small (tower B's design, 12 m body, one cross-arm)",
+          "tower_b": "tower B (26 m, its cross-arms and conductors, the shipped mission)"}
+
+
+def scene_files(name: str, folder: Path) -> tuple[Path, Path]:
+    """The scene and mission files of the matrix's scene ``name`` (one of :data:`SCENES`); the
+    small scene's are written in ``folder``."""
+    if name == "small":
+        return small_scene(folder, PACKAGE / "scenes", PACKAGE / "missions")
+    if name == "tower_b":
+        return PACKAGE / "scenes" / "tower_b.toml", PACKAGE / "missions" / "tower_b.toml"
+    raise ValueError(f"scene: {name!r} is not one of {', '.join(SCENES)}")
+
+
 def small_scene(folder: Path, scenes: Path, missions: Path) -> tuple[Path, Path]:
     """Tower B's design cut down to a 12 m body with one cross-arm (two insulators), and its
     mission (the passes 6 m from the line, 3 m/s): the files written in ``folder``."""
@@ -164,7 +188,7 @@ def moments_from(trajectory_csv: Path) -> dict[str, float]:
         return round((max(spans) if longest else spans[0])[1], 1)
 
     z0 = rows[0][1]
-    climb = next(t for t, z, s in rows if s == "idle" and z - z0 >= 1.0)
+    climb = next(t for t, z, s in rows if s == "idle" and z - z0 >= CLIMB_HEIGHT)
     return {"take-off": round(climb, 1), "exploration": middle("explore", longest=True),
             "inspection": middle("inspect"), "crossing": middle("cross"), "return": middle("finish")}
 
@@ -199,6 +223,8 @@ def _readable_messages(path: Path) -> int:
 def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
              say: Callable[[str], None] = lambda _: None) -> Cell:
     """Fly ``fault`` from ``at`` s after arming (None: the clean flight) into ``out``; measure it."""
+    if fault == "process killed":
+        return fly_process_cell(setup, moment, at, out, say)
     from insulator_rs.sim.mission_airframe import kinematic_vehicle
     from insulator_rs.flight.loop import FlightLoop, FlightSettings
     from insulator_rs.mission.config import load_mission
@@ -214,13 +240,12 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     airframe_vehicle = kinematic_vehicle(mission, seed)
     mavlink = fault in MAVLINK_FAULTS
     simulator: Any = None
+    ground_station: Any = None
     base: Any
     if mavlink:
         from insulator_rs.mavlink.client import MavlinkVehicle
-        from insulator_rs.sim.px4 import SimulatedPx4
 
-        origin = (mission.tower.lat, mission.tower.lon, mission.tower.alt)
-        simulator = SimulatedPx4(time_scale=TIME_SCALE, vehicle=airframe_vehicle, origin=origin).start()
+        simulator, ground_station = _simulated_px4(mission, airframe_vehicle)
         host, port = simulator.address
         # the client does not own the simulator: a killed client leaves PX4 flying
         base = MavlinkVehicle(f"udpout:{host}:{port}", time_scale=TIME_SCALE)
@@ -239,8 +264,9 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
 
     clock = F.FaultClock()
     loop_ref: list[FlightLoop] = []
-    actions: dict[str, Callable[[], Callable[[], None]]] = {"link loss": lambda: F.link_loss(simulator),
-               "client killed": lambda: F.kill_client(base),
+    actions: dict[str, Callable[[], Callable[[], None]]] = {
+               "link loss": lambda: _with_the_relay(ground_station, F.link_loss(simulator)),
+               "client killed": lambda: _with_the_relay(ground_station, F.kill_client(base)),
                "GPS loss": lambda: F.gps_loss(airframe),
                "low battery": lambda: F.battery_drop(
                    airframe, mission.inspection.battery_reserve + LOW_BATTERY_ABOVE_RESERVE),
@@ -277,15 +303,14 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
         if mavlink:
             if not killed:
                 base.close()
+            ground_station.close()
             simulator.stop()
     if killed:
         (out / "flight.mcap").write_bytes(saved)
     written, durable = sum(recorder.counts.values()), recorder.durable
     read = _readable_messages(out / "flight.mcap")
     summary = json.loads((out / "report" / "summary.json").read_text(encoding="utf-8"))
-    reason = (summary.get("abort") or {}).get("reason") or ""
-    if summary.get("failsafe"):
-        reason = reason or summary["failsafe"]["reason"]
+    reason = _reported_reason(summary)
     said = f"{summary['status']} {reason}".lower()
     clearance, nearest = setup.structure.clearance(np.array(truth))
     cell = Cell(fault=fault or "none", moment=moment, at_s=at,
@@ -297,8 +322,126 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
                 recording=f"{read} of {written} messages" + (f" ({durable} flushed before the kill)" if killed else ""),
                 recording_intact=read >= (durable if killed else written),
                 flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
-    say(f"{cell.fault:>14} @ {moment:<11} ({at:5.1f} s): clearance {cell.clearance_m:5.2f} m "
-        f"({nearest}), {ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
+    say(_one_line(cell))
+    return cell
+
+
+def _reported_reason(summary: dict[str, Any]) -> str:
+    """What summary.json gives as the cause: the abort's reason, else the failsafe's, else ""."""
+    return str((summary.get("abort") or {}).get("reason") or (summary.get("failsafe") or {}).get("reason") or "")
+
+
+def _one_line(cell: Cell) -> str:
+    return (f"{cell.fault:>14} @ {cell.moment:<11} ({cell.at_s:5.1f} s): clearance {cell.clearance_m:5.2f} m "
+            f"({cell.nearest}), {cell.ended}; {cell.status[:70]}; recording {cell.recording}; {cell.wall_s:.0f} s")
+
+
+def _simulated_px4(mission: Any, airframe_vehicle: Any) -> tuple[Any, Any]:
+    """Our simulated PX4 flying ``airframe_vehicle`` (started), with a GCS link and a ground
+    station on it relayed by the companion (started): PX4 arms with NAV_DLL_ACT set."""
+    from insulator_rs.sim.px4 import SimulatedPx4
+    from insulator_rs.sim.px4_gcs import RelayedGroundStation
+
+    origin = (mission.tower.lat, mission.tower.lon, mission.tower.alt)
+    simulator = SimulatedPx4(time_scale=TIME_SCALE, vehicle=airframe_vehicle, origin=origin, gcs_port=0)
+    gcs_link = simulator.gcs
+    if gcs_link is None:
+        raise RuntimeError("the simulated PX4 was started without its GCS link")
+    return simulator.start(), RelayedGroundStation(gcs_link.address).start()
+
+
+def _with_the_relay(ground_station: Any, fault: Callable[[], None]) -> Callable[[], None]:
+    """``fault`` (the companion's link lost, the companion dead) takes the ground station's link,
+    relayed by the companion, down with it."""
+    def both() -> None:
+        ground_station.cut()
+        fault()
+    return both
+
+
+def fly_process_cell(setup: Setup, moment: str, at: float, out: Path,
+                     say: Callable[[str], None] = lambda _: None) -> Cell:
+    """The companion as a process of its own (``python -m insulator_rs.app.cli inspect
+    --connection``, the sensors simulated from the scene at the pose PX4 reports) flying our
+    simulated PX4 started here; ``at`` s after PX4 armed (the take-off moment: once the vehicle is
+    :data:`CLIMB_HEIGHT` m up) it is sent SIGKILL (``kill -9``: no handler, no report written
+    after, the recorder never closed) and the ground station it relays goes with it; PX4's
+    failsafes fly the rest. Measured as :func:`fly_cell` measures."""
+    import os
+    import signal
+    import subprocess
+
+    from insulator_rs.mission.config import load_mission
+    from insulator_rs.sim.mission_airframe import kinematic_vehicle
+
+    wall0 = wallclock.perf_counter()
+    mission = load_mission(setup.mission)
+    simulator, ground_station = _simulated_px4(mission, kinematic_vehicle(mission, int(FLIGHT_ARGS["seed"])))
+    host, port = simulator.address
+    out.mkdir(parents=True, exist_ok=True)
+    report, recording = out / "report", out / "flight.mcap"
+    command = [sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--scene", str(setup.scene),
+               "--mission", str(setup.mission), "--out", str(report), "--record", str(recording),
+               "--connection", f"udpout:{host}:{port}", "--sim-sensors", "--time-scale", f"{TIME_SCALE:g}",
+               "--detector", "standin", "--quiet", "--overwrite",
+               *(a for k, v in FLIGHT_ARGS.items() for a in (f"--{k.replace('_', '-')}", str(v)))]
+    truth: list[np.ndarray] = []
+
+    def look() -> None:
+        truth.append(simulator.with_vehicle(lambda v: v.model.position.copy()))
+
+    def vehicle_now() -> tuple[bool, float, float]:
+        return simulator.with_vehicle(lambda v: (bool(v.armed), float(v.clock.now),
+                                                 float(v.model.position[2] - v.home[2])))
+
+    log = (out / "companion.log").open("w", encoding="utf-8")
+    process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+    killed = False
+    try:
+        armed_at: float | None = None
+        deadline = wallclock.monotonic() + PROCESS_START_WAIT
+        while process.poll() is None:
+            look()
+            armed, now, height = vehicle_now()
+            if armed_at is None and armed:
+                armed_at = now
+                deadline = wallclock.monotonic() + 2 * LANDING_WAIT / TIME_SCALE
+            # the take-off moment is the climb under way: over MAVLink from another process the
+            # take-off command comes later after arming than in process (its round trips)
+            due = height >= CLIMB_HEIGHT if moment == "take-off" else armed_at is not None and now - armed_at >= at
+            if armed_at is not None and due:
+                os.kill(process.pid, signal.SIGKILL)
+                ground_station.cut()
+                killed, at = True, round(now - armed_at, 1)  # when it came, by PX4's clock
+                break
+            if wallclock.monotonic() > deadline:
+                raise RuntimeError(f"the companion process did not reach {at:g} s after arming in time (see "
+                                   f"{out / 'companion.log'})")
+            wallclock.sleep(WATCH_PERIOD)
+        process.wait(timeout=30.0)
+        ended = _watch_landing(simulator.with_vehicle, look, None, setup, None, killed)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        log.close()
+        ground_station.close()
+        simulator.stop()
+    summary = json.loads((report / "summary.json").read_text(encoding="utf-8"))
+    reason = _reported_reason(summary)
+    read = _readable_messages(recording) if recording.is_file() else 0
+    clearance, nearest = setup.structure.clearance(np.array(truth))
+    cell = Cell(fault="process killed", moment=moment, at_s=at, vehicle="simulated PX4 (UDP), companion process",
+                clearance_m=round(clearance, 2), nearest=nearest,
+                max_altitude_m=round(float(np.max(np.array(truth)[:, 2])), 1),
+                ended=ended if killed else f"not killed: the process ended first (exit code {process.returncode})",
+                status=summary["status"], reason=reason,
+                report_names_fault=any(w in f"{summary['status']} {reason}".lower()
+                                       for w in REPORT_WORDS["process killed"]),
+                recording=f"{read} messages read back (the process killed: what it flushed)",
+                recording_intact=killed and process.returncode == -signal.SIGKILL and read > 0,
+                flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
+    say(_one_line(cell))
     return cell
 
 
@@ -341,11 +484,13 @@ def _watch_landing(airframe: Callable[[Callable[[Any], Any]], Any], look: Callab
 
 # -- the matrix -----------------------------------------------------------------------------------
 def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str] = MOMENTS,
-               say: Callable[[str], None] = print) -> dict[str, Any]:
+               say: Callable[[str], None] = print, scene_name: str = "small") -> dict[str, Any]:
     """The clean flight, then every (fault, moment) cell; results written in ``out``."""
     from insulator_rs.mission.config import load_mission
     from insulator_rs.sim.towers import load_tower
 
+    if scene_name not in SCENES:
+        raise ValueError(f"scene: {scene_name!r} is not one of {', '.join(SCENES)}")
     for name in faults:
         if name not in FAULTS:
             raise ValueError(f"fault: {name!r} is not one of {', '.join(FAULTS)}")
@@ -359,7 +504,7 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
                          "(pip install 'insulator_rs[bags]')")
     wall0 = wallclock.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    scene, mission = small_scene(out / "scene", PACKAGE / "scenes", PACKAGE / "missions")
+    scene, mission = scene_files(scene_name, out / "scene")
     tower = load_tower(str(scene))
     setup = Setup(scene, mission, tower, Structure(tower.mesh), load_mission(mission).inspection.safety_margin)
     flights = out / "flights"
@@ -368,7 +513,7 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
     say(f"moments (s after arming): {moments_s}")
     cells = [fly_cell(setup, f, m, moments_s[m], flights / f"{f.replace(' ', '_')}-{m}", say)
              for f in faults for m in moments]
-    result = {"scene": "small (tower B's design, 12 m body, one cross-arm)", "margin_m": setup.margin,
+    result = {"scene": SCENES[scene_name], "margin_m": setup.margin,
               "surface_step_m": SURFACE_STEP, "moments_s": moments_s, "clean": asdict(clean),
               "cells": [asdict(c) for c in cells], "below_margin": sum(c.clearance_m < setup.margin for c in cells),
               "not_landed": sum(not c.ended.startswith("landed") for c in cells),
@@ -447,6 +592,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from insulator_rs.report import parse_out_folder
 
     p.add_argument("--out", type=parse_out_folder, required=True, help="folder for the table, JSON, plot and flights")
+    p.add_argument("--scene", choices=tuple(SCENES), default="small",
+                   help="small: the 12 m cut of tower B (default, 125 s flights); tower_b: the shipped tower B "
+                        "(11-minute flights: each cell costs minutes)")
     p.add_argument("--faults", default=",".join(FAULTS), help=f"comma-separated subset of: {', '.join(FAULTS)}")
     p.add_argument("--moments", default=",".join(MOMENTS), help=f"comma-separated subset of: {', '.join(MOMENTS)}")
 
@@ -455,7 +603,7 @@ def run(args: argparse.Namespace) -> int:
     faults = [f.strip() for f in args.faults.split(",") if f.strip()]
     moments = [m.strip() for m in args.moments.split(",") if m.strip()]
     try:
-        result = run_matrix(args.out, faults, moments)
+        result = run_matrix(args.out, faults, moments, scene_name=args.scene)
     except ValueError as exc:
         print(f"insulator-rs eval faults: error: {exc}", file=sys.stderr)
         return 2

@@ -643,6 +643,22 @@ class KinematicVehicle:
         if lost and self.armed and self.mode != FlightMode.LAND:
             self._failsafe(FlightMode.LAND, "position estimate lost")
 
+    def autopilot_failsafe(self, mode: FlightMode, reason: str) -> None:
+        """An autopilot failsafe decided outside the airframe (the simulated PX4's data-link
+        loss) switches to ``mode``; ``state().fault`` says ``reason``."""
+        self._check_open()
+        self._failsafe(mode, reason)
+
+    def clear_failsafe(self, mode: FlightMode) -> None:
+        """A failsafe that clears with its condition (PX4's Hold action): the fault clears and
+        the vehicle goes back to ``mode``, the take-off climb included (its target kept)."""
+        self._check_open()
+        self.fault = None
+        if mode == FlightMode.TAKEOFF and self._takeoff_target is not None:
+            self.mode = FlightMode.TAKEOFF
+        elif mode != FlightMode.TAKEOFF:
+            self.set_mode(mode)
+
     # -- internals ---------------------------------------------------------------
 
     @property

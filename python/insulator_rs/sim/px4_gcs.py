@@ -24,6 +24,7 @@ This is what :class:`GcsLink` does for :class:`~insulator_rs.sim.px4.SimulatedPx
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from typing import Any
 
@@ -109,3 +110,45 @@ class GcsLink:
 
     def close(self) -> None:
         self.sock.close()
+
+
+GCS_SYSTEM_ID = 255  # QGroundControl's system id
+HEARTBEAT_PERIOD_S = 1.0  # a ground station's HEARTBEAT rate (QGroundControl's)
+
+
+class RelayedGroundStation:
+    """A ground station whose link runs through the companion computer (its radio or modem on the
+    companion, relayed to PX4's GCS link): a HEARTBEAT (MAV_TYPE_GCS) every
+    :data:`HEARTBEAT_PERIOD_S` wall s to ``address`` (the simulated PX4's GCS port) from a thread,
+    until ``cut()``: the companion died or its link to PX4 went, and the ground station's with it.
+    What PX4's GCS connection loss (NAV_DLL_ACT) then sees."""
+
+    def __init__(self, address: tuple[str, int]) -> None:
+        self.address = address
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self._mav = M.MAVLink(None, srcSystem=GCS_SYSTEM_ID, srcComponent=M.MAV_COMP_ID_MISSIONPLANNER)
+        self._cut = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="relayed-gcs", daemon=True)
+
+    def start(self) -> RelayedGroundStation:
+        self._thread.start()
+        return self
+
+    def cut(self) -> None:
+        """No HEARTBEAT from now on (the relay is gone)."""
+        self._cut.set()
+
+    def close(self) -> None:
+        self.cut()
+        self._thread.join(timeout=2.0)
+        self.sock.close()
+
+    def _run(self) -> None:
+        while not self._cut.is_set():
+            frame = self._mav.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+            try:
+                self.sock.sendto(bytes(frame.pack(self._mav)), self.address)
+            except OSError:
+                return
+            self._cut.wait(HEARTBEAT_PERIOD_S)

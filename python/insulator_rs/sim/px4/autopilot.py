@@ -25,6 +25,7 @@ from insulator_rs.mavlink.signing import configure_signing
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.ports.vehicle import FlightMode
 from insulator_rs.sim.kinematics import KinematicVehicle, Setpoint
+from insulator_rs.sim.px4.datalink import DataLinkLoss
 from insulator_rs.sim.px4.parameters import Px4Parameters
 from insulator_rs.sim.px4.telemetry import DEFAULT_RATES_HZ, Px4Telemetry
 from insulator_rs.sim.px4_gcs import GcsLink
@@ -129,6 +130,10 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
         # PX4's parameters (sim/px4/parameters.py): answered as PX4 does, the airframe's honoured
         self.parameters = Px4Parameters(self._send, lambda: self.vehicle.params,
                                         lambda params: setattr(self.vehicle, "params", params))
+        # PX4's GCS connection loss failsafe (NAV_DLL_ACT: sim/px4/datalink.py), on vehicle time
+        self.datalink = DataLinkLoss()
+        self._gcs_heard_wall: float | None = None  # the GCS link's last HEARTBEAT (wall time) ...
+        self._gcs_heard_at: float | None = None  # ... and the vehicle time this loop first saw it
 
     # -- lifecycle ---------------------------------------------------------------
 
@@ -218,7 +223,21 @@ class SimulatedPx4(Px4Transport, Px4Telemetry):
                         self.vehicle.advance(elapsed)
                     except VehicleFailsafe:
                         pass  # PX4 flies its failsafe; the fault shows in HEARTBEAT/state
+                if self.gcs is not None:
+                    self._check_data_link()
                 self._send_telemetry()
+
+    def _check_data_link(self) -> None:
+        """PX4's GCS connection loss: the age of the ground station's last HEARTBEAT in vehicle
+        time (the loop's clock, so a slow loop does not fire it) against NAV_DLL_ACT's rule."""
+        heard = self.gcs.last_heartbeat if self.gcs is not None else None
+        if heard is not None and heard != self._gcs_heard_wall:
+            self._gcs_heard_wall, self._gcs_heard_at = heard, self.vehicle.clock.now
+        age = None if self._gcs_heard_at is None else self.vehicle.clock.now - self._gcs_heard_at
+        values = self.parameters.values
+        self.datalink.step(self.vehicle, age, action=int(values["NAV_DLL_ACT"][1]),
+                           timeout=float(values["COM_DL_LOSS_T"][1]), exceptions=int(values["COM_DLL_EXCEPT"][1]),
+                           delay=float(values["COM_FAIL_ACT_T"][1]))
 
     def _targets_us(self, msg: Any) -> bool:
         system = getattr(msg, "target_system", 0)

@@ -10,15 +10,17 @@ with PARAM_VALUE as PX4 v1.16.0 SITL answers them (measured, ``tests/test_px4_si
   broadcast), once when it did not; no range is enforced (PX4 took RTL_RETURN_ALT 1000);
 * PX4 refuses to arm while NAV_DLL_ACT is not 0 and no ground station's HEARTBEAT came within
   COM_DL_LOSS_T s ("Preflight Fail: No connection to the ground control station"):
-  :meth:`Px4Parameters.arming_refusal`.
+  :meth:`Px4Parameters.arming_refusal`;
+* in flight, NAV_DLL_ACT, COM_DL_LOSS_T, COM_DLL_EXCEPT and COM_FAIL_ACT_T drive the GCS
+  connection loss failsafe (``sim/px4/datalink.py``).
 
 The parameters the airframe honours change its behaviour when set (``AIRFRAME_FIELDS``: the
 offboard-loss timeout and action, the return altitude, the disarm delays, the take-off
 altitude, the landing speed). Not modelled (stored and answered, no effect): the geofence,
 RTL_DESCEND_ALT (the simulated return descends at the landing speed from the return altitude,
 as PX4 does with RTL_DESCEND_ALT at the return altitude), the return cone (the simulated return
-always climbs to RTL_RETURN_ALT: PX4 with RTL_CONE_ANG 0), the data-link-loss action in flight,
-and COM_OBL_RC_ACT values other than 0 (Position), 3 (Return), 4 (Land) and 5 (Hold).
+always climbs to RTL_RETURN_ALT: PX4 with RTL_CONE_ANG 0), COM_OBL_RC_ACT values other than 0
+(Position), 3 (Return), 4 (Land) and 5 (Hold), and NAV_DLL_ACT 5 (Terminate) and 6 (Lockdown).
 """
 
 from __future__ import annotations
@@ -33,11 +35,13 @@ from insulator_rs.sim.kinematics import AutopilotParameters
 
 M = mavlink2
 INT32, REAL32 = M.MAV_PARAM_TYPE_INT32, M.MAV_PARAM_TYPE_REAL32
-# PX4 v1.16.0 SITL's defaults (read over MAVLink from a fresh SITL, SIH quadrotor)
+# PX4 v1.16.0 SITL's defaults (read over MAVLink from a fresh SITL, SIH quadrotor; COM_FAIL_ACT_T's
+# from the SITL's own parameter metadata, etc/extras/parameters.json.xz)
 SITL_DEFAULTS: dict[str, tuple[int, int | float]] = {
     "COM_DISARM_LAND": (REAL32, 2.0), "COM_DISARM_PRFLT": (REAL32, 10.0), "COM_DLL_EXCEPT": (INT32, 0),
     "COM_DL_LOSS_T": (INT32, 10), "COM_OBC_LOSS_T": (REAL32, 5.0), "COM_OBL_RC_ACT": (INT32, 0),
-    "COM_OF_LOSS_T": (REAL32, 1.0), "COM_RC_LOSS_T": (REAL32, 1.0), "GF_ACTION": (INT32, 2),
+    "COM_FAIL_ACT_T": (REAL32, 5.0), "COM_OF_LOSS_T": (REAL32, 1.0), "COM_RC_LOSS_T": (REAL32, 1.0),
+    "GF_ACTION": (INT32, 2),
     "GF_MAX_HOR_DIST": (REAL32, 0.0), "GF_MAX_VER_DIST": (REAL32, 0.0), "GF_PREDICT": (INT32, 0),
     "GF_SOURCE": (INT32, 0), "MIS_TAKEOFF_ALT": (REAL32, 2.5), "MPC_LAND_SPEED": (REAL32, 0.7),
     "NAV_DLL_ACT": (INT32, 0), "NAV_RCL_ACT": (INT32, 2), "RTL_CONE_ANG": (INT32, 45),
