@@ -28,7 +28,7 @@ from insulator_rs.sim import faults as F
 from insulator_rs.sim.kinematics import KinematicVehicle
 
 # s after arming, read by FM.moments_from off the clean flight's state log (docs/results/fault_matrix)
-MOMENTS = {"take-off": 0.8, "exploration": 25.4, "inspection": 9.9, "crossing": 40.9, "return": 102.6}
+MOMENTS = {"take-off": 0.8, "exploration": 56.8, "inspection": 10.1, "crossing": 41.0, "return": 103.2}
 
 
 class Source:
