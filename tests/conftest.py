@@ -54,6 +54,8 @@ def px4(tmp_path: Path):  # noqa: ANN201 (a generator fixture)
         sitl.stop()
 
 
+# optional: without pytest-xdist (the aarch64 stage under qemu, a plain `pytest`) the hook is unknown
+@pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, ANN201 (xdist's hook)
     """scripts/test.sh runs the suite on pytest-xdist workers (``--dist loadgroup``); this
     scheduler keeps each test module on one worker, so that a module's fixtures (a tower flown

@@ -11,6 +11,8 @@ by accident (a fixture imported into a module becomes a fixture of that module).
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 TESTS = Path(__file__).resolve().parent
@@ -58,3 +60,12 @@ def f():
 """
     assert imported_test_modules(source) == [(2, "test_a"), (3, "test_b.sub"), (4, "test_c"), (9, "test_d")]
     assert imported_test_modules("import numpy\nfrom helpers.px4_sitl import sitl_folder\n") == []
+
+
+def test_the_suite_collects_without_pytest_xdist() -> None:
+    """The aarch64 stage runs its test files under qemu with plain pytest (no pytest-xdist): the
+    conftest's scheduler hook must be optional there (an unknown hook stops collection)."""
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:xdist", "-p", "no:cacheprovider", "-q",
+                           "--collect-only", str(TESTS / "test_test_layout.py")],
+                          capture_output=True, text=True, cwd=TESTS.parent, timeout=120)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
