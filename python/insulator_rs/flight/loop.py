@@ -38,6 +38,7 @@ from insulator_rs.flight.autopilot_session import AutopilotSession
 from insulator_rs.flight.energy_budget import EnergyBudget
 from insulator_rs.flight.home import at_vehicle_home
 from insulator_rs.flight.leg_follower import LegFollower
+from insulator_rs.flight.lidar_cue import LidarCue
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photo_session import PhotoSession
 from insulator_rs.flight.photos import InspectionPhotos
@@ -64,7 +65,7 @@ from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.run_status import RunOutcome, RunStatus
 from insulator_rs.report.summary import RunSummary
 from insulator_rs.rig import SensorRig
-from insulator_rs.tracking.registry import InsulatorRegistry
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 
 __all__ = ["CONTROL_PERIOD", "FlightLoop", "FlightSettings"]
 
@@ -94,7 +95,10 @@ class FlightLoop:
                                              insulator_length=p.insulator_length,
                                              detect_period=settings.detect_period,
                                              on_sensor_error=self._sensor_error).runner
-        self.registry = InsulatorRegistry(geom.line, p.registry_gate, p.confirmations)
+        # the LiDAR cue (flight/lidar_cue.py): its doubts hold a record for more evidence
+        self.cue = LidarCue(geom.line, mission.max_width, p.insulator_length) if p.lidar_cue else None
+        self.registry = InsulatorRegistry(geom.line, p.registry_gate, p.confirmations,
+                                          doubt=None if self.cue is None else self.cue.doubt)
         self.sm = InspectionStateMachine(geom.path, self.registry, lambda ins: self.shots.plan(ins),
                                          policy=settings.policy,
                                          cost=lambda a, b: float(rest_to_rest_times(a, b, self.v_max, self.a_max)))
@@ -123,7 +127,8 @@ class FlightLoop:
                                    way_out=self.exit.route_from, **limits)
         self.abort_policy = AbortPolicy(self, self.runner, self.energy, max_flight_time=settings.max_flight_time)
         self.looks = SecondLookFlight(self, self.legs, registry=self.registry, runner=self.runner, geom=geom,
-                                      mission=mission, detect_period=settings.detect_period, energy=self.energy)
+                                      mission=mission, detect_period=settings.detect_period, energy=self.energy,
+                                      lidar_targets=None if self.cue is None else self._lidar_targets)
         # what checks each photo (perception/photo_check.py): the flight's detector unless the
         # composition root gives another (the simulator's stand-in on photos)
         self.shots = PhotoSession(self, geom, sensors=sensors, rig=rig, registry=self.registry, photos=self.photos,
@@ -135,7 +140,7 @@ class FlightLoop:
                                           observer=self.observer, energy=self.energy, log_pose=self._log_pose)
         self.assembly = SummaryAssembly(mission, rig, settings, vehicle, sensors, detector, self.registry, self.sm,
                                         self.runner, self.report, self.photos, self.origin, self.autopilot,
-                                        self.energy, self.legs, self.looks, self.exit)
+                                        self.energy, self.legs, self.looks, self.exit, self._lidar_cue_record)
 
     @property
     def status(self) -> str:
@@ -170,6 +175,23 @@ class FlightLoop:
         if self.sensor_errors <= 3 or self.sensor_errors % 50 == 0:
             self.say(f"[{self.now():7.1f} s] sensor error ({self.sensor_errors} so far): {exc}")
 
+    def _camera_places(self) -> tuple[list[Insulator], list[np.ndarray]]:
+        """What the camera has localized (every registry record) and where its perception tracks
+        are (their anchors, W): what covers a LiDAR string."""
+        return (self.registry.insulators + self.registry.candidates,
+                [t.anchor for t in self.runner.pipeline.tracks])
+
+    def _lidar_targets(self) -> list[Insulator]:
+        assert self.cue is not None
+        records, places = self._camera_places()
+        return self.cue.look_targets(places, records)
+
+    def _lidar_cue_record(self) -> dict[str, Any]:
+        if self.cue is None:
+            return {"enabled": False}
+        records, places = self._camera_places()
+        return self.cue.record(records, places)
+
     def _localized(self, fix: LocalizedInsulator, st: VehicleState) -> None:
         """Tell the state machine of a localization; a new insulator is reported."""
         outcome = self.sm.localized(fix.center, fix.axis, st.position, st.time)
@@ -201,7 +223,11 @@ class FlightLoop:
         self.energy.observe(st)
         self._log_pose(st)
         self.runner.add_pose(PoseStamped(st.time, st.T_w_b))  # the whole reported attitude
-        self.legs.survey(st, self.runner.survey, self.rig.T_b_l)
+        surveyed = self.legs.survey(st, self.runner.survey, self.rig.T_b_l, wanted=self.cue is not None)
+        if self.cue is not None:
+            if surveyed is not None:
+                self.cue.add(surveyed)
+            self.cue.update(st.time)
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
             for fix in self.runner.step(st.time):
                 self._localized(fix, st)

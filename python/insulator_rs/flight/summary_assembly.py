@@ -6,6 +6,7 @@ autopilot's parameters, the companion's stalls. Nothing of ground truth.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,6 +61,7 @@ class SummaryAssembly:
     legs: LegFollower
     looks: SecondLookFlight
     exit: SafeExit
+    lidar_cue: Callable[[], dict[str, Any]]  # the LiDAR cue's record now (flight/lidar_cue.py)
 
     def abort_record(self, reason: str | None, t_start: float) -> dict[str, Any] | None:
         """summary.json's ``abort``: why and when, the way out (its case, landing point in W and
@@ -116,6 +118,7 @@ class SummaryAssembly:
             battery=p.energy.record(),
             obstacle_map=p.legs.record(),
             second_looks=[look.as_record() for look in p.looks.looks],
+            lidar_cue=p.lidar_cue(),
             preflight=None if gate is None else gate.as_record(),
             px4_parameters=None if setup is None else setup.record(),
             companion_stalls=None if stall_watch is None else stall_watch.record(),
