@@ -116,6 +116,10 @@ def test_the_lidar_cue_finds_inspects_and_photographs_a_string_the_camera_missed
     on_hidden = [e for e in evidence if e["confirmed"]
                  and float(np.linalg.norm(np.array(e["center"]) - hidden.center)) < 0.5]
     assert on_hidden and on_hidden[0]["lidar"] == "string" and on_hidden[0]["camera_localizations"] >= 4, evidence
+    # and the report shows both cues: the cue's line, the LiDAR's word on each insulator
+    page = (tmp_path / "report" / "report.html").read_text(encoding="utf-8")
+    assert "1 looks at strings only the LiDAR found (1 confirmed by the camera)" in page
+    assert page.count('<td class="lidar">string, ') == 2
 
 
 @pytest.mark.slow
