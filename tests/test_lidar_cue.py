@@ -8,6 +8,7 @@ where the cloud is dense and no string is within 2 m).
 
 from __future__ import annotations
 
+import json
 import tomllib
 from pathlib import Path
 from types import SimpleNamespace
@@ -19,8 +20,9 @@ from scipy.spatial import cKDTree
 
 import insulator_rs as ir
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.flight.lidar_cue import (CLOUD_VOXEL, COVER_MIN_POINTS, COVER_RADIUS, SUPPORT_REACH, LidarCue,
-                                           TowerCloud, contradicts, uncovered_strings)
+from insulator_rs.evaluation.track_evidence import judge, read_run
+from insulator_rs.flight.lidar_cue import (CLOUD_VOXEL, CONTRADICTED, COVER_MIN_POINTS, COVER_RADIUS, SUPPORT_REACH,
+                                           LidarCue, TowerCloud, contradicts, uncovered_strings)
 from insulator_rs.flight.second_look import KNOWN_STRING_REACH
 from insulator_rs.geodesy import line_frame
 from insulator_rs.mission.config import parse_mission
@@ -120,6 +122,25 @@ def test_on_tower_b_the_rules_agree_with_the_truth():
     assert all(cue.doubt(p) for p in steel)
     empty = np.array([0.0, float(tower.max_width) / 2 + 1.5, 2.0])  # beside the tower, near the ground
     assert cue.cover(empty) < COVER_MIN_POINTS and not cue.doubt(empty)
+
+
+def test_the_track_evidence_counts_what_the_geometry_contradicts(tmp_path):
+    """Per-track evidence of both cues (evaluation/track_evidence.py): a string's tracks on a
+    LiDAR string, two false tracks past the gates, one the geometry contradicts, one it cannot
+    judge (not covered), and a false track stopped before the gates (not counted)."""
+    def track(true, lidar, localizations=3, held=0):
+        return {"center": [0, 0, 0], "boxes": 5, "best_score": 0.8, "confident_boxes": 5,
+                "localizations": localizations, "held_before_birth": held, "refused": 0,
+                "true_insulator": true, "gt_instance_id": 1, "distance_m": 0.1 if true else 2.0, "lidar": lidar}
+    tracks = [track(True, "string", 40), track(False, CONTRADICTED, 2), track(False, "not covered", 1),
+              track(False, CONTRADICTED, 0)]
+    (tmp_path / "score.json").write_text(json.dumps({"tracks": tracks, "insulators_in_scene": 1}), encoding="utf-8")
+    judged = judge([read_run(tmp_path)])
+    assert judged["lidar"] == {"false_past_the_gates_with_lidar": 2, "false_past_the_gates_contradicted": 1,
+                               "strings_with_a_contradicted_track": 0}
+    tracks[0]["lidar"] = CONTRADICTED
+    (tmp_path / "score.json").write_text(json.dumps({"tracks": tracks, "insulators_in_scene": 1}), encoding="utf-8")
+    assert judge([read_run(tmp_path)])["lidar"]["strings_with_a_contradicted_track"] == 1
 
 
 # -- the tower cloud --------------------------------------------------------------------------

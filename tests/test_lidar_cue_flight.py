@@ -13,6 +13,7 @@ own check.
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -21,6 +22,7 @@ from helpers.flights import small_scene
 
 from insulator_rs.app.inspect_command import kinematic_vehicle
 from insulator_rs.evaluation.scoring import score_flight
+from insulator_rs.evaluation.track_evidence import judge, read_run
 from insulator_rs.flight.loop import FlightLoop, FlightSettings
 from insulator_rs.flight.second_look import SecondLookFlight
 from insulator_rs.mission.config import load_mission
@@ -116,6 +118,12 @@ def test_the_lidar_cue_finds_inspects_and_photographs_a_string_the_camera_missed
     on_hidden = [e for e in evidence if e["confirmed"]
                  and float(np.linalg.norm(np.array(e["center"]) - hidden.center)) < 0.5]
     assert on_hidden and on_hidden[0]["lidar"] == "string" and on_hidden[0]["camera_localizations"] >= 4, evidence
+    # each perception track carries the geometry's word: on both strings a LiDAR string
+    on_strings = [t for t in score["tracks"] if t["true_insulator"] and t["localizations"] > 0]
+    assert on_strings and all(t["lidar"] == "string" for t in on_strings), score["tracks"]
+    (tmp_path / "report" / "score.json").write_text(json.dumps(score, default=float), encoding="utf-8")
+    judged = judge([read_run(tmp_path / "report")])
+    assert judged["lidar"]["strings_with_a_contradicted_track"] == 0, judged
     # and the report shows both cues: the cue's line, the LiDAR's word on each insulator
     page = (tmp_path / "report" / "report.html").read_text(encoding="utf-8")
     assert "1 looks at strings only the LiDAR found (1 confirmed by the camera)" in page

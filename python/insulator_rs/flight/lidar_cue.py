@@ -66,6 +66,8 @@ COVER_MIN_POINTS = 150
 #: m: a string found again within this of a look target's centre is that target (the finder's
 #: centres move by a few cm from run to run as the cloud grows)
 SAME_STRING = 0.5
+#: the geometry's word on a camera find it contradicts (:meth:`LidarCue.verdict`)
+CONTRADICTED = "no string-like structure"
 
 
 def _string_record(s: ir.InsulatorString) -> Insulator:
@@ -209,6 +211,19 @@ class LidarCue:
             targets.append(same)
         return targets
 
+    def verdict(self, center: np.ndarray) -> dict[str, Any]:
+        """What the geometry says of a camera find at ``center`` (W): ``lidar`` "string" (a string
+        within SUPPORT_REACH), "no string-like structure" (none, in a covered place: what
+        :func:`contradicts` holds) or "not covered"; the nearest string's distance from its segment
+        and score (None without strings), the cover of the place."""
+        near = [(string_distance(center, _string_record(s), float(s.length)), s) for s in self.strings]
+        d, s = min(near, key=lambda x: x[0], default=(math.inf, None))
+        cover = self.cover(center)
+        lidar = ("string" if d <= SUPPORT_REACH else
+                 CONTRADICTED if contradicts(center, self.strings, cover) else "not covered")
+        return {"lidar": lidar, "lidar_distance_m": None if s is None else round(d, 3),
+                "lidar_score": None if s is None else round(float(s.score), 3), "lidar_cover": cover}
+
     def evidence(self, records: list[Insulator], places: list[np.ndarray]) -> list[dict[str, Any]]:
         """Per registry record (confirmed or not) the evidence of both cues: the camera's
         localizations, whether confirmed, and the LiDAR's: the nearest string's distance from its
@@ -216,16 +231,8 @@ class LidarCue:
         many times the registry held it; then each LiDAR string no camera track covers."""
         rows: list[dict[str, Any]] = []
         for r in records:
-            near = [(string_distance(r.center, _string_record(s), float(s.length)), s) for s in self.strings]
-            d, s = min(near, key=lambda x: x[0], default=(math.inf, None))
-            cover = self.cover(r.center)
-            lidar = ("string" if d <= SUPPORT_REACH else
-                     "no string-like structure" if cover >= COVER_MIN_POINTS else "not covered")
             rows.append({"insulator_id": r.id, "center": np.round(r.center, 3).tolist(), "confirmed": r.confirmed,
-                         "camera_localizations": r.observations, "lidar": lidar,
-                         "lidar_distance_m": None if s is None else round(d, 3),
-                         "lidar_score": None if s is None else round(float(s.score), 3),
-                         "lidar_cover": cover, "held": r.held})
+                         "camera_localizations": r.observations, **self.verdict(r.center), "held": r.held})
         for s in uncovered_strings(self.strings, places, records, self.insulator_length):
             rows.append({"insulator_id": None, "center": np.round(np.asarray(s.center), 3).tolist(),
                          "confirmed": False, "camera_localizations": 0, "lidar": "string, no camera track",

@@ -140,7 +140,8 @@ class FlightLoop:
                                           observer=self.observer, energy=self.energy, log_pose=self._log_pose)
         self.assembly = SummaryAssembly(mission, rig, settings, vehicle, sensors, detector, self.registry, self.sm,
                                         self.runner, self.report, self.photos, self.origin, self.autopilot,
-                                        self.energy, self.legs, self.looks, self.exit, self._lidar_cue_record)
+                                        self.energy, self.legs, self.looks, self.exit, self._lidar_cue_record,
+                                        None if self.cue is None else self.cue.verdict)
 
     @property
     def status(self) -> str:

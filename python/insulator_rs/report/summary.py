@@ -48,7 +48,9 @@ class PerceptionRecord:
     sensor_errors: int = 0
     counters: dict[str, int] = field(default_factory=dict)  # PerceptionCounters
     refused_not_insulator: dict[str, int] = field(default_factory=dict)
-    # each track that reached a localization attempt and its evidence (PerceptionPipeline.track_records)
+    # each track that reached a localization attempt and its evidence (PerceptionPipeline.track_records);
+    # with the LiDAR cue on, the geometry's word at its centre too (LidarCue.verdict: lidar,
+    # lidar_distance_m, lidar_score, lidar_cover)
     tracks: list[dict[str, Any]] = field(default_factory=list)
 
 
