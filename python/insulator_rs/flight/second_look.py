@@ -37,7 +37,11 @@ looked at live in session 15 (3 views each, never confirmed), at 2.28-2.31 m acr
 its 10 m, its strings from 0.42; the small scene's peak at 0.07-0.15 of its 6 m, its strings at
 0.5. A body wider near the ground than the fraction (a tower's legs spread to its base) still
 offers its lowest steel to a look. At most :data:`MAX_LOOKS` a flight, the most seen first: a view is about
-15 s of flight, a look at most :data:`LOOK_VIEWS` of them.
+15 s of flight, a look at most :data:`LOOK_VIEWS` of them. The registry's candidates come first,
+then the tracks the gates refused throughout, then (with the mission's ``lidar_cue``) the strings
+the LiDAR's geometry found that no camera track covers (:mod:`insulator_rs.flight.lidar_cue`): a
+look there is how the camera gets its chance at a string it never boxed on the passes, and only
+the camera's localizations, in the registry, confirm it.
 
 Only what the battery spares: a look is flown where the latest weighing of the reserve still
 covers the look (there and back, each view watched to its limit), then the rest of the plan
