@@ -8,8 +8,9 @@ cue keeps those near the tower (:class:`TowerCloud`) and, every :data:`CUE_PERIO
 time, runs :func:`insulator_rs.find_insulator_strings` on them. Two rules use its strings:
 
 * **A string no camera track covers** (no registry record, confirmed or not, and no perception
-  track within :data:`~insulator_rs.flight.second_look.KNOWN_STRING_REACH` of it:
-  :func:`uncovered_strings`) becomes a look target: the second look
+  track the second look will look at anyway, within
+  :data:`~insulator_rs.flight.second_look.KNOWN_STRING_REACH` of it: :func:`uncovered_strings`;
+  the loop says which tracks those are) becomes a look target: the second look
   (:mod:`insulator_rs.flight.second_look`, after the registry's candidates and the refused
   tracks, within its MAX_LOOKS) flies there where a side's search ends, if the
   battery spares it, and the camera's localizations confirm it in the registry, or nothing does.

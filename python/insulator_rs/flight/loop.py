@@ -44,7 +44,7 @@ from insulator_rs.flight.photo_session import PhotoSession
 from insulator_rs.flight.photos import InspectionPhotos
 from insulator_rs.flight.pilot import CONTROL_PERIOD, LAND_HEIGHT
 from insulator_rs.flight.safe_exit import SafeExit
-from insulator_rs.flight.second_look import SecondLookFlight
+from insulator_rs.flight.second_look import REFUSED_TRACK_MIN_CONFIDENT, SecondLookFlight
 from insulator_rs.flight.settings import FlightSettings
 from insulator_rs.flight.stall_watch import StallWatch
 from insulator_rs.flight.summary_assembly import SummaryAssembly
@@ -177,10 +177,12 @@ class FlightLoop:
             self.say(f"[{self.now():7.1f} s] sensor error ({self.sensor_errors} so far): {exc}")
 
     def _camera_places(self) -> tuple[list[Insulator], list[np.ndarray]]:
-        """What the camera has localized (every registry record) and where its perception tracks
-        are (their anchors, W): what covers a LiDAR string."""
+        """What covers a LiDAR string: every registry record, and the anchors (W) of the tracks the
+        second look will look at anyway (boxed with confidence, every localization refused). A
+        track of a box or two that never localized covers nothing: the string near it is still
+        unfound (a network boxing it in fragments), and the LiDAR's look is its chance."""
         return (self.registry.insulators + self.registry.candidates,
-                [t.anchor for t in self.runner.pipeline.tracks])
+                [t.anchor for t in self.runner.pipeline.refused_tracks(REFUSED_TRACK_MIN_CONFIDENT)])
 
     def _lidar_targets(self) -> list[Insulator]:
         assert self.cue is not None
