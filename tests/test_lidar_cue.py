@@ -26,6 +26,7 @@ from insulator_rs.flight.lidar_cue import (CLOUD_VOXEL, CONTRADICTED, COVER_MIN_
 from insulator_rs.flight.second_look import KNOWN_STRING_REACH
 from insulator_rs.geodesy import line_frame
 from insulator_rs.mission.config import parse_mission
+from insulator_rs.planning.obstacle_map import GROUND_BAND
 from insulator_rs.tracking.confirmation import HELD_FACTOR
 from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 
@@ -145,8 +146,9 @@ def test_the_track_evidence_counts_what_the_geometry_contradicts(tmp_path):
 
 # -- the tower cloud --------------------------------------------------------------------------
 def test_the_tower_cloud_keeps_what_is_near_the_tower_and_thins_when_full():
-    cloud = TowerCloud(5.0, max_points=1000)
-    cloud.add(np.array([[1.0, 1.0, 5.0], [6.0, 0.0, 5.0], [np.nan, 0.0, 0.0]]))
+    cloud = TowerCloud(5.0, ground_z=0.5, max_points=1000)
+    # near the tower; beyond its reach; on the ground (under GROUND_BAND); a driver's NaN
+    cloud.add(np.array([[1.0, 1.0, 5.0], [6.0, 0.0, 5.0], [1.0, 1.0, 0.5 + GROUND_BAND - 0.1], [np.nan, 0.0, 0.0]]))
     assert len(cloud) == 1
     rng = np.random.default_rng(0)
     cloud.add(rng.uniform(-0.05, 0.05, (2000, 3)) + [0.0, 0.0, 5.0])  # 2000 returns in a 10 cm cube
@@ -158,6 +160,8 @@ def test_the_tower_cloud_keeps_what_is_near_the_tower_and_thins_when_full():
 def test_bad_tower_cloud_arguments_are_refused_by_name():
     with pytest.raises(ValueError, match="reach"):
         TowerCloud(float("nan"))
+    with pytest.raises(ValueError, match="ground_z"):
+        TowerCloud(5.0, ground_z=float("inf"))
     with pytest.raises(ValueError, match="max_points"):
         TowerCloud(5.0, max_points=0)
 

@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 import insulator_rs as ir
 from insulator_rs.flight.second_look import near_a_known_string, string_distance
 from insulator_rs.geodesy import LineFrame
+from insulator_rs.planning.obstacle_map import GROUND_BAND
 from insulator_rs.tracking.registry import Insulator
 
 #: s of flight between runs of the string finder: one exploration side's pass is 20-60 s, and the
@@ -105,11 +106,16 @@ def contradicts(center: np.ndarray, strings: list[ir.InsulatorString], cover: in
 
 class TowerCloud:
     """The LiDAR's returns (W) within ``reach`` m horizontally of the tower's axis (W origin,
-    z up), at most ``max_points`` (then thinned to one a CLOUD_VOXEL)."""
+    z up) and GROUND_BAND m or more above the take-off ground ``ground_z`` (the obstacle map's rule:
+    lower is the ground, a dense plane the finder would only wade through), at most
+    ``max_points`` (then thinned to one a CLOUD_VOXEL)."""
 
-    def __init__(self, reach: float, *, max_points: int = MAX_CLOUD_POINTS) -> None:
+    def __init__(self, reach: float, *, ground_z: float = 0.0, max_points: int = MAX_CLOUD_POINTS) -> None:
         if not (math.isfinite(reach) and reach > 0):
             raise ValueError(f"reach: must be a finite number > 0 m, got {reach}")
+        if not math.isfinite(ground_z):
+            raise ValueError(f"ground_z: must be a finite number (m), got {ground_z}")
+        self.floor = float(ground_z) + GROUND_BAND
         if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
             raise ValueError(f"max_points: must be an integer >= 1, got {max_points!r}")
         self.reach = float(reach)
@@ -124,7 +130,7 @@ class TowerCloud:
     def add(self, points_w: np.ndarray) -> None:
         p = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1)]
-        p = p[np.hypot(p[:, 0], p[:, 1]) <= self.reach]
+        p = p[(np.hypot(p[:, 0], p[:, 1]) <= self.reach) & (p[:, 2] >= self.floor)]
         if not len(p):
             return
         self._parts.append(p)
@@ -151,6 +157,7 @@ class LidarCue:
     line: LineFrame
     max_width: float  # m, the tower's widest arms
     insulator_length: float  # m, the mission's
+    ground_z: float = 0.0  # m, the take-off ground's height in W
     cloud: TowerCloud = field(init=False)
     strings: list[ir.InsulatorString] = field(default_factory=list, init=False)
     runs: int = field(default=0, init=False)
@@ -160,7 +167,7 @@ class LidarCue:
     _targets: list[Insulator] = field(default_factory=list, init=False)  # look targets, kept by identity
 
     def __post_init__(self) -> None:
-        self.cloud = TowerCloud(self.max_width / 2 + CLOUD_REACH)
+        self.cloud = TowerCloud(self.max_width / 2 + CLOUD_REACH, ground_z=self.ground_z)
 
     def add(self, points_w: np.ndarray) -> None:
         self.cloud.add(points_w)

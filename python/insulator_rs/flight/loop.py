@@ -96,7 +96,8 @@ class FlightLoop:
                                              detect_period=settings.detect_period,
                                              on_sensor_error=self._sensor_error).runner
         # the LiDAR cue (flight/lidar_cue.py): its doubts hold a record for more evidence
-        self.cue = LidarCue(geom.line, mission.max_width, p.insulator_length) if p.lidar_cue else None
+        self.cue = (LidarCue(geom.line, mission.max_width, p.insulator_length, ground_z=float(geom.takeoff[2]))
+                    if p.lidar_cue else None)
         self.registry = InsulatorRegistry(geom.line, p.registry_gate, p.confirmations,
                                           doubt=None if self.cue is None else self.cue.doubt)
         self.sm = InspectionStateMachine(geom.path, self.registry, lambda ins: self.shots.plan(ins),
