@@ -59,6 +59,7 @@ def _sorted(boxes: np.ndarray, scores: np.ndarray, classes: np.ndarray) -> tuple
     return boxes[order], scores[order], classes[order]
 
 
+@pytest.mark.slow  # every shipped network on its reference images: about 14 s each
 @pytest.mark.parametrize("model", make_x86.MODELS)
 def test_detections_match_the_x86_reference(reference: dict, model: str) -> None:
     detectors: dict[float, Detector] = {}

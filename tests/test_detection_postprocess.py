@@ -48,6 +48,7 @@ def test_nms_matches_definition(data, thr: float) -> None:
     assert nms(boxes, scores, thr).tolist() == reference_nms(boxes.tolist(), scores.tolist(), thr)
 
 
+@pytest.mark.slow  # torchvision's NMS per example: about 11 s
 @settings(max_examples=20, deadline=None)
 @given(data=box_sets, thr=st.sampled_from([0.45, 0.7]))
 def test_nms_matches_torchvision(data, thr: float) -> None:

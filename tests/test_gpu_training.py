@@ -94,6 +94,7 @@ def test_combined_yaml_lists_every_training_shard(tmp_path: Path) -> None:
     assert Path(doc["val"]).parts[-3:] == ("val", "images", "val") and doc["names"] == {0: "insulator"}
 
 
+@pytest.mark.slow  # a whole training call on the CPU: about 80 s
 @needs_ultralytics
 def test_dry_run_on_the_cpu_writes_what_the_device_returns(tmp_path: Path) -> None:
     """scripts/gpu/dry_run_cpu.sh end to end: the files the device call brings back, readable."""

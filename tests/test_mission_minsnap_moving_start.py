@@ -75,6 +75,7 @@ def moving_plans(draw):
     return wp, draw(start_velocities(vm)), vm, am, draw(st.sampled_from(["pmm", "snap"]))
 
 
+@pytest.mark.slow  # 60 plans: about 9 s
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(moving_plans())
 def test_any_start_velocity_gives_a_trajectory_within_the_limits(case):

@@ -5,6 +5,7 @@ side-to-side routes)."""
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -41,6 +42,7 @@ def samples_clear(volumes, pos, vmax_norm):
     return volumes.samples_clear(pos, max_step=vmax_norm * DT)
 
 
+@pytest.mark.slow  # 12 towers planned whole: about 15 s
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(towers())
 def test_planned_trajectories_stay_out_of_the_safety_volumes(tower):

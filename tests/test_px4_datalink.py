@@ -123,6 +123,7 @@ def test_hold_clears_when_the_ground_station_is_back_return_does_not():
     assert vehicle.mode == FlightMode.RTL  # Return stays until another mode is chosen
 
 
+@pytest.mark.slow  # a climb and the failsafe's 15 s over UDP: about 10 s
 def test_over_udp_the_relayed_ground_station_cut_in_the_climb_makes_px4_return():
     """Our simulated PX4 with a ground station on its GCS link: NAV_DLL_ACT 2 set over MAVLink, the
     vehicle climbing in TAKEOFF, the ground station cut: HOLD COM_DL_LOSS_T s later, RTL

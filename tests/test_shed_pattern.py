@@ -89,3 +89,35 @@ def test_without_a_box_or_a_pattern_nothing_is_added() -> None:
     flat = np.full((H, W), 128.0, np.float32)
     boxed = boxed_above(uv, 600)
     assert np.array_equal(shed_evidence(flat, uv, boxed, DIAMETER), boxed)
+
+
+def test_a_string_projected_far_out_of_the_frame_costs_no_more_than_the_frame() -> None:
+    """A string seen from near the camera's plane projects millions of pixels out of the frame:
+    only the stretch whose strip meets the image is sampled (a strip along all of it would not
+    fit in memory), and the samples inside are judged as before."""
+    img = photo(100, 1100)
+    uv = samples(100, 1100)
+    boxed = boxed_above(uv, 600)
+    inside = shed_evidence(img, uv, boxed, DIAMETER)
+    far = np.vstack([uv, [[float(U), 3.0e7]]])  # one more sample, 30 million pixels down
+    profile, _ = axis_profile(img, far, DIAMETER, 200.0)
+    assert len(profile) < H + 2 * (200 + DIAMETER) + 3
+    out = shed_evidence(img, far, np.append(boxed, False), DIAMETER)
+    assert out.shape == (len(far),) and not out[-1]
+    assert np.array_equal(out[:-2], inside[:-1])  # the last sample before the far one now lies on a 30-million-pixel segment
+
+
+@pytest.mark.parametrize("diameter", [float("nan"), 2.0, 1.0e6])
+def test_a_diameter_too_small_too_large_or_undefined_adds_nothing(diameter: float) -> None:
+    img = photo(100, 1100)
+    uv = samples(100, 1100)
+    boxed = boxed_above(uv, 600)
+    assert np.array_equal(shed_evidence(img, uv, boxed, diameter), boxed)
+
+
+def test_a_string_wholly_outside_the_frame_adds_nothing() -> None:
+    img = photo(100, 1100)
+    uv = samples(100, 1100) + np.array([5000.0, 0.0])
+    boxed = np.zeros(len(uv), bool)
+    boxed[:5] = True
+    assert np.array_equal(shed_evidence(img, uv, boxed, DIAMETER), boxed)

@@ -55,6 +55,9 @@ MIN_PAIRS_PERIODS = 0.5
 #: ground) and falls at its end (to 0.0-0.2 of the last shed's); the repetition alone, being
 #: normalized, counts a window whose last sheds sit at one edge as fully as one full of them.
 MIN_ENERGY_STEP = 0.35
+#: A string wider than this share of the photo's long side is too near for a row of sheds to show
+#: (a close-up's is about a tenth): the cue adds nothing there.
+MAX_DIAMETER_SHARE = 0.25
 #: Lags searched for the period, in shed diameters (the projected string's width).
 PERIOD_RANGE = (0.2, 1.5)
 #: px: the strip's sampling step across the axis (the profile is a mean across: every 2nd pixel
@@ -74,7 +77,18 @@ def axis_profile(grey: np.ndarray, string_px: np.ndarray, diameter_px: float,
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     length = float(arc[-1])
     ext = float(extend_px)
-    t = np.arange(-ext, length + ext + 1.0)
+    h, w = grey.shape[:2]
+    # only the stretch whose strip can meet the image: a string projected from near the camera's
+    # plane runs millions of pixels out of the frame, and a strip along all of it would not fit
+    # in memory
+    first, last = _in_image(uv[0], uv[-1], w, h, margin=ext + diameter_px)
+    if first is None or last is None:
+        return np.full(0, np.nan), arc + ext
+    lo = max(-ext, math.floor(first * length) - 1.0)
+    hi = min(length + ext, math.ceil(last * length) + 1.0)
+    if hi < lo:
+        return np.full(0, np.nan), arc + ext
+    t = np.arange(lo, hi + 1.0)
     head = (uv[1] - uv[0]) / max(seg[0], 1e-9)
     tail = (uv[-1] - uv[-2]) / max(seg[-1], 1e-9)
     cu = np.interp(t, arc, uv[:, 0])
@@ -89,14 +103,13 @@ def axis_profile(grey: np.ndarray, string_px: np.ndarray, diameter_px: float,
     offsets = np.arange(-half, half + 1, ACROSS_STEP_PX, dtype=np.float64)
     mx = (cu[:, None] + offsets[None, :] * normal[0]).astype(np.float32)
     my = (cv[:, None] + offsets[None, :] * normal[1]).astype(np.float32)
-    h, w = grey.shape[:2]
     inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
     strip = cv2.remap(grey, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     counted = inside.sum(axis=1)
     valid = counted >= 0.5 * len(offsets)
     profile = np.where(valid, (strip * inside).sum(axis=1) / np.maximum(counted, 1), 0.0)
     if not valid.any():
-        return np.full(len(t), np.nan), arc + ext
+        return np.full(len(t), np.nan), arc - lo
     # the background's slow change (sky, then ground) taken away by a running median half a
     # diameter long (shorter than a period, longer than a shed's edge-on thickness): it follows a
     # step (a horizon, a member behind the string) where a moving mean would smear it over the
@@ -108,7 +121,23 @@ def axis_profile(grey: np.ndarray, string_px: np.ndarray, diameter_px: float,
     # than the ground: the pattern must run on where the background changes), less its own level
     contrast = np.abs(nearest - median_filter(nearest, size=size, mode="nearest"))
     contrast -= median_filter(contrast, size=size, mode="nearest")
-    return np.where(valid, contrast, np.nan), arc + ext
+    return np.where(valid, contrast, np.nan), arc - lo
+
+
+def _in_image(a: np.ndarray, b: np.ndarray, w: int, h: int, margin: float) -> tuple[float | None, float | None]:
+    """The part of the line from ``a`` to ``b`` (pixels; parameter 0 at ``a``, 1 at ``b``, any
+    value along the line beyond them) inside the image widened by ``margin`` on every side, as
+    its first and last parameter (Liang-Barsky clipping); (None, None) where the line misses it."""
+    d = b - a
+    lo, hi = -math.inf, math.inf
+    for p0, dp, low, high in ((a[0], d[0], -margin, w - 1 + margin), (a[1], d[1], -margin, h - 1 + margin)):
+        if abs(dp) < 1e-12:
+            if not low <= p0 <= high:
+                return None, None
+            continue
+        t1, t2 = (low - p0) / dp, (high - p0) / dp
+        lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
+    return (lo, hi) if lo <= hi else (None, None)
 
 
 def _repeat(x: np.ndarray, lag: int) -> tuple[float, int]:
@@ -131,11 +160,15 @@ def shed_evidence(grey: np.ndarray, string_px: np.ndarray, boxed: np.ndarray,
     boxed = np.asarray(boxed, dtype=bool)
     out = boxed.copy()
     n = len(boxed)
-    if n < 2 or not boxed.any() or boxed.all() or not (math.isfinite(diameter_px) and diameter_px >= 4):
+    too_near = diameter_px > MAX_DIAMETER_SHARE * max(grey.shape[:2])  # no row of sheds to see
+    if (n < 2 or not boxed.any() or boxed.all() or not (math.isfinite(diameter_px) and diameter_px >= 4)
+            or too_near or not np.all(np.isfinite(string_px))):
         return out
     lags = np.arange(max(2, int(PERIOD_RANGE[0] * diameter_px)), int(PERIOD_RANGE[1] * diameter_px) + 1)
     reach = WINDOW_PERIODS * lags[-1]
     profile, at = axis_profile(grey, string_px, diameter_px, reach)
+    if len(profile) <= lags[-1]:
+        return out
     spacing = float(at[-1] - at[0]) / (n - 1)
     rows = np.arange(len(profile))
     in_boxed = np.zeros(len(profile), dtype=bool)
@@ -151,7 +184,7 @@ def shed_evidence(grey: np.ndarray, string_px: np.ndarray, boxed: np.ndarray,
 
     def energy(i: int) -> float:
         """The pattern's mean square within half a period of sample ``i``."""
-        part = profile[max(0, int(at[i] - 0.5 * period)):int(at[i] + 0.5 * period) + 1]
+        part = profile[max(0, int(at[i] - 0.5 * period)):max(0, int(at[i] + 0.5 * period) + 1)]
         part = part[~np.isnan(part)]
         return float(np.mean(part * part)) if len(part) else 0.0
 
