@@ -196,9 +196,9 @@ def test_a_string_whose_every_localization_is_refused_gets_a_look_at_its_track(t
 
     second_look = SecondLookFlight.look
 
-    def mark_the_look(self, candidate):
+    def mark_the_look(self, candidate, **kwargs):
         looking.append(True)
-        return second_look(self, candidate)
+        return second_look(self, candidate, **kwargs)
 
     monkeypatch.setattr(PerceptionPipeline, "_scale_plausible", refuse_on_the_string_until_the_look)
     monkeypatch.setattr(SecondLookFlight, "look", mark_the_look)

@@ -15,6 +15,10 @@ over all of them:
   and scale gates and so reached the birth rule, their best box and the localizations they
   handed on; the strongest bounds how low the thresholds may go.
 
+Where the LiDAR cue flew (``flight/lidar_cue.py``), each track carries the geometry's word at its
+centre (``lidar``): the judgement then counts the false tracks past the gates that the geometry
+contradicts (held for more localizations) and the strings it contradicts (which it must not).
+
 The verdict (:func:`judge`) says, for BIRTH_SCORE and for the confirmations, whether every false
 track is stopped and every string passes, with the margins on both sides. Change a threshold
 only on that evidence (issue 22: "change them only on that evidence").
@@ -33,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from insulator_rs.flight.lidar_cue import CONTRADICTED
 from insulator_rs.tracking.confirmation import CONFIRMATIONS, is_confirmed
 from insulator_rs.perception.pipeline import BIRTH_SCORE
 
@@ -44,7 +49,7 @@ class RunEvidence:
 
     run: str
     strings: dict[int, dict[str, float]] = field(default_factory=dict)
-    false_tracks: list[dict[str, float]] = field(default_factory=list)
+    false_tracks: list[dict[str, Any]] = field(default_factory=list)
     strings_in_scene: int = 0
 
 
@@ -65,10 +70,12 @@ def read_run(folder: Path) -> RunEvidence:
             s["localizations"] += int(t["localizations"])
             s["best_score"] = max(s["best_score"], float(t["best_score"]))
             s["tracks"] += 1
+            if "lidar" in t:  # the LiDAR cue flew: does the geometry contradict the string?
+                s["lidar_contradicted"] = s.get("lidar_contradicted", 0) + (t["lidar"] == CONTRADICTED)
         else:
             ev.false_tracks.append({"localizations": int(t["localizations"]), "best_score": float(t["best_score"]),
                                     "boxes": int(t["boxes"]), "held_before_birth": int(t["held_before_birth"]),
-                                    "distance_m": t.get("distance_m")})
+                                    "distance_m": t.get("distance_m"), "lidar": t.get("lidar")})
     return ev
 
 
@@ -98,6 +105,13 @@ def judge(runs: list[RunEvidence], birth_score: float = BIRTH_SCORE,
     }
     strings_pass = bool(strings) and all(s["best_score"] >= birth_score and is_confirmed(int(s["localizations"]), confirmations)
                                          for s in strings)
+    with_lidar = [t for t in at_birth if t.get("lidar") is not None]
+    if with_lidar or any("lidar_contradicted" in st for st in strings):
+        # the second cue: a false track past the gates that the geometry contradicts is held for
+        # more localizations; a string the geometry contradicts would be held too (never lost)
+        out["lidar"] = {"false_past_the_gates_with_lidar": len(with_lidar),
+                        "false_past_the_gates_contradicted": sum(1 for t in with_lidar if t["lidar"] == CONTRADICTED),
+                        "strings_with_a_contradicted_track": sum(1 for st in strings if st.get("lidar_contradicted"))}
     out["verdict"] = {
         "every_false_track_stopped": not confirmed,
         "every_tracked_string_passes": strings_pass,

@@ -20,7 +20,7 @@ from insulator_rs.flight.pilot import CONTROL_PERIOD, Pilot
 from insulator_rs.mission.geometry import MissionGeometry
 from insulator_rs.mission.state_machine import PlanItem
 from insulator_rs.planning.minsnap import MinSnapTrajectory
-from insulator_rs.planning.obstacle_map import ObstacleMap, SeenVolumes
+from insulator_rs.planning.obstacle_map import SURVEY_RANGE, ObstacleMap, SeenVolumes
 from insulator_rs.planning.segments import SAFETY_CHECK_DT, Segment, plan_segment
 from insulator_rs.ports.vehicle import VehicleState
 
@@ -106,12 +106,21 @@ class LegFollower:
         self.legs_replanned = 0  # legs left mid-way because the map saw their rest blocked
         self.legs_refused = 0  # legs no detour round the map's obstacles cleared
 
-    def survey(self, st: VehicleState, scan: Callable[[float], np.ndarray], T_b_l: np.ndarray) -> None:
+    def survey(self, st: VehicleState, scan: Callable[[float], np.ndarray], T_b_l: np.ndarray, *,
+               wanted: bool = False) -> np.ndarray | None:
         """Every SURVEY_PERIOD s: the LiDAR's returns at ``st``'s time (``scan(time)``: points in
-        W) into the map, from the sensor's place (``T_b_l``: the LiDAR in the body)."""
-        if self.obstacles is not None and st.time >= self._next_survey:
-            self._next_survey = st.time + SURVEY_PERIOD
-            self.obstacles.insert(scan(st.time), sensor_w=(st.T_w_b @ T_b_l)[:3, 3])
+        W) into the map, from the sensor's place (``T_b_l``: the LiDAR in the body). The returns
+        taken (None: no survey this tick), for another user of the same scans (the LiDAR cue:
+        ``wanted`` surveys without a map too)."""
+        if (self.obstacles is None and not wanted) or st.time < self._next_survey:
+            return None
+        self._next_survey = st.time + SURVEY_PERIOD
+        sensor = (st.T_w_b @ T_b_l)[:3, 3]
+        points = scan(st.time)
+        if self.obstacles is not None:
+            self.obstacles.insert(points, sensor_w=sensor)
+        # the map's range rule, one home: farther returns are the least accurate
+        return points[np.linalg.norm(points - sensor, axis=1) <= SURVEY_RANGE] if len(points) else points
 
     def seen(self) -> SeenVolumes | None:
         """The safety volumes with the obstacle map, at the mission's margin (None: no map)."""

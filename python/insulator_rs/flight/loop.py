@@ -38,12 +38,13 @@ from insulator_rs.flight.autopilot_session import AutopilotSession
 from insulator_rs.flight.energy_budget import EnergyBudget
 from insulator_rs.flight.home import at_vehicle_home
 from insulator_rs.flight.leg_follower import LegFollower
+from insulator_rs.flight.lidar_cue import LidarCue
 from insulator_rs.flight.observers import ConsoleObserver, ObserverGroup
 from insulator_rs.flight.photo_session import PhotoSession
 from insulator_rs.flight.photos import InspectionPhotos
 from insulator_rs.flight.pilot import CONTROL_PERIOD, LAND_HEIGHT
 from insulator_rs.flight.safe_exit import SafeExit
-from insulator_rs.flight.second_look import SecondLookFlight
+from insulator_rs.flight.second_look import REFUSED_TRACK_MIN_CONFIDENT, SecondLookFlight
 from insulator_rs.flight.settings import FlightSettings
 from insulator_rs.flight.stall_watch import StallWatch
 from insulator_rs.flight.summary_assembly import SummaryAssembly
@@ -64,7 +65,7 @@ from insulator_rs.report import FlightClock, ReportWriter
 from insulator_rs.report.run_status import RunOutcome, RunStatus
 from insulator_rs.report.summary import RunSummary
 from insulator_rs.rig import SensorRig
-from insulator_rs.tracking.registry import InsulatorRegistry
+from insulator_rs.tracking.registry import Insulator, InsulatorRegistry
 
 __all__ = ["CONTROL_PERIOD", "FlightLoop", "FlightSettings"]
 
@@ -94,7 +95,11 @@ class FlightLoop:
                                              insulator_length=p.insulator_length,
                                              detect_period=settings.detect_period,
                                              on_sensor_error=self._sensor_error).runner
-        self.registry = InsulatorRegistry(geom.line, p.registry_gate, p.confirmations)
+        # the LiDAR cue (flight/lidar_cue.py): its doubts hold a record for more evidence
+        self.cue = (LidarCue(geom.line, mission.max_width, p.insulator_length, ground_z=float(geom.takeoff[2]))
+                    if p.lidar_cue else None)
+        self.registry = InsulatorRegistry(geom.line, p.registry_gate, p.confirmations,
+                                          doubt=None if self.cue is None else self.cue.doubt)
         self.sm = InspectionStateMachine(geom.path, self.registry, lambda ins: self.shots.plan(ins),
                                          policy=settings.policy,
                                          cost=lambda a, b: float(rest_to_rest_times(a, b, self.v_max, self.a_max)))
@@ -123,7 +128,8 @@ class FlightLoop:
                                    way_out=self.exit.route_from, **limits)
         self.abort_policy = AbortPolicy(self, self.runner, self.energy, max_flight_time=settings.max_flight_time)
         self.looks = SecondLookFlight(self, self.legs, registry=self.registry, runner=self.runner, geom=geom,
-                                      mission=mission, detect_period=settings.detect_period, energy=self.energy)
+                                      mission=mission, detect_period=settings.detect_period, energy=self.energy,
+                                      lidar_targets=None if self.cue is None else self._lidar_targets)
         # what checks each photo (perception/photo_check.py): the flight's detector unless the
         # composition root gives another (the simulator's stand-in on photos)
         self.shots = PhotoSession(self, geom, sensors=sensors, rig=rig, registry=self.registry, photos=self.photos,
@@ -135,7 +141,8 @@ class FlightLoop:
                                           observer=self.observer, energy=self.energy, log_pose=self._log_pose)
         self.assembly = SummaryAssembly(mission, rig, settings, vehicle, sensors, detector, self.registry, self.sm,
                                         self.runner, self.report, self.photos, self.origin, self.autopilot,
-                                        self.energy, self.legs, self.looks, self.exit)
+                                        self.energy, self.legs, self.looks, self.exit, self._lidar_cue_record,
+                                        None if self.cue is None else self.cue.verdict)
 
     @property
     def status(self) -> str:
@@ -170,6 +177,25 @@ class FlightLoop:
         if self.sensor_errors <= 3 or self.sensor_errors % 50 == 0:
             self.say(f"[{self.now():7.1f} s] sensor error ({self.sensor_errors} so far): {exc}")
 
+    def _camera_places(self) -> tuple[list[Insulator], list[np.ndarray]]:
+        """What covers a LiDAR string: every registry record, and the anchors (W) of the tracks the
+        second look will look at anyway (boxed with confidence, every localization refused). A
+        track of a box or two that never localized covers nothing: the string near it is still
+        unfound (a network boxing it in fragments), and the LiDAR's look is its chance."""
+        return (self.registry.insulators + self.registry.candidates,
+                [t.anchor for t in self.runner.pipeline.refused_tracks(REFUSED_TRACK_MIN_CONFIDENT)])
+
+    def _lidar_targets(self) -> list[Insulator]:
+        assert self.cue is not None
+        records, places = self._camera_places()
+        return self.cue.look_targets(places, records)
+
+    def _lidar_cue_record(self) -> dict[str, Any]:
+        if self.cue is None:
+            return {"enabled": False}
+        records, places = self._camera_places()
+        return self.cue.record(records, places)
+
     def _localized(self, fix: LocalizedInsulator, st: VehicleState) -> None:
         """Tell the state machine of a localization; a new insulator is reported."""
         outcome = self.sm.localized(fix.center, fix.axis, st.position, st.time)
@@ -201,7 +227,11 @@ class FlightLoop:
         self.energy.observe(st)
         self._log_pose(st)
         self.runner.add_pose(PoseStamped(st.time, st.T_w_b))  # the whole reported attitude
-        self.legs.survey(st, self.runner.survey, self.rig.T_b_l)
+        surveyed = self.legs.survey(st, self.runner.survey, self.rig.T_b_l, wanted=self.cue is not None)
+        if self.cue is not None:
+            if surveyed is not None:
+                self.cue.add(surveyed)
+            self.cue.update(st.time)
         if self.sm.state not in (State.IDLE, State.FINISH, State.ABORT):
             for fix in self.runner.step(st.time):
                 self._localized(fix, st)

@@ -37,7 +37,11 @@ looked at live in session 15 (3 views each, never confirmed), at 2.28-2.31 m acr
 its 10 m, its strings from 0.42; the small scene's peak at 0.07-0.15 of its 6 m, its strings at
 0.5. A body wider near the ground than the fraction (a tower's legs spread to its base) still
 offers its lowest steel to a look. At most :data:`MAX_LOOKS` a flight, the most seen first: a view is about
-15 s of flight, a look at most :data:`LOOK_VIEWS` of them.
+15 s of flight, a look at most :data:`LOOK_VIEWS` of them. The registry's candidates come first,
+then the tracks the gates refused throughout, then (with the mission's ``lidar_cue``) the strings
+the LiDAR's geometry found that no camera track covers (:mod:`insulator_rs.flight.lidar_cue`): a
+look there is how the camera gets its chance at a string it never boxed on the passes, and only
+the camera's localizations, in the registry, confirm it.
 
 Only what the battery spares: a look is flown where the latest weighing of the reserve still
 covers the look (there and back, each view watched to its limit), then the rest of the plan
@@ -50,6 +54,7 @@ the reserve then turned it back with every string inspected and the search's las
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
@@ -128,7 +133,8 @@ class SecondLook:
     confirmed: bool
     note: str | None = None
     views: int = 0
-    #: "candidate" (a registry record) or "refused track" (:func:`refused_track_candidate`)
+    #: "candidate" (a registry record), "refused track" (:func:`refused_track_candidate`) or
+    #: "lidar string" (a string of the LiDAR cue no camera track covers: flight/lidar_cue.py)
     source: str = "candidate"
 
     def as_record(self) -> dict[str, Any]:
@@ -144,20 +150,21 @@ def refused_track_candidate(anchor: np.ndarray, line: LineFrame) -> Insulator:
     return Insulator(id=0, center=center, axis=np.zeros(3), observations=0, side=line.side(center))
 
 
+def string_distance(point: np.ndarray, record: Insulator, length: float) -> float:
+    """m from ``point`` (W) to a record's string: the segment of ``length`` m along its axis
+    through its centre (its centre alone when it has no axis)."""
+    d = np.asarray(point, dtype=np.float64).reshape(3) - record.center
+    norm = float(np.linalg.norm(record.axis))
+    if norm > 0:
+        along = float(d @ record.axis) / norm
+        d = d - record.axis / norm * float(np.clip(along, -0.5 * length, 0.5 * length))
+    return float(np.linalg.norm(d))
+
+
 def near_a_known_string(anchor: np.ndarray, records: list[Insulator], length: float,
                         reach: float = KNOWN_STRING_REACH) -> bool:
-    """Whether ``anchor`` (W) lies within ``reach`` m of a record's string: the segment of
-    ``length`` m along its axis through its centre (its centre alone when it has no axis)."""
-    a = np.asarray(anchor, dtype=np.float64).reshape(3)
-    for r in records:
-        d = a - r.center
-        norm = float(np.linalg.norm(r.axis))
-        if norm > 0:
-            along = float(d @ r.axis) / norm
-            d = d - r.axis / norm * float(np.clip(along, -0.5 * length, 0.5 * length))
-        if float(np.linalg.norm(d)) <= reach:
-            return True
-    return False
+    """Whether ``anchor`` (W) lies within ``reach`` m of a record's string (:func:`string_distance`)."""
+    return any(string_distance(anchor, r, length) <= reach for r in records)
 
 
 def observations_near(records: list[Insulator], center: np.ndarray, gate: float) -> int:
@@ -231,6 +238,8 @@ class SecondLookFlight:
     mission: Mission
     detect_period: float  # s between detection events
     energy: EnergyBudget  # weighs a look against the rest of the plan and the reserve
+    # the LiDAR cue's strings no camera track covers, as look targets (flight/lidar_cue.py; None: no cue)
+    lidar_targets: Callable[[], list[Insulator]] | None = None
     looks: list[SecondLook] = field(default_factory=list, init=False)
     looked: list[Insulator] = field(default_factory=list, init=False)  # the candidates looked at (the records)
     # look targets made for the pipeline's refused tracks, one per track (``looked`` holds them)
@@ -263,10 +272,14 @@ class SecondLookFlight:
         if target is None:  # then a track confidently boxed whose every localization was refused
             target = look_target(self.refused_candidates(), self.geom.line, position, self.mission.max_width,
                                  self.looked)
+        lidar = False
+        if target is None and self.lidar_targets is not None:  # then a string only the LiDAR found
+            target = look_target(self.lidar_targets(), self.geom.line, position, self.mission.max_width, self.looked)
+            lidar = target is not None
         if target is None:
             return True
         self.looked.append(target)
-        self.look(target)
+        self.look(target, lidar=lidar)
         return False
 
     def refused_candidates(self) -> list[Insulator]:
@@ -284,15 +297,16 @@ class SecondLookFlight:
                 self._refused_targets[id(track)] = refused_track_candidate(track.anchor, self.geom.line)
         return [self._refused_targets[id(t)] for t in tracks]
 
-    def look(self, candidate: Insulator) -> None:
+    def look(self, candidate: Insulator, *, lidar: bool = False) -> None:
         """Watch ``candidate`` from its look viewpoints in turn, each for :func:`look_events`
         detection events once settled, then wait for their LiDAR points; ended by a find (the plan
         changes: its waypoints come first), cut short by a hold, an abort, lost health or an
-        obstacle on the way. The look goes into ``looks``."""
+        obstacle on the way. The look goes into ``looks``. ``lidar``: the candidate is a string
+        only the LiDAR cue found (no registry record)."""
         pilot = self.pilot
         before = candidate.observations
         refused = any(candidate is target for target in self._refused_targets.values())
-        source = "refused track" if refused else "candidate"
+        source = "lidar string" if lidar else "refused track" if refused else "candidate"
         try:
             views = look_viewpoints(candidate.center, self.geom.line, self.geom.volumes,
                                     min_height=float(self.geom.takeoff[2]) + MIN_PASS_HEIGHT)
@@ -309,8 +323,8 @@ class SecondLookFlight:
             pilot.say(f"[{pilot.now():7.1f} s] no second look at a {source} at "
                       f"{np.round(candidate.center, 2).tolist()}: the battery keeps {-spare:.1%} too little")
             return
-        seen = (f"seen {before} times" if source == "candidate"
-                else "boxed with confidence, every localization refused")
+        seen = {"candidate": f"seen {before} times", "refused track": "boxed with confidence, every localization refused",
+                "lidar string": "found by the LiDAR alone, no camera track near"}[source]
         pilot.say(f"[{pilot.now():7.1f} s] a second look at a {source} ({seen}) at "
                   f"{np.round(candidate.center, 2).tolist()}")
         version = pilot.sm.plan_version
@@ -330,7 +344,7 @@ class SecondLookFlight:
             st = pilot.tick(view.position, None, view.yaw)
             note = self._cut_short(version)
         after, confirmed = candidate.observations, candidate.confirmed
-        if source == "refused track":  # what the registry now holds where the track was
+        if source != "candidate":  # what the registry now holds where the track or the LiDAR's string was
             gate = self.registry.gate
             after = observations_near(self.registry.insulators + self.registry.candidates, candidate.center, gate)
             confirmed = observations_near(self.registry.insulators, candidate.center, gate) > 0

@@ -6,7 +6,8 @@ autopilot's parameters, the companion's stalls. Nothing of ground truth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -60,6 +61,9 @@ class SummaryAssembly:
     legs: LegFollower
     looks: SecondLookFlight
     exit: SafeExit
+    lidar_cue: Callable[[], dict[str, Any]]  # the LiDAR cue's record now (flight/lidar_cue.py)
+    # the LiDAR cue's word on a camera find at a place in W (LidarCue.verdict; None: no cue)
+    lidar_verdict: Callable[[np.ndarray], dict[str, Any]] | None = None
 
     def abort_record(self, reason: str | None, t_start: float) -> dict[str, Any] | None:
         """summary.json's ``abort``: why and when, the way out (its case, landing point in W and
@@ -116,14 +120,19 @@ class SummaryAssembly:
             battery=p.energy.record(),
             obstacle_map=p.legs.record(),
             second_looks=[look.as_record() for look in p.looks.looks],
+            lidar_cue=p.lidar_cue(),
             preflight=None if gate is None else gate.as_record(),
             px4_parameters=None if setup is None else setup.record(),
             companion_stalls=None if stall_watch is None else stall_watch.record(),
             setpoint_stream=setpoint_stream_record(p.vehicle))
+        perception = perception_record(p.runner, sensor_errors)
+        if p.lidar_verdict is not None:  # each track's evidence of both cues
+            perception = replace(perception, tracks=[{**t, **p.lidar_verdict(np.asarray(t["center"], dtype=np.float64))}
+                                                     for t in perception.tracks])
         refused = p.autopilot.refused  # nothing flew
         return RunSummary(run="flight", status=str(outcome), detector=detector_name(p.detector),
                           method=p.settings.method, flight_time_s=0.0 if refused else st.time - t_start,
-                          perception=perception_record(p.runner, sensor_errors),
+                          perception=perception,
                           insulators=insulator_records(p.registry, photos), photos=p.photos.records,
                           candidates=candidate_records(p.registry),
                           sensors_health=p.sensors.health(), flight=details)

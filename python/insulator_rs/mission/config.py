@@ -48,6 +48,9 @@ message gives the range and the reason)::
     photo_retakes = 2             # optional: times a photo the check finds unfit (cut, too small, off
                                   # centre, blurred, nothing detected) is taken again at its waypoint
                                   # (with the rig's inspection camera; without one, never)
+    lidar_cue = false             # optional: strings found in the LiDAR's returns by geometry get a
+                                  # look when no camera track covers them, and a camera find the
+                                  # geometry contradicts needs more localizations (flight/lidar_cue.py)
 """
 
 from __future__ import annotations
@@ -116,6 +119,9 @@ class InspectionParams:
     # Only with the rig's inspection camera: the detection camera's frame is not retaken
     # (PhotoSession.take_photo, flight/photo_session.py, says why).
     photo_retakes: int = 2
+    # The LiDAR cue (flight/lidar_cue.py). Off by default until towers A and B are shown to keep
+    # every string, no false find and the battery's margin with it on.
+    lidar_cue: bool = False
 
 
 @dataclass(frozen=True)
@@ -228,6 +234,12 @@ class _Reader:
         if value < lo:
             raise self.fail(field, f"must be >= {lo}, got {value}")
         self.within_limit(field, value)
+        return value
+
+    def boolean(self, table: dict[str, Any], prefix: str, key: str, *, default: bool) -> bool:
+        value = table.get(key, default)
+        if not isinstance(value, bool):
+            raise self.fail(f"{prefix}.{key}", f"expected true or false, got {_short(value)}")
         return value
 
     def geo(self, table: dict[str, Any], prefix: str) -> GeoPoint:
@@ -344,6 +356,7 @@ def parse_mission(data: Any, source: str = "<mission>", base: Path | None = None
                                 default=d.confirmations, lo=MIN_CONFIRMATIONS),
         battery_reserve=r.number(insp_t, "inspection", "battery_reserve", default=d.battery_reserve),
         photo_retakes=r.integer(insp_t, "inspection", "photo_retakes", default=d.photo_retakes, lo=0),
+        lidar_cue=r.boolean(insp_t, "inspection", "lidar_cue", default=d.lidar_cue),
     )
     if inspection.standoff <= inspection.safety_margin:
         raise r.fail("inspection.standoff",

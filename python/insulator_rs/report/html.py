@@ -10,7 +10,8 @@ a replay's alike (``insulator-rs report DIR`` rewrites it):
 * a map of the tower drawn as inline SVG from the GeoJSON (no tile server, no script): a top
   view and a side view across the line, with the flown path, the photo positions (with their
   heading) and the insulators (each a link to its section);
-* per insulator: WGS-84 position, side, observations, and its photos as thumbnails (JPEG,
+* per insulator: WGS-84 position, side, observations, what the LiDAR's geometry says of it (the
+  LiDAR cue's evidence, when the cue flew), and its photos as thumbnails (JPEG,
   embedded as ``data:`` URIs, so the page shows them even when copied alone) linking to the
   full photos in ``images/``, each with its verdict and the figures it was decided on.
 
@@ -281,6 +282,35 @@ def _yes(v: Any) -> str:
     return "–" if v is None else ("yes" if v else "no")
 
 
+def _lidar_cue_fact(cue: Any, looks: Any) -> str | None:
+    """The LiDAR cue in one line (summary.json ``lidar_cue``; None: a flight without the field)."""
+    if not isinstance(cue, dict):
+        return None
+    if not cue.get("enabled"):
+        return "off"
+    lidar_looks = [lk for lk in (looks or []) if isinstance(lk, dict) and lk.get("source") == "lidar string"]
+    held = sum(1 for e in cue.get("evidence", []) if e.get("held"))
+    return (f"on: {len(cue.get('strings', []))} strings in {cue.get('cloud_points', 0)} returns near the tower; "
+            f"{len(lidar_looks)} looks at strings only the LiDAR found "
+            f"({sum(1 for lk in lidar_looks if lk.get('confirmed'))} confirmed by the camera); "
+            f"{held} camera finds held for more evidence")
+
+
+def _lidar_evidence(cue: Any, insulator_id: Any) -> str:
+    """What the LiDAR's geometry says of a confirmed insulator (its row of ``lidar_cue.evidence``)."""
+    if not isinstance(cue, dict) or not cue.get("enabled"):
+        return "–"
+    row = next((e for e in cue.get("evidence", []) if e.get("insulator_id") == insulator_id), None)
+    if row is None:
+        return "–"
+    text = str(row.get("lidar"))
+    if row.get("lidar") == "string":
+        text += f", {_num(row.get('lidar_distance_m'))} m off (score {_num(row.get('lidar_score'), '.1f')})"
+    if row.get("held"):
+        text += f"; held for {row['held']} more localizations"
+    return text
+
+
 def _battery_fact(battery: Any, abort: Any) -> str | None:
     """The battery line: the charge at take-off and last, the reserve, what an early return left
     (summary.json ``battery``, ``abort.left``); None for a summary without one."""
@@ -480,6 +510,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
     if isinstance(fs, dict):
         facts.append(("failsafe", f"{fs.get('reason')}; action: {fs.get('action')}"))
     facts.append(("battery", _battery_fact(s.get("battery"), s.get("abort"))))
+    facts.append(("LiDAR cue", _lidar_cue_fact(s.get("lidar_cue"), s.get("second_looks"))))
     no_fit = [{"id": ins["id"], "why": _no_fit_why(ins, [verdicts[id(p)] for p in ins["_photos"]], ins["_photos"],
                                                    skipped, replay)}
               for ins in insulators if ins["state"] != "fit"]
@@ -496,6 +527,7 @@ def render_report_html(folder: Path) -> tuple[str, HtmlReport]:
                       "wgs84": f"{_latlon(g['lat'], g['lon'])}, {g['alt']:.2f} m",
                       "enu": f"{_num(c[0])}, {_num(c[1])}, {_num(c[2])} m", "side": side_text(ins.get("side")),
                       "observations": str(ins.get("observations", "–")), "inspected": _yes(ins.get("inspected")),
+                      "lidar": _lidar_evidence(s.get("lidar_cue"), ins["id"]),
                       "photos": [_photo_view(folder, p, verdicts[id(p)], report) for p in ins["_photos"]]})
     others = [_photo_view(folder, p, verdicts[id(p)], report) for p in photos if p.get("insulator_id") not in listed]
     # a flight's legend has its three states; a replay's the ones its insulators are in

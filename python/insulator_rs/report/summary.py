@@ -48,7 +48,9 @@ class PerceptionRecord:
     sensor_errors: int = 0
     counters: dict[str, int] = field(default_factory=dict)  # PerceptionCounters
     refused_not_insulator: dict[str, int] = field(default_factory=dict)
-    # each track that reached a localization attempt and its evidence (PerceptionPipeline.track_records)
+    # each track that reached a localization attempt and its evidence (PerceptionPipeline.track_records);
+    # with the LiDAR cue on, the geometry's word at its centre too (LidarCue.verdict: lidar,
+    # lidar_distance_m, lidar_score, lidar_cover)
     tracks: list[dict[str, Any]] = field(default_factory=list)
 
 
@@ -110,6 +112,12 @@ class FlightDetails:
     # the candidate's id (0 unless confirmed), centre, localizations before and after, whether
     # confirmed, and a note when cut short or not flown; None for a flight before this field
     second_looks: list[dict[str, Any]] | None = None
+    # the LiDAR cue (flight/lidar_cue.py): enabled; when on, the cloud kept near the tower, the
+    # finder's runs and wall time, its strings now, and per registry record (confirmed or not) the
+    # evidence of both cues (camera localizations; the LiDAR's nearest string, the cover of the
+    # place, string / no string-like structure / not covered, times held), then each LiDAR
+    # string no camera track covers; None for a flight before this field
+    lidar_cue: dict[str, Any] | None = None
 
 
 @dataclass

@@ -35,11 +35,21 @@ def check_confirmations(confirmations: int) -> int:
     return confirmations
 
 
-def is_confirmed(observations: int, confirmations: int) -> bool:
-    """Whether a record localized ``observations`` times is confirmed at ``confirmations``."""
-    return observations >= confirmations
+#: how many times the confirmations a record needs while the LiDAR's geometry contradicts it (no
+#: string-like structure where it was localized, in a map that covers the place: flight/lidar_cue.py).
+#: A real string is localized tens of times a flight (33-250 on towers A and B), so a string the
+#: geometry wrongly doubts is confirmed a few localizations later; the steel a box caught now and
+#: then gathers 3 in one pass and stays a candidate.
+HELD_FACTOR = 2
 
 
-def localizations_missing(observations: int, confirmations: int) -> int:
-    """The localizations a record seen ``observations`` times still lacks to be confirmed (0 once it is)."""
-    return max(confirmations - observations, 0)
+def is_confirmed(observations: int, confirmations: int, *, held: bool = False) -> bool:
+    """Whether a record localized ``observations`` times is confirmed at ``confirmations``
+    (``held``: contradicted by the LiDAR's geometry, HELD_FACTOR times as many)."""
+    return observations >= confirmations * (HELD_FACTOR if held else 1)
+
+
+def localizations_missing(observations: int, confirmations: int, *, held: bool = False) -> int:
+    """The localizations a record seen ``observations`` times still lacks to be confirmed (0 once
+    it is; ``held``: as :func:`is_confirmed`)."""
+    return max(confirmations * (HELD_FACTOR if held else 1) - observations, 0)

@@ -8,11 +8,15 @@ on the far side until the vehicle is there.
 
 A record is only *confirmed* (reported, inspected) once ``confirmations``
 localizations have fallen within its gate (the rule and its default:
-:mod:`insulator_rs.tracking.confirmation`).
+:mod:`insulator_rs.tracking.confirmation`). A second cue may ``doubt`` a record (the LiDAR's
+geometry finds no string where it was localized: :mod:`insulator_rs.flight.lidar_cue`): it is
+then held for more evidence (more localizations), never confirmed nor dropped by that cue. The
+registry stays the only place that confirms.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,19 +38,24 @@ class Insulator:
     inspected: bool = False
     history: list[np.ndarray] = field(default_factory=list)
     confirmed: bool = False
+    # times the registry held it for more evidence, the second cue doubting it (see ``doubt``)
+    held: int = 0
 
 
 class InsulatorRegistry:
     """Insulators in W, deduplicated with a distance gate (m); a record is confirmed
     after ``confirmations`` localizations (1: at once, as the paper does; default: the
-    mission's, CONFIRMATIONS)."""
+    mission's, CONFIRMATIONS). ``doubt(center)``: whether a second cue contradicts a record at
+    ``center`` (W) now; such a record needs HELD_FACTOR times the confirmations (None: no doubt)."""
 
-    def __init__(self, line: LineFrame, gate: float, confirmations: int = CONFIRMATIONS) -> None:
+    def __init__(self, line: LineFrame, gate: float, confirmations: int = CONFIRMATIONS, *,
+                 doubt: Callable[[np.ndarray], bool] | None = None) -> None:
         if not gate > 0:
             raise ValueError(f"gate: must be > 0 m, got {gate}")
         self.line = line
         self.gate = gate
         self.confirmations = check_confirmations(confirmations)
+        self.doubt = doubt
         self._records: list[Insulator] = []
 
     @property
@@ -101,6 +110,10 @@ class InsulatorRegistry:
     def _confirm(self, ins: Insulator) -> bool:
         if ins.confirmed or not is_confirmed(ins.observations, self.confirmations):
             return False
+        if self.doubt is not None and self.doubt(ins.center):
+            ins.held += 1
+            if not is_confirmed(ins.observations, self.confirmations, held=True):
+                return False
         ins.confirmed = True
         ins.id = len(self.insulators)
         return True
