@@ -99,11 +99,14 @@ fi
 # qemu-aarch64 against the arm64 root's libc (-L: the cross toolchain's own
 # /usr/aarch64-linux-gnu hung qemu 7.2 at the first thread). pulp dispatches NEON there
 # (deskew::simd's dispatch_takes_the_cpus_simd_level asserts it) and the parity proptests hold
-# the NEON kernel to the scalar path.
+# the NEON kernel to the scalar path. scene_raycast's packet tests draw a tenth of their packets
+# here (SCENE_RAYCAST_PACKET_DIVISOR, tests/packets.rs): their brute-force reference took 457 s
+# under emulation, most of this step.
 step "the Rust crates' tests (fusion_core with NEON, scene_raycast, livox_mid360) under qemu-aarch64"
 if ! PATH="$CACHE/bin:$PATH" CARGO_TARGET_DIR="$REPO/target/aarch64-cross" \
   CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
   CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64-static -cpu ${AARCH64_QEMU_CPU:-neoverse-n1} -L $ROOTFS" \
+  SCENE_RAYCAST_PACKET_DIVISOR=10 \
   cargo test --release --target "$TARGET" -p fusion_core -p scene_raycast -p livox_mid360 -- --show-output 2>&1 \
   | tee "$CACHE/rust-tests.log" | grep -E "^test result|FAILED|panicked|f64 lanes"; then
   tail -30 "$CACHE/rust-tests.log" >&2
