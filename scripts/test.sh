@@ -2,8 +2,8 @@
 # The project's test command (README). Run from the repository root inside the venv.
 #
 #   bash scripts/test.sh          the quick tier, before every commit (at most 5 minutes on a
-#                                 2-core machine): the Rust crates' tests (beside the rest), the
-#                                 stub check, mypy, and
+#                                 2-core machine): the Rust crates' tests, the stub check and mypy
+#                                 (beside pytest), and
 #                                 the pytest tests not marked slow (unit, parity, property) plus the
 #                                 one small-scene flight marked smoke
 #   bash scripts/test.sh --all    everything: the same, and every test marked slow
@@ -61,20 +61,41 @@ cargo_wait() {
   return "$rc"
 }
 # a failure below still reports (and stops) cargo's run
-trap 'if [ -n "$cargo_pid" ]; then kill "$cargo_pid" 2>/dev/null || true; fi' EXIT
+trap 'for pid in "$cargo_pid" "${typing_pid:-}"; do if [ -n "$pid" ]; then kill "$pid" 2>/dev/null || true; fi; done' EXIT
 
+# The stub check and mypy (80-100 s on a clean clone, no cache) run beside pytest as cargo does:
+# its workers spend most of the quick tier waiting on sockets and simulated clocks. Their output is
+# printed at the end, and either failing fails the tier.
+typing_log=""
+typing_pid=""
 if [ "$tier" != "slow" ]; then
-  step "stub check (_core.pyi against the compiled module)"
-  python -m mypy.stubtest insulator_rs._core --allowlist scripts/stubtest_allowlist.txt
-  if [ "${INSULATOR_RS_MYPY:-1}" = "1" ]; then
-    step "mypy (python/insulator_rs; settings: pyproject.toml [tool.mypy])"
-    python -m mypy
-  else
-    # numpy's stubs differ between the numpy pip picks for 3.10 and for 3.11 (the same code types
-    # differently): CI gates mypy once, in its 3.11 venv
-    echo "== mypy: not in this venv (INSULATOR_RS_MYPY=0)"
-  fi
+  typing_log=$(mktemp)
+  step "stub check (_core.pyi against the compiled module) then mypy, beside pytest: output at the end"
+  (
+    set -e
+    echo "== stub check (_core.pyi against the compiled module)"
+    python -m mypy.stubtest insulator_rs._core --allowlist scripts/stubtest_allowlist.txt
+    if [ "${INSULATOR_RS_MYPY:-1}" = "1" ]; then
+      echo "== mypy (python/insulator_rs; settings: pyproject.toml [tool.mypy])"
+      python -m mypy
+    else
+      # numpy's stubs differ between the numpy pip picks for 3.10 and for 3.11 (the same code
+      # types differently): CI gates mypy once, in its 3.11 venv
+      echo "== mypy: not in this venv (INSULATOR_RS_MYPY=0)"
+    fi
+  ) >"$typing_log" 2>&1 &
+  typing_pid=$!
 fi
+typing_wait() {
+  [ -n "$typing_pid" ] || return 0
+  local rc=0
+  wait "$typing_pid" || rc=$?
+  typing_pid=""
+  step "stub check and mypy: exit $rc"
+  cat "$typing_log"
+  rm -f "$typing_log"
+  return "$rc"
+}
 step "pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci}; workers: ${workers})"
 # The gate draws the same examples on every run (tests/conftest.py, profile "ci");
 # HYPOTHESIS_PROFILE=dev explores new ones.
@@ -97,10 +118,12 @@ if [ "$own_marker" = "0" ]; then
   HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}" python -m pytest -q -m "$alone" "$@" || alone_rc=$?
   if [ "$alone_rc" -ne 5 ] && [ "$alone_rc" -ne 0 ]; then pytest_rc=$alone_rc; fi
 fi
+typing_rc=0
+typing_wait || typing_rc=$?
 cargo_rc=0
 cargo_wait || cargo_rc=$?
-if [ "$pytest_rc" -ne 0 ] || [ "$cargo_rc" -ne 0 ]; then
-  step "failed: pytest exit $pytest_rc, cargo test exit $cargo_rc"
+if [ "$pytest_rc" -ne 0 ] || [ "$cargo_rc" -ne 0 ] || [ "$typing_rc" -ne 0 ]; then
+  step "failed: pytest exit $pytest_rc, cargo test exit $cargo_rc, stub check and mypy exit $typing_rc"
   exit 1
 fi
 step "done, the ${tier} tier"
