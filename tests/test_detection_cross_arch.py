@@ -22,6 +22,7 @@ import importlib.util
 import json
 import platform
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -64,6 +65,10 @@ def test_detections_match_the_x86_reference(reference: dict, model: str) -> None
     detectors: dict[float, Detector] = {}
     runs = [r for r in reference["runs"] if r["model"] == model]
     assert runs
+    # The network runs once per image; each reference conf decodes that one output (Detector.decode,
+    # what detect does after the pass). Under qemu-aarch64 a pass costs ~16 s, and the runs at
+    # conf 0.25 and 0.01 share their images: half the passes, the same comparisons.
+    passes: dict[str, tuple[np.ndarray, Any]] = {}
     worst_box, worst_score = 0.0, 0.0
     for run in runs:
         conf = run["conf"]
@@ -74,7 +79,10 @@ def test_detections_match_the_x86_reference(reference: dict, model: str) -> None
         where = f"{model} {run['photos']} crop={run['crop']} conf={conf} on {platform.machine()}"
         assert list(image.shape) == run["shape"], where
         assert make_x86.network_input_sha256(det, image) == run["input_sha256"], f"network input differs: {where}"
-        found = det(image)
+        key = hashlib.sha256(image.tobytes()).hexdigest() + str(image.shape)
+        if key not in passes:
+            passes[key] = det.raw(image)
+        found = det.decode(*passes[key])
         ref_boxes = np.array(run["boxes"], dtype=np.float64).reshape(-1, 4)
         assert len(found) == len(run["scores"]), where
         ours = _sorted(found.boxes, found.scores, found.class_ids)

@@ -260,7 +260,7 @@ class Detector:
     def detect(self, image: np.ndarray) -> Detections:
         """Detect objects in one BGR uint8 image (gray and BGRA are converted)."""
         out, geo = self.raw(image)
-        return self._detections(out, geo)
+        return self.decode(out, geo)
 
     def detect_batch(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """:meth:`detect` of each image, the network run once for each run of consecutive images
@@ -278,12 +278,14 @@ class Detector:
                 end += 1
             batch = np.concatenate([to_network_input(padded) for padded, _ in prepared[start:end]])
             out = self.session.run(None, {self.input_name: batch})[0]
-            results.extend(self._detections(out[k - start:k - start + 1], prepared[k][1]) for k in range(start, end))
+            results.extend(self.decode(out[k - start:k - start + 1], prepared[k][1]) for k in range(start, end))
             start = end
         return results
 
-    def _detections(self, out: np.ndarray, geo: LetterboxGeometry) -> Detections:
-        """One image's network output ``[1, 4 + nc, N]`` -> its detections in its own pixels."""
+    def decode(self, out: np.ndarray, geo: LetterboxGeometry) -> Detections:
+        """One image's network output ``[1, 4 + nc, N]`` (:meth:`raw`) -> its detections in its own
+        pixels, at this detector's ``conf``, ``iou`` and ``max_det``: one network pass decoded at
+        several thresholds is what :meth:`detect` gives at each."""
         cands = yolo_candidates(out, conf=self.conf)
         # The detector's edge (sanitize.py): NaN/Inf/inverted boxes and bad scores go before NMS,
         # where they could survive or suppress a valid box; then NMS as Ultralytics does it.
