@@ -329,29 +329,26 @@ def test_a_vehicle_without_a_battery_monitor_is_refused_and_says_so(tmp_path, mo
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("charge", [0.6, 1.0])
-def test_tower_b_returns_in_time_or_finishes(tmp_path, monkeypatch, charge):
+def test_tower_b_returns_in_time(tmp_path, monkeypatch):
     """``insulator-rs inspect --scene tower_b --detector standin``: tower B takes about 0.47 of
     the pack. From 0.6 it cannot finish above the 0.25 reserve: it comes back before the reserve
-    is touched (the simulator's charge at touchdown) and says what it left; from a full pack it
-    finishes. Reference: the simulator's own pack, the scene (score.json)."""
+    is touched (the simulator's charge at touchdown) and says what it left. (That a pack which can
+    finish is not called back is the small scene's test above; tower B from a full pack finishing
+    is the main job's, which CI flies from the bare wheel.) Reference: the simulator's own pack,
+    the scene (score.json)."""
     made = _keep_vehicles(monkeypatch)
     out = tmp_path / "report"
     # photos at 0.2 of the 12 MP camera: the pack and the route do not depend on the JPEGs' size
     # (the sim's clock, not the render's wall time, drains it), and full-size renders made this
     # the slowest test of CI (460 s a case)
     rc = main(["inspect", "--scene", "tower_b", "--detector", "standin", "--quiet", "--out", str(out),
-               "--sim-battery", str(charge), "--photo-scale", "0.2"])
+               "--sim-battery", "0.6", "--photo-scale", "0.2"])
     s = json.loads((out / "summary.json").read_text())
     b, vehicle = s["battery"], made[0]
     print(_figures(s, vehicle))
     assert b["fit"]["per_s"] == pytest.approx(TRUTH.battery_drain_per_s, rel=0.01)
     assert b["fit"]["per_m"] == pytest.approx(TRUTH.battery_drain_per_m, rel=0.05)
     assert vehicle.landed and vehicle.battery_fraction >= 0.25
-    if charge == 1.0:
-        assert rc == 0 and s["status"] == "finished" and b["decision"] is None, s["status"]
-        assert s["insulators_inspected"] == 4
-        return
     assert rc == 1 and s["status"].startswith("aborted: battery reserve: returning at"), s["status"]
     assert vehicle.battery_fraction < 0.25 + 0.02  # inspected what it could, then came back
     d = b["decision"]
