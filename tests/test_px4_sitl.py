@@ -249,10 +249,21 @@ def test_small_scene_live_sensor_inspection_against_px4_sitl(px4, tmp_path) -> N
     ``live_sitl.fly_live``, which the soak script flies at the defaults). Reference:
     the small scene's ground truth (each insulator found within 0.3 m), the drivers' own counters
     (no LiDAR datagram lost or malformed, every scan mapped to the vehicle clock, camera frames
-    of the calibrated size), the clock map (TIMESYNC answered) and PX4's log (no failsafe)."""
+    of the calibrated size), the clock map (TIMESYNC answered) and PX4's log (no failsafe).
+
+    The mission's defaults with the LiDAR cue on (``[inspection] lidar_cue``, off by default):
+    the string finder runs on the live Mid-360's returns beside a real PX4, and each string the
+    camera found carries the LiDAR's word in the summary."""
     scene, mission = small_scene(tmp_path)
-    flight = fly_live(px4, tmp_path, scene, mission)  # the mission's defaults: 4 confirmations, 1 Hz
+    # the mission's defaults (4 confirmations, 1 Hz detection), the cue on
+    flight = fly_live(px4, tmp_path, scene, mission, inspection_extra="lidar_cue = true")
     s = flight.summary
+    cue = s["lidar_cue"]
+    print(f"lidar cue: {cue['runs']} runs, {cue['finder_wall_s']} s, {len(cue['strings'])} strings")
+    assert cue["enabled"] and cue["runs"] > 0
+    # each confirmed string: the LiDAR found a string there too (the live cloud is the sim's mesh)
+    confirmed = [e for e in cue["evidence"] if e["confirmed"]]
+    assert len(confirmed) == 2 and all(e["lidar"] == "string" for e in confirmed), cue["evidence"]
     print(f"live SITL flight: {flight.line()}; {flight.head_output.strip()}")
     assert not flight.failsafe
     assert flight.returncode == 0 and flight.status == "finished", (flight.status, flight.stdout[-2000:],

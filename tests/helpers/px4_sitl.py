@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import fcntl
+import json
 import os
 import signal
 import socket
@@ -266,7 +267,8 @@ def mission_at_home(mission_file: Path, out_file: Path, home: tuple[float, float
     for table in ("vehicle", "inspection"):
         if table in data:
             lines.append(f"[{table}]")
-            lines += [f"{k} = {v!r}" for k, v in data[table].items()]
+            # JSON's scalars and arrays are TOML's (a bool is true/false, not Python's True)
+            lines += [f"{k} = {json.dumps(v)}" for k, v in data[table].items()]
             lines.append("")
     out_file.write_text("\n".join(lines))
     return out_file
