@@ -81,42 +81,51 @@ def test_what_the_adapter_sends_is_valid_mavlink() -> None:
     assert {f.payload[3] for f in ftp} <= {1, 2, 3, 4, 5, 15}  # opcodes: terminate, reset, list, open, read, burst
 
 
-def test_the_manager_route_sends_gimbal_manager_set_pitchyaw_to_the_autopilot() -> None:
-    """GIMBAL_MANAGER_SET_PITCHYAW to the autopilot (component 1), yaw clockwise in the vehicle
-    frame; read off the wire by a plain socket standing in for PX4 (and a live camera and gimbal)."""
+def test_the_manager_route_takes_control_then_commands_pitch_and_yaw_of_the_autopilot() -> None:
+    """Through the autopilot's gimbal manager: MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (primary control:
+    our system and component), then MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (degrees, yaw clockwise, in
+    the vehicle frame), both to component 1; read off the wire by a plain socket standing in for
+    PX4 (acknowledging) and a live camera and gimbal."""
     peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     peer.bind(("127.0.0.1", 0))
-    peer.settimeout(0.05)
-    port = peer.getsockname()[1]
-    adapter = MavlinkPayload(f"udpout:127.0.0.1:{port}", inspection_camera(), gimbal_route=GimbalRoute.MANAGER,
-                             settings=FAST, target_system=1)
+    peer.settimeout(0.02)
+    adapter = MavlinkPayload(f"udpout:127.0.0.1:{peer.getsockname()[1]}", inspection_camera(),
+                             gimbal_route=GimbalRoute.MANAGER, settings=FAST, target_system=1)
     camera = M.MAVLink(None, srcSystem=1, srcComponent=CAMERA_COMPONENT)
     gimbal = M.MAVLink(None, srcSystem=1, srcComponent=GIMBAL_COMPONENT)
+    autopilot = M.MAVLink(None, srcSystem=1, srcComponent=AUTOPILOT_COMPONENT)
+    commands: list[Any] = []
     try:
-        datagrams: list[bytes] = []
         addr = None
         future = None
         deadline = time.monotonic() + 3.0
-        found = []
-        while time.monotonic() < deadline and not found:
+        while time.monotonic() < deadline and not any(c.command == M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
+                                                      for c in commands):
             try:
                 data, addr = peer.recvfrom(65535)
-                datagrams.append(data)
             except socket.timeout:
-                pass
+                data = b""
+            for m in fresh_parse([data]) if data else []:
+                if m.get_type() == "COMMAND_LONG" and m.target_component == AUTOPILOT_COMPONENT:
+                    commands.append(m)
+                    peer.sendto(autopilot.command_ack_encode(m.command, M.MAV_RESULT_ACCEPTED, 0, 0, 1,
+                                                             M.MAV_COMP_ID_ONBOARD_COMPUTER).pack(autopilot), addr)
             if addr is not None:
                 for mav, kind in ((camera, M.MAV_TYPE_CAMERA), (gimbal, M.MAV_TYPE_GIMBAL)):
                     peer.sendto(mav.heartbeat_encode(kind, M.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(mav), addr)
                 if future is None:
-                    time.sleep(0.05)
+                    time.sleep(0.1)  # the heartbeats received before the shot starts
                     future = adapter.submit(ShotRequest(math.radians(-30), math.radians(15), 300.0))
-            found = [m for m in fresh_parse(datagrams) if m.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW"]
-        assert found, "no GIMBAL_MANAGER_SET_PITCHYAW"
-        m = found[0]
-        assert (m.target_system, m.target_component, m.gimbal_device_id) == (1, AUTOPILOT_COMPONENT, 0)
-        assert bitmask_ok(m.flags, "GIMBAL_MANAGER_FLAGS") and m.flags & M.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
-        assert (m.pitch, m.yaw) == pytest.approx((math.radians(-30), math.radians(-15)))
-        assert math.isnan(m.pitch_rate) and math.isnan(m.yaw_rate)
+        assert [c.command for c in commands] == [M.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
+                                                 M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW]
+        configure, pitchyaw = commands
+        assert (configure.param1, configure.param2, configure.param3, configure.param4) == (
+            1, M.MAV_COMP_ID_ONBOARD_COMPUTER, -1, -1)
+        assert (pitchyaw.param1, pitchyaw.param2) == pytest.approx((-30.0, -15.0))
+        assert math.isnan(pitchyaw.param3) and math.isnan(pitchyaw.param4)
+        flags = int(pitchyaw.param5)
+        assert bitmask_ok(flags, "GIMBAL_MANAGER_FLAGS") and flags & M.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
+        assert pitchyaw.param7 == 0  # the manager's gimbal
     finally:
         adapter.close()
         peer.close()

@@ -36,6 +36,7 @@ def inspection_camera(*, pixel_pitch_um: float | None = 2.0) -> InspectionCamera
 
 
 def scene() -> Mesh:
+    """One red box (an "insulator") at TARGET."""
     return box(TARGET, (0.6, 0.6, 0.6), instance_id=1,
                info=InstanceInfo("insulator", kind="insulator", color=(1.0, 0.0, 0.0)))
 
@@ -79,5 +80,5 @@ class Rig:
 def wait_alive(r: Rig) -> None:
     """Until the adapter has heard the camera's and the gimbal's HEARTBEAT (2 s at most)."""
     deadline = time.monotonic() + 2.0
-    while time.monotonic() < deadline and len(r.adapter._state.heartbeats) < 2:
+    while time.monotonic() < deadline and not r.adapter.alive():
         time.sleep(0.02)

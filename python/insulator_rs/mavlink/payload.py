@@ -6,8 +6,10 @@ One shot, in a worker thread of its own (the caller's control loop and the vehic
 stream never wait on it), each attempt bounded in time:
 
 1. the payload is alive: a HEARTBEAT of the camera and of the gimbal within ``lost_after_s``;
-2. the gimbal aimed: ``GIMBAL_MANAGER_SET_PITCHYAW`` to the autopilot's gimbal manager (PX4 with
-   ``MNT_MODE_IN`` = 4, ``MNT_MODE_OUT`` = 2 forwards it to the device) or
+2. the gimbal aimed: through the autopilot's gimbal manager (PX4 with ``MNT_MODE_IN`` = 4,
+   ``MNT_MODE_OUT`` = 2: primary control taken with ``MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE``, then
+   ``MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW``, which the manager turns into the device's
+   ``GIMBAL_DEVICE_SET_ATTITUDE``; refused or unanswered: ``GIMBAL_REFUSED``) or
    ``GIMBAL_DEVICE_SET_ATTITUDE`` straight to the gimbal device where no autopilot manages one;
    yaw in the vehicle frame, pitch from the horizon. An aim past the limits the device reports
    (``GIMBAL_DEVICE_INFORMATION``), or an attitude (``GIMBAL_DEVICE_ATTITUDE_STATUS``) that stops
@@ -71,7 +73,7 @@ FINAL_FAULTS = frozenset({PayloadFault.GIMBAL_AT_LIMIT})
 
 class GimbalRoute:
     """Where the gimbal's aim is sent: ``MANAGER`` = the autopilot's gimbal manager
-    (GIMBAL_MANAGER_SET_PITCHYAW; PX4 v1.16 with MNT_MODE_IN = 4, MNT_MODE_OUT = 2), ``DEVICE`` =
+    (MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW; PX4 v1.16 with MNT_MODE_IN = 4, MNT_MODE_OUT = 2), ``DEVICE`` =
     the gimbal device itself (GIMBAL_DEVICE_SET_ATTITUDE; no autopilot manages it)."""
 
     MANAGER = "manager"
@@ -217,6 +219,7 @@ class MavlinkPayload:
         self._cond = threading.Condition()
         self._state = _State()
         self._ftp_queue: queue.Queue[Any] = queue.Queue()
+        self._in_control = False  # primary control of the autopilot's gimbal manager taken
         self._stop = threading.Event()
         self.counts: dict[str, int] = {"shots": 0, "photos": 0, "attempts": 0, "foreign": 0}
         self._threads = [threading.Thread(target=self._receive_loop, name="payload-rx", daemon=True),
@@ -232,6 +235,15 @@ class MavlinkPayload:
 
     def health(self) -> dict[str, object]:
         return dict(self.counts)
+
+    def alive(self) -> bool:
+        """Whether the camera's and the gimbal's HEARTBEAT came within ``lost_after_s`` (what a
+        pre-flight check asks before the payload is flown)."""
+        try:
+            self._require_alive()
+        except PayloadError:
+            return False
+        return True
 
     def close(self) -> None:
         self._stop.set()
@@ -296,12 +308,15 @@ class MavlinkPayload:
                                f"aim pitch {math.degrees(pitch):.1f} deg, yaw {math.degrees(yaw):.1f} deg is past "
                                f"the gimbal's range (pitch {math.degrees(pitch_lo):.0f}..{math.degrees(pitch_hi):.0f}, "
                                f"yaw {math.degrees(yaw_lo):.0f}..{math.degrees(yaw_hi):.0f} deg)")
+        if self.gimbal_route == GimbalRoute.MANAGER:
+            self._command_manager(pitch, yaw)
         deadline = time.monotonic() + self.settings.slew_timeout_s
         resend = 0.0
         while True:
             now = time.monotonic()
-            if now >= resend:  # MAVLink is lossy: the aim is sent again until it is reached
-                self._send_aim(pitch, yaw)
+            if self.gimbal_route == GimbalRoute.DEVICE and now >= resend:
+                # a message without an answer, and MAVLink is lossy: sent again until it is reached
+                self._send_device_aim(pitch, yaw)
                 resend = now + 0.5
             with self._cond:
                 aim = self._state.gimbal_aim
@@ -315,19 +330,41 @@ class MavlinkPayload:
                                    f"reached in {self.settings.slew_timeout_s:g} s: {seen}")
             self._wait(POLL_S)
 
-    def _send_aim(self, pitch: float, yaw: float) -> None:
-        system = self._system()
-        if self.gimbal_route == GimbalRoute.MANAGER:
-            flags = M.GIMBAL_MANAGER_FLAGS_ROLL_LOCK | M.GIMBAL_MANAGER_FLAGS_PITCH_LOCK \
-                | M.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
-            # gimbal_device_id 0: the manager's (first) gimbal; yaw clockwise in MAVLink
-            self._send("gimbal_manager_set_pitchyaw", system, AUTOPILOT_COMPONENT, flags, 0, pitch, -yaw,
-                       math.nan, math.nan)
-        else:
-            flags = M.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | M.GIMBAL_DEVICE_FLAGS_PITCH_LOCK \
-                | M.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
-            self._send("gimbal_device_set_attitude", system, GIMBAL_COMPONENT, flags,
-                       gimbal_device_quaternion(pitch, yaw), math.nan, math.nan, math.nan)
+    def _command_manager(self, pitch: float, yaw: float) -> None:
+        """The aim through the autopilot's gimbal manager: primary control taken once
+        (MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: our system and component), then
+        MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (degrees; yaw clockwise, in the vehicle frame).
+
+        Why the command and not the GIMBAL_MANAGER_SET_PITCHYAW message: PX4 v1.16 has no handler
+        for that message (its binary carries the command's and GIMBAL_MANAGER_SET_ATTITUDE's only),
+        and the command is acknowledged: a manager that gives control to someone else says DENIED,
+        which a message would leave unsaid. ArduPilot takes the command too."""
+        flags = M.GIMBAL_MANAGER_FLAGS_ROLL_LOCK | M.GIMBAL_MANAGER_FLAGS_PITCH_LOCK \
+            | M.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
+        for _ in range(2):  # control taken by another (a GCS) since: taken back once
+            if not self._in_control:
+                # param1/2: the primary control's system/component (us), param3/4 -1: the secondary
+                # unchanged, param7 0: the manager's gimbal
+                self._command(AUTOPILOT_COMPONENT, M.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, self.source_system,
+                              self.source_component, -1, -1, 0, 0, 0, fault=PayloadFault.GIMBAL_REFUSED)
+                self._in_control = True
+            try:
+                self._command(AUTOPILOT_COMPONENT, M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, math.degrees(pitch),
+                              math.degrees(-yaw), math.nan, math.nan, flags, 0, 0, fault=PayloadFault.GIMBAL_REFUSED)
+                return
+            except PayloadError as err:
+                if err.fault is not PayloadFault.GIMBAL_REFUSED or "DENIED" not in err.detail:
+                    raise
+                self._in_control = False
+        raise PayloadError(PayloadFault.GIMBAL_REFUSED, "MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: DENIED with primary "
+                                                         "control taken")
+
+    def _send_device_aim(self, pitch: float, yaw: float) -> None:
+        """GIMBAL_DEVICE_SET_ATTITUDE straight to the gimbal device (no manager in between)."""
+        flags = M.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | M.GIMBAL_DEVICE_FLAGS_PITCH_LOCK \
+            | M.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+        self._send("gimbal_device_set_attitude", self._system(), GIMBAL_COMPONENT, flags,
+                   gimbal_device_quaternion(pitch, yaw), math.nan, math.nan, math.nan)
 
     def _gimbal_limits(self) -> tuple[float, float, float, float]:
         """The gimbal device's range (GIMBAL_DEVICE_INFORMATION, asked once), else the rig's."""

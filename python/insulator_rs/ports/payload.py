@@ -36,6 +36,7 @@ class PayloadFault(enum.Enum):
 
     PAYLOAD_LOST = "payload_lost"  # no HEARTBEAT of the camera or the gimbal within the lost time
     GIMBAL_AT_LIMIT = "gimbal_at_limit"  # the aim is past the gimbal's range, or it stopped short
+    GIMBAL_REFUSED = "gimbal_refused"  # the gimbal manager refused the aim or did not answer
     ZOOM_REFUSED = "zoom_refused"  # MAV_CMD_SET_CAMERA_ZOOM refused, unanswered, or never reached
     CAPTURE_REFUSED = "capture_refused"  # MAV_CMD_IMAGE_START_CAPTURE refused or unanswered
     NO_CAPTURE_ANSWER = "no_capture_answer"  # no CAMERA_IMAGE_CAPTURED, even when asked again

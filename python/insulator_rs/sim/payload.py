@@ -328,8 +328,12 @@ class SimulatedPayload:
             return  # rates only: this gimbal is aimed by angle
         self.counts["set_attitude"] += 1
         pitch, yaw = gimbal_aim_of_quaternion(msg.q)
-        if not msg.flags & M.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME:
-            yaw = wrap_angle(yaw + yaw_of(self.pose(self.clock())))  # earth frame: the body's heading out
+        # the yaw's frame: the earth's when the flags say so, or (neither frame flag set, as older
+        # managers send) when the yaw is locked; the vehicle's otherwise
+        earth = bool(msg.flags & M.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME) or (
+            not msg.flags & M.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME and bool(msg.flags & M.GIMBAL_DEVICE_FLAGS_YAW_LOCK))
+        if earth:
+            yaw = wrap_angle(yaw - yaw_of(self.pose(self.clock())) + math.pi / 2)  # heading out (NED yaw -> ours)
         g = self.inspection.gimbal
         with self._lock:
             self._target = (min(max(pitch, self.pitch_range[0]), self.pitch_range[1]),
