@@ -50,6 +50,7 @@ import cv2
 import numpy as np
 
 from insulator_rs.exceptions import CommandRejected, PayloadError
+from insulator_rs.inspection_camera import GimbalRoute as GimbalRoute  # re-exported: the adapter's routes
 from insulator_rs.inspection_camera import InspectionCamera
 from insulator_rs.mavlink.frames import camera_rotation_w, quaternion_yaw_pitch, yaw_pitch_of_quaternion
 from insulator_rs.mavlink.link import open_connection
@@ -69,16 +70,6 @@ FTP_SCHEME = "mftp://"
 POLL_S = 0.02
 #: Faults an attempt does not retry: the next attempt would fail the same way.
 FINAL_FAULTS = frozenset({PayloadFault.GIMBAL_AT_LIMIT})
-
-
-class GimbalRoute:
-    """Where the gimbal's aim is sent: ``MANAGER`` = the autopilot's gimbal manager
-    (MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW; PX4 v1.16 with MNT_MODE_IN = 4, MNT_MODE_OUT = 2), ``DEVICE`` =
-    the gimbal device itself (GIMBAL_DEVICE_SET_ATTITUDE; no autopilot manages it)."""
-
-    MANAGER = "manager"
-    DEVICE = "device"
-    ALL = (MANAGER, DEVICE)
 
 
 @dataclass(frozen=True)
@@ -195,12 +186,15 @@ class MavlinkPayload:
     ``udpin:...``, ``DEVICE:BAUD``). ``inspection``: the rig's inspection camera (zoom range,
     per-zoom intrinsics, gimbal limits, pixel pitch). ``gimbal_route``: :class:`GimbalRoute`.
     ``target_system``: the payload's system id (None: the first camera HEARTBEAT's).
-    ``camera_to_vehicle``: the camera's clock (CAMERA_IMAGE_CAPTURED.time_boot_ms, s) to the
-    vehicle clock (None: the same clock, as a camera synchronised to the autopilot's boot time)."""
+    ``vehicle_clock``: the vehicle clock now (s); given, the camera's clock (every ``time_boot_ms``
+    of the payload, s) is mapped to it by the least offset seen (vehicle time at arrival minus the
+    message's stamp: the least-delayed message, as the LiDAR driver's clock fit); None: the
+    camera's clock is the vehicle's (the simulated payload, a camera synchronised to the
+    autopilot's boot time)."""
 
     def __init__(self, connection: str, inspection: InspectionCamera, *, gimbal_route: str = GimbalRoute.MANAGER,
                  target_system: int | None = None, settings: PayloadSettings | None = None,
-                 camera_to_vehicle: Callable[[float], float] | None = None,
+                 vehicle_clock: Callable[[], float] | None = None,
                  source_system: int = 1, source_component: int = COMPANION_COMPONENT) -> None:
         if gimbal_route not in GimbalRoute.ALL:
             raise ValueError(f"gimbal_route: expected one of {GimbalRoute.ALL}, got {gimbal_route!r}")
@@ -209,7 +203,8 @@ class MavlinkPayload:
         self.inspection = inspection
         self.gimbal_route = gimbal_route
         self.settings = settings or PayloadSettings()
-        self.camera_to_vehicle = camera_to_vehicle or (lambda t: t)
+        self.vehicle_clock = vehicle_clock
+        self._clock_offset = math.inf  # vehicle time minus the camera's, the least seen (s)
         self.source_system = source_system
         self.source_component = source_component
         self.target_system = target_system
@@ -293,7 +288,7 @@ class MavlinkPayload:
             raise PayloadError(PayloadFault.DOWNLOAD_FAILED,
                                f"{url}: image {image.shape[1]}x{image.shape[0]}, the rig's inspection camera "
                                f"{camera.width}x{camera.height}")
-        return PayloadPhoto(time=self.camera_to_vehicle(msg.time_boot_ms / 1000.0), image=image, camera=camera,
+        return PayloadPhoto(time=self._to_vehicle(msg.time_boot_ms / 1000.0), image=image, camera=camera,
                             R_w_c=camera_rotation_w(msg.q),
                             wgs84=(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3), focal_px=focal,
                             file_url=url, image_index=int(msg.image_index))
@@ -536,6 +531,12 @@ class MavlinkPayload:
                 self._cond.wait(timeout=min(remaining, POLL_S * 5))
             self._require_alive()
 
+    def _to_vehicle(self, camera_s: float) -> float:
+        """A payload stamp (s of its boot clock) in the vehicle clock (see ``vehicle_clock``)."""
+        if self.vehicle_clock is None or not math.isfinite(self._clock_offset):
+            return camera_s
+        return camera_s + self._clock_offset
+
     def _system(self) -> int:
         return self.target_system if self.target_system is not None else 1
 
@@ -575,6 +576,9 @@ class MavlinkPayload:
         if kind == "FILE_TRANSFER_PROTOCOL":
             self._ftp_queue.put(msg)
             return
+        stamp = getattr(msg, "time_boot_ms", None)
+        if self.vehicle_clock is not None and stamp is not None and component != AUTOPILOT_COMPONENT:
+            self._clock_offset = min(self._clock_offset, self.vehicle_clock() - stamp / 1000.0)
         with self._cond:
             s = self._state
             if kind == "HEARTBEAT":
