@@ -11,6 +11,7 @@ pose at the capture instant (1 cm), not at the request.
 from __future__ import annotations
 
 import math
+import socket
 import time
 from collections.abc import Iterator
 
@@ -21,7 +22,8 @@ import pytest
 from helpers.payload_rig import FAST, ORIGIN, QUICK, TARGET, Rig, inspection_camera
 from insulator_rs.flight.gimbal import stabilised_T_b_c
 from insulator_rs.geodesy import GeoPoint, gps_to_enu
-from insulator_rs.mavlink.payload import MavlinkPayload, PayloadSettings, ftp_path
+from insulator_rs.mavlink.payload import CAMERA_COMPONENT, MavlinkPayload, PayloadSettings, ftp_path
+from insulator_rs.mavlink.wire import mavlink2 as M
 from insulator_rs.ports.payload import Payload, PayloadFault, ShotRequest
 from insulator_rs.sim.payload import PayloadFaults
 
@@ -148,3 +150,42 @@ def test_settings_refuse_bad_values() -> None:
         PayloadSettings(ftp_retry_s=1.0, ftp_idle_s=0.5)
     with pytest.raises(ValueError, match="gimbal_route"):
         MavlinkPayload("udpout:127.0.0.1:9", inspection_camera(), gimbal_route="sideways")
+
+
+def test_the_cameras_clock_is_mapped_to_the_vehicles() -> None:
+    """A camera that counts from its own boot: its stamps are mapped by the least offset seen."""
+    with Rig() as r:
+        r.adapter.close()
+        r.sim.peer = None  # the payload answers whoever speaks to it next
+        offset = 1000.0  # the vehicle clock runs this far ahead of the camera's
+        adapter = MavlinkPayload(r.sim.url, r.inspection, gimbal_route="device", settings=FAST,
+                                 vehicle_clock=lambda: r.clock() + offset)
+        try:
+            deadline = time.monotonic() + 2.0
+            while not adapter.alive() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            t_request = r.clock() + offset
+            result = adapter.submit(ShotRequest(0.0, 0.0, 300.0)).result(timeout=5.0)
+            assert result.photo is not None, result.attempts
+            captured = r.sim.images[-1].message[0] / 1000.0  # the camera's stamp of the capture
+            assert result.photo.time == pytest.approx(captured + offset, abs=0.05)
+            assert result.photo.time > t_request
+        finally:
+            adapter.close()
+
+
+def test_a_retransmitted_capture_command_is_not_a_second_shot() -> None:
+    with Rig() as r:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        me = M.MAVLink(None, srcSystem=1, srcComponent=M.MAV_COMP_ID_ONBOARD_COMPUTER)
+        try:
+            for confirmation, sequence in ((0, 1), (1, 1), (0, 2)):
+                sock.sendto(me.command_long_encode(1, CAMERA_COMPONENT, M.MAV_CMD_IMAGE_START_CAPTURE, confirmation,
+                                                   0, 0, 1, sequence, 0, 0, 0).pack(me), r.sim.address)
+            deadline = time.monotonic() + 2.0
+            while len(r.sim.images) < 2 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.1)
+            assert len(r.sim.images) == 2  # sequence 1 once, sequence 2 once
+        finally:
+            sock.close()

@@ -187,7 +187,7 @@ class MavlinkPayload:
     per-zoom intrinsics, gimbal limits, pixel pitch). ``gimbal_route``: :class:`GimbalRoute`.
     ``target_system``: the payload's system id (None: the first camera HEARTBEAT's).
     ``vehicle_clock``: the vehicle clock now (s); given, the camera's clock (every ``time_boot_ms``
-    of the payload, s) is mapped to it by the least offset seen (vehicle time at arrival minus the
+    of the camera component, s) is mapped to it by the least offset seen (vehicle time at arrival minus the
     message's stamp: the least-delayed message, as the LiDAR driver's clock fit); None: the
     camera's clock is the vehicle's (the simulated payload, a camera synchronised to the
     autopilot's boot time)."""
@@ -577,7 +577,8 @@ class MavlinkPayload:
             self._ftp_queue.put(msg)
             return
         stamp = getattr(msg, "time_boot_ms", None)
-        if self.vehicle_clock is not None and stamp is not None and component != AUTOPILOT_COMPONENT:
+        # the camera's own clock (a gimbal of another make boots on a clock of its own)
+        if self.vehicle_clock is not None and stamp is not None and component == CAMERA_COMPONENT:
             self._clock_offset = min(self._clock_offset, self.vehicle_clock() - stamp / 1000.0)
         with self._cond:
             s = self._state

@@ -73,7 +73,7 @@ FTP_HEADER = struct.Struct("<HBBBBBBI")
 FTP_DATA = 239
 OP_TERMINATE, OP_RESET, OP_LIST, OP_OPEN_RO, OP_READ, OP_BURST = 1, 2, 3, 4, 5, 15
 OP_ACK, OP_NACK = 128, 129
-ERR_FAIL, ERR_EOF, ERR_UNKNOWN_COMMAND, ERR_NOT_FOUND, ERR_INVALID_SESSION = 1, 6, 7, 10, 4
+ERR_EOF, ERR_UNKNOWN_COMMAND, ERR_NOT_FOUND, ERR_INVALID_SESSION, ERR_NO_SESSIONS = 6, 7, 10, 4, 5
 #: Data messages of one burst before the server waits for the client's next BurstReadFile.
 BURST_PACKETS = 64
 #: s of the server loop's one wait: the gimbal and the zoom move in steps this long.
@@ -191,6 +191,7 @@ class SimulatedPayload:
         self.focal_px = inspection.focal_px[0]  # the lens's true focal length now
         self._focal_target = self.focal_px
         self._captures: list[_Capture] = []
+        self._last_sequence = 0  # MAV_CMD_IMAGE_START_CAPTURE's param4 of the newest capture taken
         self.images: list[_Image] = []
         self.files: dict[str, bytes] = {}
         self._sessions: dict[int, _Session] = {}
@@ -358,7 +359,11 @@ class SimulatedPayload:
             self._ack(msg, self._zoom(int(msg.param1), float(msg.param2)))
         elif msg.command == M.MAV_CMD_IMAGE_START_CAPTURE and msg.target_component == CAMERA_COMPONENT:
             self._ack(msg, M.MAV_RESULT_ACCEPTED)
-            if msg.confirmation == 0 and not self.faults.capture_silent:  # a retransmission is no second shot
+            # param4: the capture's sequence number; the same one again is a retransmission (its
+            # first COMMAND_ACK lost), not a second shot
+            sequence = int(msg.param4) if math.isfinite(msg.param4) else 0
+            if not self.faults.capture_silent and (sequence == 0 or sequence != self._last_sequence):
+                self._last_sequence = sequence
                 with self._lock:
                     index = len(self.images) + len(self._captures)
                     self._captures.append(_Capture(self.clock() + self.dynamics.capture_latency_s, index))
@@ -475,7 +480,10 @@ class SimulatedPayload:
             if path not in self.files:
                 reply.nack(ERR_NOT_FOUND)
                 return
-            sid = next(i for i in range(256) if i not in self._sessions)
+            sid = next((i for i in range(256) if i not in self._sessions), None)
+            if sid is None:
+                reply.nack(ERR_NO_SESSIONS)
+                return
             cut = None
             if self._downloads_cut > 0:
                 self._downloads_cut -= 1
