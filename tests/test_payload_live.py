@@ -110,3 +110,26 @@ def test_the_composition_root_opens_the_payload_the_rig_names(tmp_path):
     bad = load_rig(write_zoom_rig(tmp_path, 'payload = "serial-port-nine"\n'))
     with pytest.raises(SensorError, match=r"\[inspection_camera\] payload 'serial-port-nine'"):
         open_payload(bad, time.monotonic)
+
+
+def test_the_preflight_gate_flies_a_payload_only_when_it_answers() -> None:
+    from insulator_rs.flight.preflight import Outcome, check_sensors
+    from insulator_rs.ports.sensors import StreamStatus
+
+    class Streams:
+        def __init__(self, payload: StreamStatus) -> None:
+            self.payload = payload
+
+        def streams(self, now: float) -> list[StreamStatus]:
+            return [StreamStatus("camera", 10, now), StreamStatus("lidar", 10, now), self.payload]
+
+    with Rig() as r:
+        sensors = live(r)
+        payload_stream = sensors.streams(r.clock())[0]
+        assert payload_stream.name == "payload" and payload_stream.error is None
+        assert check_sensors(Streams(payload_stream), r.clock()).outcome is Outcome.PASSED
+        r.sim.vanish()
+        time.sleep(r.adapter.settings.lost_after_s + 0.1)
+        gone = sensors.streams(r.clock())[0]
+        result = check_sensors(Streams(gone), r.clock())
+        assert result.outcome is Outcome.FAILED and "payload: no HEARTBEAT" in result.reason

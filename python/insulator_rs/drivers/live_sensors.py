@@ -131,12 +131,18 @@ class LiveSensors:
         return CameraFrame(photo.time, photo.image, photo.camera, np.linalg.inv(T_w_b) @ T_w_c)
 
     def streams(self, now: float) -> list[StreamStatus]:
-        """What each driver has received and stamped up to ``now`` (nothing is consumed)."""
+        """What each driver has received and stamped up to ``now`` (nothing is consumed); the
+        payload's: the photos it gave, and whether it answers now (its heartbeats)."""
         out = []
         if self.camera is not None:
             out.append(camera_stream(self.camera, now))
         if self.lidar is not None:
             out.append(lidar_stream(self.lidar, now))
+        if self.payload is not None:
+            alive = self.payload.alive()
+            photos = sum(1 for shot in self.shots if shot.photo is not None)
+            out.append(StreamStatus("payload", photos, now if alive else None,
+                                    error=None if alive else "no HEARTBEAT of its camera and gimbal"))
         return out
 
     def health(self) -> dict[str, object]:

@@ -110,5 +110,10 @@ class Payload(Protocol):
         """Counters for the report: shots, photos, faults by name."""
         ...
 
+    def alive(self) -> bool:
+        """Whether the payload answers now (its components' heartbeats are fresh): the pre-flight
+        gate flies a rig with a payload only when it does."""
+        ...
+
     def close(self) -> None:
         ...
