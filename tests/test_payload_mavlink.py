@@ -189,3 +189,11 @@ def test_a_retransmitted_capture_command_is_not_a_second_shot() -> None:
             assert len(r.sim.images) == 2  # sequence 1 once, sequence 2 once
         finally:
             sock.close()
+
+
+def test_an_http_download_cut_halfway_fails_that_attempt_and_the_retry_fetches_it() -> None:
+    with Rig(PayloadFaults(downloads_cut=1), http=True) as r:
+        result = r.adapter.submit(ShotRequest(0.0, 0.0, 300.0)).result(timeout=5.0)
+        assert result.faults == [PayloadFault.DOWNLOAD_FAILED], result.attempts
+        assert "IncompleteRead" in result.attempts[0].detail
+        assert result.photo is not None and result.photo.file_url.startswith("http://")

@@ -36,6 +36,7 @@ are taken, and only from its camera, gimbal and autopilot components.
 
 from __future__ import annotations
 
+import http.client
 import math
 import queue
 import threading
@@ -446,15 +447,26 @@ class MavlinkPayload:
             try:
                 with urllib.request.urlopen(url, timeout=self.settings.download_timeout_s) as response:  # noqa: S310
                     data = bytes(response.read())
-            except OSError as err:
-                raise PayloadError(PayloadFault.DOWNLOAD_FAILED, f"{url}: {err}") from err
+            except (OSError, http.client.HTTPException) as err:  # a body cut short: IncompleteRead
+                raise PayloadError(PayloadFault.DOWNLOAD_FAILED, f"{url}: {err!r}") from err
             return data
-        return self._ftp_get(url)
+        try:
+            return self._ftp_get(url)
+        except PayloadError:
+            raise
+        # A camera's FTP replies are bytes from the network: pymavlink's mavftp raises on some it
+        # cannot parse (struct.error, IndexError, an assertion). None may end the shot otherwise
+        # than as a named fault, nor reach the flight loop.
+        except Exception as err:  # noqa: BLE001
+            raise PayloadError(PayloadFault.DOWNLOAD_FAILED, f"{url}: MAVLink FTP failed: {err!r}") from err
 
     def _ftp_get(self, url: str) -> bytes:
         from pymavlink import mavftp
 
-        path, component = ftp_path(url)
+        try:
+            path, component = ftp_path(url)
+        except ValueError as err:
+            raise PayloadError(PayloadFault.DOWNLOAD_FAILED, f"{url}: not a MAVLink FTP URL") from err
         s = self.settings
         ftp_settings = mavftp.MAVFTPSettings([
             ("debug", int, 0), ("pkt_loss_tx", int, 0), ("pkt_loss_rx", int, 0), ("max_backlog", int, 5),

@@ -101,7 +101,7 @@ class PayloadFaults:
     way, seeded; sent again when asked), ``capture_silent`` (captures acknowledged, never taken),
     ``refuse_zoom`` (MAV_CMD_SET_CAMERA_ZOOM DENIED), ``pitch_stop`` (rad: a mechanical stop the
     gimbal halts at, above the advertised lower pitch limit), ``downloads_cut`` (the first this
-    many downloads stop answering halfway through the file)."""
+    many downloads stop halfway through the file: MAVLink FTP answers no more, HTTP closes)."""
 
     lost_capture_rate: float = 0.0
     capture_silent: bool = False
@@ -203,7 +203,7 @@ class SimulatedPayload:
         self._renderer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="payload-render")
         self._thread = threading.Thread(target=self._run, name="sim-payload", daemon=True)
         self.received: deque[Any] = deque(maxlen=2000)
-        self._http = _FileServer(self.files, host) if http else None
+        self._http = _FileServer(self.files, host, self._cut_download) if http else None
 
     @property
     def address(self) -> tuple[str, int]:
@@ -484,10 +484,7 @@ class SimulatedPayload:
             if sid is None:
                 reply.nack(ERR_NO_SESSIONS)
                 return
-            cut = None
-            if self._downloads_cut > 0:
-                self._downloads_cut -= 1
-                cut = len(self.files[path]) // 2
+            cut = len(self.files[path]) // 2 if self._cut_download() else None
             self._sessions[sid] = _Session(path, cut)
             reply.session = sid
             reply.ack(struct.pack("<I", len(self.files[path])))
@@ -501,6 +498,14 @@ class SimulatedPayload:
             self._list(reply, data.split(b"\0", 1)[0].decode("utf-8", errors="replace"), offset)
         else:
             reply.nack(ERR_UNKNOWN_COMMAND)
+
+    def _cut_download(self) -> bool:
+        """Whether the download starting now stops halfway (one of ``downloads_cut``)."""
+        with self._lock:
+            if self._downloads_cut <= 0:
+                return False
+            self._downloads_cut -= 1
+            return True
 
     def _read(self, reply: _FtpReply, s: _Session, offset: int, size: int, *, burst: bool) -> None:
         content = self.files[s.path]
@@ -567,9 +572,10 @@ class _FtpReply:
 
 
 class _FileServer:
-    """The payload's images over HTTP (GET of a path in ``files``; 404 otherwise)."""
+    """The payload's images over HTTP (GET of a path in ``files``; 404 otherwise); a download
+    ``cut()`` says to cut sends its whole length in the header and half the file, then closes."""
 
-    def __init__(self, files: dict[str, bytes], host: str) -> None:
+    def __init__(self, files: dict[str, bytes], host: str, cut: Callable[[], bool]) -> None:
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:  # noqa: N802 (http.server's name)
                 data = files.get(self.path)
@@ -580,7 +586,7 @@ class _FileServer:
                 self.send_header("Content-Type", "image/jpeg")
                 self.send_header("Content-Length", str(len(data)))
                 self.end_headers()
-                self.wfile.write(data)
+                self.wfile.write(data[:len(data) // 2] if cut() else data)
 
             def log_message(self, *args: object) -> None:
                 return
