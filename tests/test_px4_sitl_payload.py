@@ -63,3 +63,35 @@ def test_px4_gimbal_manager_forwards_the_companions_aim_to_our_gimbal_device(mon
         finally:
             adapter.close()
             payload.close()
+
+
+@pytest.mark.realtime  # the sensor head renders in real time: beside other flights it starves
+def test_a_live_small_scene_flight_photographs_through_the_payload(px4, tmp_path) -> None:
+    """The live path against PX4 SITL with the payload: the sensor head (PX4's pose) plays the
+    inspection camera as a MAVLink gimbal-and-zoom payload (``--payload-port``), the rig names it
+    (``[inspection_camera] payload``), and ``insulator-rs inspect`` with the live drivers takes every
+    inspection photo through it: aimed, zoomed, captured and fetched by MAVLink FTP. Reference: the
+    photos' size (the payload's, not the detection camera's), the payload's own counters in
+    summary.json, the scene's ground truth and PX4's log (no failsafe)."""
+    from helpers.flights import small_scene
+    from helpers.live_sitl import LIVE_SCALE, PAYLOAD_SCALE, fly_live
+
+    from insulator_rs.rig import simulator_rig
+
+    scene, mission = small_scene(tmp_path)
+    flight = fly_live(px4, tmp_path, scene, mission, payload=True)
+    s = flight.summary
+    print(f"live SITL flight with the payload: {flight.line()}; {flight.head_output.strip()}")
+    assert not flight.failsafe
+    assert flight.returncode == 0 and flight.status == "finished", (flight.status, flight.stdout[-2000:],
+                                                                    flight.stderr[-2000:])
+    health = s["sensors_health"]
+    assert health["payload_photos"] >= 1 and health["payload_photos"] == len(s["photos"]), health
+    wide = simulator_rig().inspection_camera().camera
+    size = (round(wide.width * PAYLOAD_SCALE), round(wide.height * PAYLOAD_SCALE))
+    assert size != (round(simulator_rig().camera.width * LIVE_SCALE), round(simulator_rig().camera.height * LIVE_SCALE))
+    import cv2
+
+    for photo in s["photos"]:
+        image = cv2.imread(str(tmp_path / "report" / photo["file"]))
+        assert image is not None and (image.shape[1], image.shape[0]) == size, photo["file"]
