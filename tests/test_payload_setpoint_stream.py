@@ -7,9 +7,10 @@ a quarter second of wall time). Reference: the stream's gaps as PX4 counts them
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import pytest
-from helpers.payload_rig import Rig
+from helpers.payload_rig import QUICK, Rig
 from helpers.simulated_px4 import TIME_SCALE, connect_new_simulator, take_off_into_offboard
 
 from insulator_rs.drivers.live_sensors import LiveSensors
@@ -25,7 +26,9 @@ def test_the_setpoint_stream_runs_on_while_the_loop_waits_for_a_shot() -> None:
         take_off_into_offboard(client, 3.0)
         client.send_setpoint(client.state().position)
         client.advance(0.5)
-        with Rig() as r:
+        # a capture latency of 0.5 s: the shot outlasts PX4's offboard-loss timeout (1 s of vehicle
+        # time, a quarter second of wall time here) whatever the machine's load
+        with Rig(dynamics=replace(QUICK, capture_latency_s=0.5)) as r:
             sensors = LiveSensors(None, None, payload=r.adapter, inspection=r.inspection,
                                   pose=lambda: client.state().T_w_b)
             T_b_c = stabilised_T_b_c(client.state().T_w_b, r.inspection.T_b_c, -0.2)

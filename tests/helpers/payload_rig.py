@@ -46,11 +46,11 @@ class Rig:
     adapter on the payload (the gimbal device aimed directly unless ``route`` says otherwise)."""
 
     def __init__(self, faults: PayloadFaults | None = None, *, pixel_pitch_um: float | None = 2.0,
-                 route: str = GimbalRoute.DEVICE, http: bool = False) -> None:
+                 route: str = GimbalRoute.DEVICE, http: bool = False, dynamics: PayloadDynamics = QUICK) -> None:
         self.t0 = time.monotonic()
         self.inspection = inspection_camera(pixel_pitch_um=pixel_pitch_um)
         self.sim = SimulatedPayload(self.inspection, pose=self.pose, clock=self.clock,
-                                    render=scene_photo_renderer(scene()), origin=ORIGIN, dynamics=QUICK,
+                                    render=scene_photo_renderer(scene()), origin=ORIGIN, dynamics=dynamics,
                                     faults=faults, seed=3, http=http).start()
         self.adapter = MavlinkPayload(self.sim.url, self.inspection, gimbal_route=route, settings=FAST)
 
