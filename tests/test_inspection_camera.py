@@ -21,10 +21,7 @@ from insulator_rs.planning.safety import safety_volumes
 from insulator_rs.planning.waypoints import PUSH_CLEARANCE, inspection_waypoints
 from insulator_rs.rig import load_rig, scaled_camera, simulator_rig
 from insulator_rs.poses import pose_from_yaw
-from helpers.rig_files import T_B_C, T_B_L, write_opencv_calibration
-
-ZOOM_CAL = Path(simulator_rig().source).parent / "simulator_inspection_camera.yaml"
-
+from helpers.rig_files import T_B_C, T_B_L, write_opencv_calibration, write_zoom_rig
 
 def _K(cam) -> np.ndarray:
     return np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
@@ -37,15 +34,6 @@ def project(T_w_c: np.ndarray, cam, points_w: np.ndarray) -> np.ndarray:
     uv, _ = cv2.projectPoints(np.asarray(points_w, dtype=np.float64).reshape(-1, 1, 3), rvec, T_c_w[:3, 3],
                               _K(cam), np.asarray(cam.dist, dtype=np.float64))
     return uv.reshape(-1, 2)
-
-
-def write_zoom_rig(folder: Path, table: str) -> Path:
-    (folder / "zoom.yaml").write_text(ZOOM_CAL.read_text())
-    write_opencv_calibration(folder / "cam.yaml")
-    rig = folder / "rig.toml"
-    rig.write_text(f'[camera]\ncalibration = "cam.yaml"\nT_b_c = {T_B_C}\n\n[lidar]\nT_b_l = {T_B_L}\n\n'
-                   f'[inspection_camera]\ncalibration = "zoom.yaml"\n{table}')
-    return rig
 
 
 def test_the_simulator_rig_has_a_12_mp_zoom_on_a_gimbal_and_an_old_rig_falls_back(tmp_path):

@@ -8,6 +8,8 @@ raise the others.
 
 from __future__ import annotations
 
+from enum import Enum
+
 
 class InsulatorError(Exception):
     """Base class of every insulator_rs-specific error."""
@@ -90,6 +92,20 @@ class PacketError(SensorError):
     bindings): truncated, a length, version, data type or sample count that does not fit, a
     bad CRC, an unexpected command. The message starts with the packet or frame field at
     fault (``packet.crc32: ...``, ``command.sof: ...``)."""
+
+
+class PayloadError(SensorError):
+    """One attempt at an inspection shot through the payload (a MAVLink gimbal and camera) failed.
+
+    ``fault``: which way (a :class:`insulator_rs.ports.payload.PayloadFault`); the message names
+    it and what was seen (the command and its MAV_RESULT, the seconds waited, the bytes fetched).
+    The payload adapter catches it per attempt, retries a bounded number of times and reports every
+    attempt: it never reaches the flight loop."""
+
+    def __init__(self, fault: Enum, detail: str) -> None:
+        super().__init__(f"payload {fault.value}: {detail}")
+        self.fault = fault
+        self.detail = detail
 
 
 class LocalizationError(InsulatorError):

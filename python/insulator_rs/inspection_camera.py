@@ -45,6 +45,28 @@ class GimbalLimits:
         return (min(max(pitch, self.pitch[0]), self.pitch[1]), min(max(yaw, self.yaw[0]), self.yaw[1]))
 
 
+class GimbalRoute:
+    """Where a MAVLink payload's gimbal is aimed: ``MANAGER`` = through the autopilot's gimbal
+    manager (PX4 with MNT_MODE_IN = 4, MNT_MODE_OUT = 2), ``DEVICE`` = the gimbal device itself
+    (no autopilot manages it)."""
+
+    MANAGER = "manager"
+    DEVICE = "device"
+    ALL = (MANAGER, DEVICE)
+
+
+@dataclass(frozen=True)
+class PayloadLink:
+    """How the companion reaches the inspection camera when it is a MAVLink gimbal-and-zoom payload
+    (the rig's ``[inspection_camera] payload``): ``connection`` (``udpin:HOST:PORT``,
+    ``udpout:HOST:PORT``, ``DEVICE:BAUD``), ``gimbal_route`` (:class:`GimbalRoute`), ``system_id``
+    (the payload's MAVLink system, None: the first camera HEARTBEAT's)."""
+
+    connection: str
+    gimbal_route: str = GimbalRoute.MANAGER
+    system_id: int | None = None
+
+
 @dataclass(frozen=True)
 class InspectionCamera:
     """``camera``: full-resolution intrinsics at the widest zoom; ``T_b_c``: the camera at zero
@@ -64,6 +86,8 @@ class InspectionCamera:
     dedicated: bool = True
     #: intrinsics calibrated at further zoom steps, longer than ``camera``'s, shortest first
     zoom_steps: tuple[CameraModel, ...] = ()
+    #: a MAVLink gimbal-and-zoom payload the live flight photographs through (None: none)
+    payload: PayloadLink | None = None
 
     @property
     def zoom(self) -> bool:

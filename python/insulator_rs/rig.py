@@ -27,6 +27,12 @@ shipped rig such as ``"simulator"``). The form (see ``rigs/simulator.toml``)::
     T_b_c = [[...], ...]          # optional: the camera at zero gimbal angles on a level body
     gimbal_pitch_deg = [-90, 30]  # gimbal limits (degrees; pitch down negative, yaw from the body
     gimbal_yaw_deg = [-30, 30]    # heading, CCW); roll and pitch are stabilised
+    payload = "udpin:0.0.0.0:14560"  # optional: the camera and gimbal are a MAVLink payload (Gimbal v2,
+                                  # Camera v2) the live flight photographs through; its connection
+    payload_gimbal = "manager"    # optional: aim through the autopilot's gimbal manager (PX4
+                                  # MNT_MODE_IN = 4, MNT_MODE_OUT = 2), or "device": straight to it
+    payload_system = 1            # optional: the payload's MAVLink system id (default: the first
+                                  # camera HEARTBEAT's)
 
     [lidar]
     T_b_l = [[...], [...], [...], [0, 0, 0, 1]]   # 4x4 rows: p_b = T_b_l @ p_l
@@ -58,7 +64,7 @@ from insulator_rs._core import CameraModel
 from insulator_rs._toml import tomllib
 from insulator_rs.calibration import load_calibration
 from insulator_rs.exceptions import ConfigError
-from insulator_rs.inspection_camera import GimbalLimits, InspectionCamera, mean_focal
+from insulator_rs.inspection_camera import GimbalLimits, GimbalRoute, InspectionCamera, PayloadLink, mean_focal
 from insulator_rs.poses import check_pose
 from insulator_rs.textfile import read_config_text
 
@@ -69,7 +75,8 @@ SIMULATOR_RIG = "simulator"
 MID360_VERTICAL_FOV_DEG = (-7.0, 52.0)
 #: The fields of ``[inspection_camera]``.
 INSPECTION_FIELDS = {"calibration", "make", "model", "pixel_pitch_um", "focal_length_px", "focal_length_mm",
-                     "T_b_c", "gimbal_pitch_deg", "gimbal_yaw_deg", "zoom_calibrations"}
+                     "T_b_c", "gimbal_pitch_deg", "gimbal_yaw_deg", "zoom_calibrations", "payload",
+                     "payload_gimbal", "payload_system"}
 #: The zoom range's wide end and the calibration (taken at the widest zoom) may differ this much
 #: (relative): a lens's stated focal length is rounded.
 ZOOM_CALIBRATION_TOLERANCE = 0.05
@@ -295,7 +302,33 @@ def _inspection_camera(source: str, p: Path, t: dict[str, Any]) -> InspectionCam
                           (math.radians(yaw[0]), math.radians(yaw[1])))
     steps = _zoom_steps(source, p, t, cam, focal)
     return InspectionCamera(cam, T_b_c, focal, gimbal, lens.make, lens.model, lens.pixel_pitch_um,
-                            zoom_steps=steps)
+                            zoom_steps=steps, payload=_payload_link(source, t))
+
+
+def _payload_link(source: str, t: dict[str, Any]) -> PayloadLink | None:
+    """``[inspection_camera] payload`` (a MAVLink connection to a gimbal-and-zoom payload),
+    ``payload_gimbal`` ("manager": through the autopilot's gimbal manager, the default; "device":
+    straight to the gimbal) and ``payload_system`` (its system id; default: the first camera
+    HEARTBEAT's). The live flight photographs through it."""
+    if "payload" not in t:
+        extra = sorted({"payload_gimbal", "payload_system"} & set(t))
+        if extra:
+            raise ConfigError(f"{source}: inspection_camera.{extra[0]}: needs inspection_camera.payload "
+                              f"(the payload's MAVLink connection)")
+        return None
+    connection = t["payload"]
+    if not isinstance(connection, str) or not connection.strip():
+        raise ConfigError(f"{source}: inspection_camera.payload: expected a MAVLink connection "
+                          f"(udpin:HOST:PORT, udpout:HOST:PORT or DEVICE:BAUD), got {connection!r}")
+    route = t.get("payload_gimbal", GimbalRoute.MANAGER)
+    if route not in GimbalRoute.ALL:
+        raise ConfigError(f"{source}: inspection_camera.payload_gimbal: expected one of "
+                          f"{', '.join(GimbalRoute.ALL)}, got {route!r}")
+    system = t.get("payload_system")
+    if system is not None and not (isinstance(system, int) and not isinstance(system, bool) and 1 <= system <= 255):
+        raise ConfigError(f"{source}: inspection_camera.payload_system: expected a MAVLink system id in "
+                          f"[1, 255], got {system!r}")
+    return PayloadLink(connection.strip(), route, system)
 
 
 def _zoom_steps(source: str, p: Path, t: dict[str, Any], widest: CameraModel,

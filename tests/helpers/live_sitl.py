@@ -33,31 +33,50 @@ REPO = Path(__file__).resolve().parents[2]
 # A live flight's camera: the simulator's lens at 320 x 240 (the rig's calibration must match
 # the frames the camera delivers), rendered and served at 3 fps by the sensor head.
 LIVE_SCALE = 0.25
+# The payload's camera in a live flight: the simulator's 12 MP zoom at 400 x 300 (a ray-cast 12 MP
+# photo takes seconds of the sensor head's CPU beside PX4, and its MAVLink FTP download minutes).
+PAYLOAD_SCALE = 0.1
 LIVE_TIMEOUT = 900.0  # s of wall time for the whole flight
 DISARM_WAIT = 20.0  # s of wall time to wait for PX4's own disarm after the landing (COM_DISARM_LAND 2 s)
 
 
-def live_rig(folder: Path, lidar_latency_s: float = 0.0) -> Path:
+def live_rig(folder: Path, lidar_latency_s: float = 0.0, payload_port: int | None = None) -> Path:
     """A rig file: the simulator rig's extrinsics, its camera scaled to ``LIVE_SCALE``, the
     sensor head camera's fixed latency as its calibration states it (``latency_s``), and the
-    head's LiDAR latency (``--lidar-latency``) where it holds its packets to one."""
+    head's LiDAR latency (``--lidar-latency``) where it holds its packets to one. With
+    ``payload_port``: the simulator's inspection camera scaled to ``PAYLOAD_SCALE`` as a MAVLink
+    payload on that port (the sensor head's ``--payload-port``), its gimbal aimed directly."""
     from insulator_rs.rig import scaled_camera, simulator_rig
     from insulator_rs.sim.sensor_head import CAMERA_LATENCY_S
 
     rig = simulator_rig()
-    cam = scaled_camera(rig.camera, LIVE_SCALE)
-    k = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
-    (folder / "live_camera.yaml").write_text(
-        f"image_width: {cam.width}\nimage_height: {cam.height}\ncamera_name: live\n"
-        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: {k}\n"
-        f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
-        f"  data: {[float(d) for d in cam.dist]}\n")
+    write_camera_info(folder / "live_camera.yaml", scaled_camera(rig.camera, LIVE_SCALE), "live")
     matrix = lambda T: "[" + ", ".join(str([float(v) for v in row]) for row in T) + "]"  # noqa: E731
     path = folder / "live_rig.toml"
+    inspection = ""
+    if payload_port is not None:
+        wide = rig.inspection_camera()
+        zoom = scaled_camera(wide.camera, PAYLOAD_SCALE)
+        write_camera_info(folder / "payload_camera.yaml", zoom, "payload")
+        long_end = wide.focal_px[1] * PAYLOAD_SCALE
+        limits = [[math.degrees(a) for a in pair] for pair in (wide.gimbal.pitch, wide.gimbal.yaw)]
+        inspection = (f'\n[inspection_camera]\ncalibration = "payload_camera.yaml"\n'
+                      f"focal_length_px = [{0.5 * (zoom.fx + zoom.fy)!r}, {long_end!r}]\n"
+                      f"T_b_c = {matrix(wide.T_b_c)}\ngimbal_pitch_deg = {limits[0]}\ngimbal_yaw_deg = {limits[1]}\n"
+                      f'payload = "udpout:127.0.0.1:{payload_port}"\npayload_gimbal = "device"\n')
     path.write_text(f'[camera]\ncalibration = "live_camera.yaml"\nT_b_c = {matrix(rig.T_b_c)}\n'
                     f"latency_s = {CAMERA_LATENCY_S}\n\n[lidar]\nT_b_l = {matrix(rig.T_b_l)}\n"
-                    + (f"latency_s = {lidar_latency_s}\n" if lidar_latency_s else ""))
+                    + (f"latency_s = {lidar_latency_s}\n" if lidar_latency_s else "") + inspection)
     return path
+
+
+def write_camera_info(path: Path, cam: Any, name: str) -> None:
+    """``cam``'s intrinsics as a ROS camera_info YAML file."""
+    k = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
+    path.write_text(f"image_width: {cam.width}\nimage_height: {cam.height}\ncamera_name: {name}\n"
+                    f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: {k}\n"
+                    f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
+                    f"  data: {[float(d) for d in cam.dist]}\n")
 
 
 def free_udp_port() -> int:
@@ -138,18 +157,22 @@ def _stalls(summary: dict[str, Any]) -> str:
 
 def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: list[str] = (),
              head_args: list[str] = (), confirmations: int | None = None,
-             inspection_extra: str = "", lidar_latency_s: float = 0.0) -> LiveFlight:
+             inspection_extra: str = "", lidar_latency_s: float = 0.0, payload: bool = False) -> LiveFlight:
     """Fly ``mission`` over ``scene`` against ``px4`` with the live drivers (module docstring);
     ``confirmations`` replaces the mission's (None: its own, the default 4); ``inspection_extra``:
     TOML lines appended to the mission's ``[inspection]`` (its last table), for an experiment;
     ``lidar_latency_s``: the head holds each LiDAR packet to this delay after its samples
-    (``--lidar-latency``) and the rig states it (0: sent as soon as rendered)."""
+    (``--lidar-latency``) and the rig states it (0: sent as soon as rendered); ``payload``: the
+    sensor head plays the inspection camera as a MAVLink payload the flight photographs through."""
     import insulator_rs
     from insulator_rs.evaluation.scoring import MATCH_DISTANCE
     from insulator_rs.sim.towers import load_tower
 
     folder.mkdir(parents=True, exist_ok=True)
-    live_rig(folder, lidar_latency_s)
+    payload_port = free_udp_port() if payload else None
+    live_rig(folder, lidar_latency_s, payload_port)
+    if payload_port is not None:
+        head_args = [*head_args, "--payload-port", str(payload_port)]
     text = mission.read_text()
     assert 'rig = "simulator"' in text, mission
     live_mission = folder / "live_mission.toml"
@@ -171,7 +194,7 @@ def fly_live(px4: Px4Sitl, folder: Path, scene: Path, mission: Path, *, extra: l
         line = head.stdout.readline() if head.stdout is not None else ""
         if not line.startswith("sensor head ready"):
             raise RuntimeError(line + stop_process(head))
-        url = line.split("camera ", 1)[1].strip()
+        url = line.split("camera ", 1)[1].split(",", 1)[0].strip()
         t0 = time.monotonic()
         try:
             flight = subprocess.run([sys.executable, "-m", "insulator_rs.app.cli", "inspect", "--scene", str(scene),

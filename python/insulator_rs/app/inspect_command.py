@@ -335,12 +335,15 @@ def run(args: argparse.Namespace) -> int:
         assert network is not None  # live: the real-photo network by default; standin refused
         detector: BoxDetector = network
         photo_camera = rig.camera
-        if rig.inspection is not None:
-            # No live driver for a second camera yet: the photos are the detection camera's frames,
-            # so they are framed, checked and described (CAMERA_INFORMATION) for that camera, not
-            # for a zoom that would never be applied.
-            print("insulator-rs inspect: note: the rig's [inspection_camera] has no live driver yet: "
-                  "the inspection photos are the detection camera's, framed for its lens", file=sys.stderr)
+        if rig.inspection is not None and rig.inspection.payload is not None:
+            photo_camera = rig.inspection.camera  # the MAVLink payload photographs, at the shots' zoom
+        elif rig.inspection is not None:
+            # An inspection camera with no payload link has no live driver: the photos are the
+            # detection camera's frames, so they are framed, checked and described
+            # (CAMERA_INFORMATION) for that camera, not for a zoom that would never be applied.
+            print("insulator-rs inspect: note: the rig's [inspection_camera] names no payload (its MAVLink "
+                  "connection): the inspection photos are the detection camera's, framed for its lens",
+                  file=sys.stderr)
             rig = replace(rig, inspection=None)
     else:
         ports = simulated_ports(tower.mesh, pose, rig, seed=args.seed, detect_scale=args.detect_scale,

@@ -17,12 +17,14 @@ and a detection network (by default the real-photo one; there is no ground truth
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import Any
 
 from insulator_rs.drivers.live_sensors import LiveSensors, open_live_sensors
 from insulator_rs.ports.detector import STANDIN
 from insulator_rs.drivers.livox import parse_url
 from insulator_rs.exceptions import SensorError
+from insulator_rs.mavlink.payload import MavlinkPayload
 from insulator_rs.timesync import TelemetryClock, TimesyncRecord, VehicleClock
 
 
@@ -64,7 +66,8 @@ class _ClockedSensors(LiveSensors):
     """LiveSensors that also stop the vehicle clock they were stamped with."""
 
     def __init__(self, inner: LiveSensors, clock: VehicleClock) -> None:
-        super().__init__(inner.lidar, inner.camera)
+        super().__init__(inner.lidar, inner.camera, payload=inner.payload, inspection=inner.inspection,
+                         pose=inner.pose)
         self.clock = clock
 
     def health(self) -> dict[str, object]:
@@ -86,15 +89,37 @@ class _ClockedSensors(LiveSensors):
 def open_from_arguments(args: argparse.Namespace, vehicle: Any, rig: Any) -> LiveSensors:
     """Starts the vehicle clock (the vehicle's TIMESYNC map, ``vehicle.state().time`` stamps as
     the fallback), the Mid-360 and the camera of ``args`` with the extrinsics, calibration and
-    camera and LiDAR latencies of ``rig``; SensorError names what failed."""
+    camera and LiDAR latencies of ``rig``, and, when the rig's inspection camera names a MAVLink
+    payload (``[inspection_camera] payload``), the payload the photos are taken through;
+    SensorError names what failed."""
     clock = VehicleClock(getattr(vehicle, "timesync", None), TelemetryClock(lambda: vehicle.state().time)).start()
+    payload = None
     try:
         # the LiDAR on the host's clock (a crystal, as its own), mapped to the vehicle's after
         sensors = open_live_sensors(args.lidar, args.camera, now=clock.now, T_b_l=rig.T_b_l, T_b_c=rig.T_b_c,
                                     camera_model=rig.camera, camera_latency_s=rig.camera_latency_s,
                                     lidar_latency_s=rig.lidar_latency_s, host_clock=clock.host_now,
                                     host_to_vehicle=clock.to_vehicle)
+        payload = open_payload(rig, clock.now)
     except BaseException:
         clock.close()
         raise
+    if payload is not None:
+        sensors = LiveSensors(sensors.lidar, sensors.camera, payload=payload, inspection=rig.inspection,
+                              pose=lambda: vehicle.state().T_w_b)
     return _ClockedSensors(sensors, clock)
+
+
+def open_payload(rig: Any, vehicle_clock: Callable[[], float]) -> MavlinkPayload | None:
+    """The MAVLink payload the rig's ``[inspection_camera] payload`` names (None when it names none),
+    its stamps mapped to ``vehicle_clock``; SensorError naming the field for a connection that
+    cannot be opened."""
+    inspection = getattr(rig, "inspection", None)  # a rig without an inspection camera has none
+    link = None if inspection is None else inspection.payload
+    if inspection is None or link is None:
+        return None
+    try:
+        return MavlinkPayload(link.connection, inspection, gimbal_route=link.gimbal_route,
+                              target_system=link.system_id, vehicle_clock=vehicle_clock)
+    except (OSError, ValueError, TypeError) as exc:
+        raise SensorError(f"[inspection_camera] payload {link.connection!r}: {exc}") from exc

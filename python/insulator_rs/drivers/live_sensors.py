@@ -1,9 +1,10 @@
 """The live ``Sensors`` adapter: a Livox Mid-360 and a camera (OpenCV or GStreamer) behind one port.
 
 Either may be absent (a LiDAR-only or camera-only rig): its methods then return None.
-The camera is fixed to the airframe (no gimbal is commanded from here), so ``photo``
-returns the newest frame with the camera's own ``T_b_c``, whatever pose was asked for;
-the flight loop must aim the vehicle (yaw) for an inspection photo.
+Where the rig's inspection camera is a MAVLink payload (``[inspection_camera] payload``), ``photo``
+is one shot of it (:class:`LiveSensors`); otherwise the camera is fixed to the airframe (no gimbal
+is commanded from here), so ``photo`` returns the newest frame with the camera's own ``T_b_c``,
+whatever pose was asked for; the flight loop must aim the vehicle (yaw) for an inspection photo.
 
 ``lidar_scan(now)`` returns every complete scan the driver finished since the last call, merged
 into one (None when there is none): a caller that polls slower than the sensor's 10 Hz (a flight
@@ -16,8 +17,10 @@ cost a concatenation of 1 s of points per control tick and recorded every point 
 
 from __future__ import annotations
 
+import math
 import socket
 from collections.abc import Callable
+from concurrent.futures import TimeoutError as FutureTimeout
 
 import numpy as np
 
@@ -26,7 +29,11 @@ from insulator_rs.drivers.camera_select import open_camera
 from insulator_rs.drivers.camera_source import CameraSource
 from insulator_rs.drivers.livox import HOST_PORT_IMU, HOST_PORT_POINT, LivoxMid360, TimeMap, parse_url
 from insulator_rs.exceptions import SensorError
+from insulator_rs.inspection_camera import InspectionCamera, mean_focal
+from insulator_rs.poses import yaw_of
+from insulator_rs.ports.payload import Payload, ShotRequest, ShotResult
 from insulator_rs.ports.sensors import CameraFrame, LidarScan, StreamStatus
+from insulator_rs.ports.vehicle import wrap_angle
 
 #: Scans the Mid-360 driver keeps for ``lidar_scan`` (3 s at 10 Hz: perception's PAIRING_WAIT,
 #: 2 s, is how late a scan may come and still be paired).
@@ -48,14 +55,38 @@ def merge_scans(scans: list[LidarScan]) -> LidarScan | None:
                      window_end=max(windows) if windows else None)
 
 
-class LiveSensors:
-    """``Sensors`` over live drivers (both already started)."""
+#: s the flight loop waits at most for one shot of a payload (every attempt's slew, zoom, capture and
+#: download together: the adapter's own bounds end it sooner); the vehicle's setpoints stream from
+#: the MAVLink client's thread meanwhile, so the autopilot holds the waypoint
+PAYLOAD_SHOT_WAIT_S = 60.0
 
-    def __init__(self, lidar: LivoxMid360 | None, camera: CameraSource | None) -> None:
-        if lidar is None and camera is None:
-            raise ValueError("LiveSensors: need a LiDAR, a camera, or both")
+
+class LiveSensors:
+    """``Sensors`` over live drivers (already started), and the inspection photos through a payload.
+
+    ``payload`` (a :class:`~insulator_rs.ports.payload.Payload`: the rig's MAVLink gimbal-and-zoom
+    camera), with the rig's ``inspection`` camera and ``pose()`` (the vehicle's T_w_b now): each
+    :meth:`photo` is one shot of the payload, aimed where the asked ``T_b_c`` looks (pitch from the
+    horizon, yaw from the heading: the mount looks along the body's x at zero gimbal angles, the
+    rig's default), zoomed to the asked intrinsics' focal length. The photo's attitude and time are
+    the capture message's; its position the mount's on the body. Every shot's attempts and faults
+    are kept (``shots``) for the report. Without a payload the photo is the detection frame."""
+
+    def __init__(self, lidar: LivoxMid360 | None, camera: CameraSource | None, *, payload: Payload | None = None,
+                 inspection: InspectionCamera | None = None, pose: Callable[[], np.ndarray] | None = None,
+                 shot_wait_s: float = PAYLOAD_SHOT_WAIT_S) -> None:
+        if lidar is None and camera is None and payload is None:
+            raise ValueError("LiveSensors: need a LiDAR, a camera, a payload, or more")
+        if payload is not None and (inspection is None or pose is None):
+            raise ValueError("LiveSensors: payload: needs the rig's inspection camera and the vehicle's pose")
         self.lidar = lidar
         self.camera = camera
+        self.payload = payload
+        self.inspection = inspection
+        self.pose = pose
+        self.shot_wait_s = shot_wait_s
+        self.shots: list[ShotResult] = []
+        self.shots_late = 0  # shots not ended within shot_wait_s (their photo is dropped)
         self._handed_until = -np.inf  # vehicle time: the end of the newest scan handed over
 
     @property
@@ -77,20 +108,48 @@ class LiveSensors:
         return merge_scans(new)
 
     def photo(self, now: float, T_b_c: np.ndarray, camera: CameraModel | None = None) -> CameraFrame | None:
-        # no inspection-camera driver yet: the detection camera's frame (its own intrinsics)
-        return self.detection_frame(now)
+        if self.payload is None or self.inspection is None or self.pose is None:
+            return self.detection_frame(now)  # no payload: the detection camera's frame (its own intrinsics)
+        T_w_b = np.asarray(self.pose(), dtype=np.float64)
+        axis = T_w_b[:3, :3] @ np.asarray(T_b_c, dtype=np.float64)[:3, 2]  # the asked optical axis in W
+        pitch = math.asin(max(-1.0, min(1.0, float(axis[2]) / float(np.linalg.norm(axis)))))
+        yaw = wrap_angle(math.atan2(axis[1], axis[0]) - yaw_of(T_w_b))
+        focal = self.inspection.focal_px[0] if camera is None else mean_focal(camera)
+        future = self.payload.submit(ShotRequest(pitch, yaw, focal))
+        try:
+            result = future.result(timeout=self.shot_wait_s)
+        except FutureTimeout:
+            self.shots_late += 1
+            return None
+        self.shots.append(result)
+        photo = result.photo
+        if photo is None:
+            return None
+        T_w_c = np.eye(4)
+        T_w_c[:3, :3] = photo.R_w_c
+        T_w_c[:3, 3] = (T_w_b @ self.inspection.T_b_c)[:3, 3]
+        return CameraFrame(photo.time, photo.image, photo.camera, np.linalg.inv(T_w_b) @ T_w_c)
 
     def streams(self, now: float) -> list[StreamStatus]:
-        """What each driver has received and stamped up to ``now`` (nothing is consumed)."""
+        """What each driver has received and stamped up to ``now`` (nothing is consumed); the
+        payload's: the photos it gave, and whether it answers now (its heartbeats)."""
         out = []
         if self.camera is not None:
             out.append(camera_stream(self.camera, now))
         if self.lidar is not None:
             out.append(lidar_stream(self.lidar, now))
+        if self.payload is not None:
+            alive = self.payload.alive()
+            photos = sum(1 for shot in self.shots if shot.photo is not None)
+            out.append(StreamStatus("payload", photos, now if alive else None,
+                                    error=None if alive else "no HEARTBEAT of its camera and gimbal"))
         return out
 
     def health(self) -> dict[str, object]:
         out: dict[str, object] = {}
+        if self.payload is not None:
+            out.update({f"payload_{k}": v for k, v in self.payload.health().items()})
+            out["payload_shots_late"] = self.shots_late
         if self.lidar is not None:
             out.update({f"lidar_{k}": v for k, v in self.lidar.health().items()})
         if self.camera is not None:
@@ -102,6 +161,8 @@ class LiveSensors:
             self.lidar.close()
         if self.camera is not None:
             self.camera.close()
+        if self.payload is not None:
+            self.payload.close()
 
 
 def camera_stream(camera: CameraSource, now: float) -> StreamStatus:

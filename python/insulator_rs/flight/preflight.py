@@ -191,6 +191,14 @@ def check_sensors(sensors: object, now: float) -> CheckResult:
             problems.append(f"{name}: silent for {now - s.newest:.1f} s (newest at {s.newest:.2f} s)")
         else:
             fine.append(f"{name} {s.delivered} delivered, newest {now - s.newest:.2f} s old")
+    # a further device the rig names (the inspection camera's MAVLink payload): flown only when it
+    # answers, since a flight without it would bring back no inspection photo
+    for s in streams:
+        if s.name not in SENSORS_NEEDED:
+            if s.error is not None:
+                problems.append(f"{s.name}: {s.error}")
+            else:
+                fine.append(f"{s.name} answering")
     return _result(Check.SENSORS, problems, ", ".join(fine))
 
 

@@ -114,3 +114,37 @@ def local_origin_in_w(home_geodetic: tuple[float, float, float], home_local_ned:
 
     home_w = np.array(pymap3d.geodetic2enu(*home_geodetic, *origin_geodetic), dtype=np.float64)
     return home_w - ned_to_enu(home_local_ned)
+
+
+# p_frd = FRD_FROM_OPTICAL @ p_c: a camera's MAVLink frame (x along the optical axis, y right,
+# z down, as a gimbal's or CAMERA_IMAGE_CAPTURED's attitude is given) from OpenCV's optical frame
+# (z along the axis, x right, y down).
+FRD_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def quaternion_yaw_pitch(yaw_ned: float, pitch: float) -> list[float]:
+    """(w, x, y, z) of a yaw ``yaw_ned`` (rad, clockwise seen from above) then a pitch ``pitch``
+    (rad, positive up), no roll: q_z(yaw) * q_y(pitch), MAVLink's order for a gimbal or a camera."""
+    cy, sy = math.cos(yaw_ned / 2), math.sin(yaw_ned / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    return [cy * cp, -sy * sp, cy * sp, sy * cp]
+
+
+def yaw_pitch_of_quaternion(q: object) -> tuple[float, float]:
+    """(yaw, pitch) rad of a (w, x, y, z) quaternion in MAVLink's Z-Y-X order (the roll dropped):
+    the inverse of :func:`quaternion_yaw_pitch` for a roll-free attitude."""
+    r = rotation_from_quaternion(np.asarray(q, dtype=np.float64))
+    pitch = -math.asin(max(-1.0, min(1.0, float(r[2, 0]))))
+    return math.atan2(r[1, 0], r[0, 0]), pitch
+
+
+def camera_rotation_w(q_ned: object) -> np.ndarray:
+    """R_w_c (3x3: the camera optical frame in W, ENU) from a camera attitude quaternion (w, x, y,
+    z) in NED, x along the optical axis (CAMERA_IMAGE_CAPTURED.q)."""
+    return ENU_TO_NED.T @ rotation_from_quaternion(np.asarray(q_ned, dtype=np.float64)) @ FRD_FROM_OPTICAL
+
+
+def camera_quaternion_ned(R_w_c: np.ndarray) -> np.ndarray:
+    """The (w, x, y, z) NED quaternion of a camera whose optical frame has the attitude ``R_w_c``
+    in W (the inverse of :func:`camera_rotation_w`)."""
+    return quaternion_from_rotation(ENU_TO_NED @ np.asarray(R_w_c, dtype=np.float64)[:3, :3] @ FRD_FROM_OPTICAL.T)

@@ -48,6 +48,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from insulator_rs.mavlink.frames import quaternion_yaw_pitch, yaw_enu_to_ned
 from insulator_rs.mavlink.wire import mavlink2
 from insulator_rs.ports.observer import InsulatorFound, PhaseChange, PhotoTaken
 
@@ -104,7 +105,7 @@ class CameraDescription:
                    width_px=int(camera.width), height_px=int(camera.height))
 
 
-def _name32(text: str) -> list[int]:
+def name32(text: str) -> list[int]:
     raw = text.encode("utf-8")[:32]
     return list(raw.ljust(32, b"\0"))
 
@@ -117,12 +118,7 @@ def _ascii(text: str) -> str:
 def camera_quaternion(yaw_enu: float, gimbal_pitch: float) -> list[float]:
     """(w, x, y, z) of the camera in NED: yaw from north (clockwise) = 90 deg - yaw in W (ENU),
     then the gimbal pitch (negative looks down, as MAVLink's pitch), no roll."""
-    psi = math.pi / 2 - yaw_enu
-    theta = gimbal_pitch
-    cy, sy = math.cos(psi / 2), math.sin(psi / 2)
-    cp, sp = math.cos(theta / 2), math.sin(theta / 2)
-    # q = q_z(psi) * q_y(theta)
-    return [cy * cp, -sy * sp, cy * sp, sy * cp]
+    return quaternion_yaw_pitch(yaw_ned=yaw_enu_to_ned(yaw_enu), pitch=gimbal_pitch)
 
 
 class MavlinkGcsObserver:
@@ -281,7 +277,7 @@ class MavlinkGcsObserver:
 
     def send_camera_information(self) -> None:
         c = self.camera
-        self._emit(self._camera, "camera_information", self._boot_ms(), _name32(c.vendor), _name32(c.model),
+        self._emit(self._camera, "camera_information", self._boot_ms(), name32(c.vendor), name32(c.model),
                    c.firmware_version, float(c.focal_length_mm), float(c.sensor_width_mm),
                    float(c.sensor_height_mm), int(c.width_px), int(c.height_px), 0,
                    M.CAMERA_CAP_FLAGS_CAPTURE_IMAGE, 0, b"")

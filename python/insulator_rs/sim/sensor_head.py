@@ -527,6 +527,9 @@ def main(argv: list[str] | None = None) -> int:
                              "rendered, a render time late); the client's rig states it as [lidar] latency_s")
     parser.add_argument("--log", type=Path, default=None, help="timing log (JSON lines) of every image and send")
     parser.add_argument("--ready-timeout", type=float, default=60.0, help="s to wait for PX4's pose")
+    parser.add_argument("--payload-port", type=int, default=None,
+                        help="also play the rig's inspection camera as a MAVLink gimbal-and-zoom payload "
+                             "(insulator_rs.sim.payload) on this UDP port, at PX4's pose")
     args = parser.parse_args(argv)
     host, _, port = args.lidar_to.rpartition(":")
     if not host or not port.isdigit():
@@ -538,6 +541,8 @@ def main(argv: list[str] | None = None) -> int:
     tower = load_tower(args.scene)
     mission = load_mission(args.mission)
     rig = mission.sensor_rig()
+    if args.payload_port is not None and rig.inspection is None:
+        parser.error("--payload-port: the mission's rig has no [inspection_camera] to play")
     feed = Px4PoseFeed(args.px4, (mission.tower.lat, mission.tower.lon, mission.tower.alt)).start()
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
@@ -554,11 +559,22 @@ def main(argv: list[str] | None = None) -> int:
                       fps=args.fps, sensor_clock=SensorClock(offset_s=args.clock_offset,
                                                              drift=args.clock_drift_ppm * 1e-6), log=log,
                       lidar_latency_s=args.lidar_latency).start()
-    print(f"sensor head ready: lidar -> {host}:{port}, camera {head.server.url}", flush=True)
+    payload = None
+    if args.payload_port is not None:
+        from insulator_rs.sim.payload import SimulatedPayload, scene_photo_renderer
+
+        assert rig.inspection is not None
+        payload = SimulatedPayload(rig.inspection, pose=feed.pose, clock=feed.newest_time,
+                                   render=scene_photo_renderer(tower.mesh),
+                                   origin=mission.tower, port=args.payload_port).start()
+    print(f"sensor head ready: lidar -> {host}:{port}, camera {head.server.url}"
+          + ("" if payload is None else f", payload {payload.url}"), flush=True)
     try:
         while not stop.wait(0.5):
             pass
     finally:
+        if payload is not None:
+            payload.close()
         head.close()
         feed.close()
         if log is not None:
