@@ -17,6 +17,11 @@ off that flight's own state log (``trajectory.csv``), then flies each fault from
   estimate) lost and the operator's abort in process; "process killed": the companion is
   ``insulator-rs inspect --connection`` in a process of its own, flying our simulated PX4 started
   here, ended by a real SIGKILL (``kill -9``);
+* the payload's faults (:mod:`insulator_rs.evaluation.payload_faults`): the flight against our
+  simulated PX4 photographs through the simulated MAVLink gimbal-and-zoom payload, whose capture
+  never answers, gimbal jams at its limit, zoom is refused, downloads stop halfway, or which falls
+  silent, from the moment on; each cell says which insulators have no photo and why, and the
+  setpoint stream's longest gap while the loop waited for the failing shots;
 * the MAVLink cells have a ground station on PX4's GCS link, relayed by the companion
   (:class:`~insulator_rs.sim.px4_gcs.RelayedGroundStation`): the companion sets NAV_DLL_ACT to
   Return, and the link lost or the companion dead takes the ground station's link down too, so
