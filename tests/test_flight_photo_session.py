@@ -84,11 +84,23 @@ def test_an_abort_while_settling_gives_no_state():
     assert settle(ScriptedPilot(lambda k: _state(k, speed=1.0), abort_at=5), WP, 0.0) is None
 
 
+class _Photos:
+    """The photos' record as the session writes it: no photo is saved in these tests, only why
+    a photo asked for gave none (per insulator)."""
+
+    def __init__(self):
+        self.records = []
+        self.failures = {}
+
+    def missing(self, insulator_id, why):
+        self.failures.setdefault(insulator_id, []).append(why)
+
+
 def _session(pilot, *, inspection, sensors=None, retakes=2, cls=PhotoSession):
     rig = SimpleNamespace(inspection=inspection, camera=SimpleNamespace(height=480, fy=400.0), T_b_c=np.eye(4))
     errors: list[SensorError] = []
     session = cls(pilot, SimpleNamespace(), sensors=sensors, rig=rig, detector=None,
-                           registry=SimpleNamespace(insulators=[]), photos=SimpleNamespace(records=[]),
+                           registry=SimpleNamespace(insulators=[]), photos=_Photos(),
                            params=SimpleNamespace(photo_retakes=retakes, insulator_length=2.0),
                            observer=None, on_sensor_error=errors.append)
     return session, errors
@@ -145,6 +157,22 @@ def test_no_image_from_the_camera_is_said_and_nothing_is_recorded():
         assert len(errors) == errors_expected
         assert session.photos.records == [] and pilot.summaries == 0
         assert any("photo of insulator 3: no image from the camera" in s for s in pilot.said)
+        assert session.photos.failures == {3: ["no image from the camera"]}  # the summary says why
+
+
+def test_the_sensors_reason_for_a_missing_photo_is_said_and_kept_for_the_insulator():
+    class PayloadFailing:
+        def photo(self, now, T_b_c, camera=None):
+            return None
+
+        def photo_failure(self):
+            return "payload: zoom_refused (attempt 1)"
+
+    pilot = ScriptedPilot(_state)
+    session, _ = _session(pilot, inspection=None, sensors=PayloadFailing())
+    assert session.shoot(WP, 1) is None
+    assert session.photos.failures == {3: ["payload: zoom_refused (attempt 1)"]}
+    assert any("photo of insulator 3: payload: zoom_refused (attempt 1)" in s for s in pilot.said)
 
 
 def test_the_photos_field_of_view_frames_the_waypoints():

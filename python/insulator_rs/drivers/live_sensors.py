@@ -87,6 +87,7 @@ class LiveSensors:
         self.shot_wait_s = shot_wait_s
         self.shots: list[ShotResult] = []
         self.shots_late = 0  # shots not ended within shot_wait_s (their photo is dropped)
+        self._failure: str | None = None  # why the newest photo() gave no frame
         self._handed_until = -np.inf  # vehicle time: the end of the newest scan handed over
 
     @property
@@ -120,15 +121,22 @@ class LiveSensors:
             result = future.result(timeout=self.shot_wait_s)
         except FutureTimeout:
             self.shots_late += 1
+            self._failure = f"payload: the shot did not end within {self.shot_wait_s:g} s"
             return None
         self.shots.append(result)
         photo = result.photo
+        self._failure = None if photo is not None else shot_failure(result)
         if photo is None:
             return None
         T_w_c = np.eye(4)
         T_w_c[:3, :3] = photo.R_w_c
         T_w_c[:3, 3] = (T_w_b @ self.inspection.T_b_c)[:3, 3]
         return CameraFrame(photo.time, photo.image, photo.camera, np.linalg.inv(T_w_b) @ T_w_c)
+
+    def photo_failure(self) -> str | None:
+        """Why the newest :meth:`photo` of the payload gave no frame (each attempt's fault), None
+        when it gave one."""
+        return self._failure
 
     def streams(self, now: float) -> list[StreamStatus]:
         """What each driver has received and stamped up to ``now`` (nothing is consumed); the
@@ -163,6 +171,13 @@ class LiveSensors:
             self.camera.close()
         if self.payload is not None:
             self.payload.close()
+
+
+def shot_failure(result: ShotResult) -> str:
+    """A failed shot in words for the report: ``payload: <fault> (attempt 1), ...``, each attempt's
+    fault by its :class:`~insulator_rs.ports.payload.PayloadFault` name."""
+    faults = ", ".join(f"{a.fault.value} (attempt {a.attempt})" for a in result.attempts if a.fault is not None)
+    return f"payload: {faults or 'no photo'}"
 
 
 def camera_stream(camera: CameraSource, now: float) -> StreamStatus:

@@ -17,6 +17,11 @@ off that flight's own state log (``trajectory.csv``), then flies each fault from
   estimate) lost and the operator's abort in process; "process killed": the companion is
   ``insulator-rs inspect --connection`` in a process of its own, flying our simulated PX4 started
   here, ended by a real SIGKILL (``kill -9``);
+* the payload's faults (:mod:`insulator_rs.evaluation.payload_faults`): the flight against our
+  simulated PX4 photographs through the simulated MAVLink gimbal-and-zoom payload, whose capture
+  never answers, gimbal jams at its limit, zoom is refused, downloads stop halfway, or which falls
+  silent, from the moment on; each cell says which insulators have no photo and why, and the
+  setpoint stream's longest gap while the loop waited for the failing shots;
 * the MAVLink cells have a ground station on PX4's GCS link, relayed by the companion
   (:class:`~insulator_rs.sim.px4_gcs.RelayedGroundStation`): the companion sets NAV_DLL_ACT to
   Return, and the link lost or the companion dead takes the ground station's link down too, so
@@ -46,19 +51,22 @@ from typing import Any
 
 import numpy as np
 
+from insulator_rs.evaluation.payload_faults import PAYLOAD_FAULTS, max_setpoint_gap, payload_table, photos_missing
 from insulator_rs.exceptions import ClientKilled
 from insulator_rs.ports.vehicle import VehicleState
 
 PACKAGE = Path(__file__).resolve().parents[1]
 FAULTS = ("link loss", "LiDAR silent", "camera frozen", "detector error", "low battery", "GPS loss",
-          "operator abort", "client killed", "process killed")
+          "operator abort", "client killed", "process killed", *PAYLOAD_FAULTS)
 MOMENTS = ("take-off", "exploration", "inspection", "crossing", "return")
 #: the faults flown against our simulated PX4 over UDP: the companion's link or process is the fault
 MAVLINK_FAULTS = ("link loss", "client killed", "process killed")
 #: what summary.json must name for each fault (its status, abort reason or failsafe), lower case
 REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), "camera frozen": ("camera",),
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
-                "operator abort": ("operator",), "client killed": ("running",), "process killed": ("running",)}
+                "operator abort": ("operator",), "client killed": ("running",), "process killed": ("running",),
+                # the payload's: the insulators without a photo, and the fault each attempt met
+                **{name: (fault.value,) for name, fault in PAYLOAD_FAULTS.items()}}
 SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
@@ -89,6 +97,8 @@ class Cell:
     recording_intact: bool
     flight_s: float
     wall_s: float
+    photos_missing: str = ""  # the insulators without a fit photo, and why (summary.json's photo checks)
+    max_setpoint_gap_s: float | None = None  # the offboard setpoint stream's longest gap (None: in process)
 
 
 # -- the scene -----------------------------------------------------------------------------------
@@ -238,7 +248,7 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     rig = mission.sensor_rig()
     seed = int(FLIGHT_ARGS["seed"])
     airframe_vehicle = kinematic_vehicle(mission, seed)
-    mavlink = fault in MAVLINK_FAULTS
+    mavlink = fault in MAVLINK_FAULTS or fault in PAYLOAD_FAULTS  # the payload's: PX4 streams while a shot waits
     simulator: Any = None
     ground_station: Any = None
     base: Any
@@ -276,8 +286,19 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     recorder = McapRecorder(out / "flight.mcap")
     ports = simulated_ports(setup.tower.mesh, pose, rig, seed=seed, detect_scale=FLIGHT_ARGS["detect_scale"],
                             photo_scale=FLIGHT_ARGS["photo_scale"])
-    sensors = F.FaultySensors(ports.sensors, clock, lidar_silent_at=at if fault == "LiDAR silent" else None,
-                              camera_frozen_at=at if fault == "camera frozen" else None)
+    sensors: Any = F.FaultySensors(ports.sensors, clock, lidar_silent_at=at if fault == "LiDAR silent" else None,
+                                   camera_frozen_at=at if fault == "camera frozen" else None)
+    payload: Any = None
+    if fault in PAYLOAD_FAULTS:
+        from insulator_rs.evaluation.payload_faults import photograph_through_payload
+
+        payload = photograph_through_payload(
+            sensors, inspection=rig.inspection_camera(), mesh=setup.tower.mesh, origin=mission.tower,
+            true_pose=pose, clock=lambda: airframe(lambda v: float(v.clock.now)),
+            vehicle_pose=lambda: base.state().T_w_b, photo_scale=FLIGHT_ARGS["photo_scale"],
+            time_scale=TIME_SCALE, seed=seed)
+        sensors = payload.sensors
+        timed = [F.TimedAction(at, fault, payload.fault(fault))]
     detector: Any = ports.detector
     if fault == "detector error":
         detector = F.FailingDetector(detector, at, lambda: clock.elapsed(base.state().time))
@@ -300,6 +321,8 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
             recorder.close()
         ended = _watch_landing(airframe, look, base if not mavlink else None, setup, loop, killed)
     finally:
+        if payload is not None:
+            payload.close()
         if mavlink:
             if not killed:
                 base.close()
@@ -311,7 +334,9 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
     read = _readable_messages(out / "flight.mcap")
     summary = json.loads((out / "report" / "summary.json").read_text(encoding="utf-8"))
     reason = _reported_reason(summary)
-    said = f"{summary['status']} {reason}".lower()
+    missing = photos_missing(summary)
+    said = f"{summary['status']} {reason}" + (f" {missing}" if fault in PAYLOAD_FAULTS else "")
+    said = said.lower()
     clearance, nearest = setup.structure.clearance(np.array(truth))
     cell = Cell(fault=fault or "none", moment=moment, at_s=at,
                 vehicle="simulated PX4 (UDP)" if mavlink else "in process",
@@ -321,7 +346,8 @@ def fly_cell(setup: Setup, fault: str | None, moment: str, at: float, out: Path,
                 report_names_fault=fault is None or any(w in said for w in REPORT_WORDS[fault]),
                 recording=f"{read} of {written} messages" + (f" ({durable} flushed before the kill)" if killed else ""),
                 recording_intact=read >= (durable if killed else written),
-                flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1))
+                flight_s=round(float(summary["flight_time_s"]), 1), wall_s=round(wallclock.perf_counter() - wall0, 1),
+                photos_missing=missing, max_setpoint_gap_s=max_setpoint_gap(summary))
     say(_one_line(cell))
     return cell
 
@@ -548,6 +574,7 @@ def markdown(result: dict[str, Any]) -> str:
     for c in cells:
         lines.append(f"| {c['fault']} @ {c['moment']} | {c['status']} | {'yes' if c['report_names_fault'] else 'no'} "
                      f"| {c['recording']} |")
+    lines += payload_table(cells)
     return "\n".join(lines) + "\n"
 
 

@@ -27,6 +27,7 @@ from insulator_rs.perception.photo_check import PhotoCheck, check_photo, expecte
 from insulator_rs.planning.framing import MIN_FILL
 from insulator_rs.planning.waypoints import InspectionWaypoint, inspection_waypoints
 from insulator_rs.ports.detector import BoxDetector
+from insulator_rs.ports.capabilities import ExplainsMissingPhoto
 from insulator_rs.ports.observer import FlightObserver, PhotoTaken
 from insulator_rs.ports.sensors import Sensors
 from insulator_rs.ports.vehicle import VehicleState, wrap_angle
@@ -136,8 +137,10 @@ class PhotoSession:
             self.on_sensor_error(exc)
             frame = None
         if frame is None:
-            self.pilot.say(f"[{self.pilot.now():7.1f} s] photo of insulator {wp.insulator_id}: "
-                           "no image from the camera")
+            why = self.sensors.photo_failure() if isinstance(self.sensors, ExplainsMissingPhoto) else None
+            why = why or "no image from the camera"
+            self.photos.missing(wp.insulator_id, why)
+            self.pilot.say(f"[{self.pilot.now():7.1f} s] photo of insulator {wp.insulator_id}: {why}")
             return None
         axis = None if ins is None else ins.axis
         T_c_w = np.linalg.inv(st.T_w_b @ frame.T_b_c)

@@ -40,10 +40,15 @@ class InspectionPhotos:
         self.inspection = inspection  # the rig's dedicated inspection camera (None: the detection camera's photos)
         self.insulator_length = insulator_length
         self.records: list[dict[str, Any]] = []
+        self.failures: dict[int, list[str]] = {}  # insulator id -> why each photo asked for gave none
         self.camera: Any = None  # intrinsics of the photos taken (the sensors say)
 
     def __len__(self) -> int:
         return len(self.records)
+
+    def missing(self, insulator_id: int, why: str) -> None:
+        """A photo of ``insulator_id`` asked for gave no frame, for the reason ``why``."""
+        self.failures.setdefault(insulator_id, []).append(why)
 
     def of(self, insulator_id: int) -> list[dict[str, Any]]:
         return [p for p in self.records if p["insulator_id"] == insulator_id]
@@ -92,7 +97,8 @@ class InspectionPhotos:
         """The photo checks of the flight: photos checked and fit, retakes, the detector's wall
         seconds per check (median, max), and each of ``insulator_ids`` (those found) that has no
         photo whose check is fit, with why: ``reasons`` (each reason's count over its photos'
-        checks, or "no photo taken") and the detector's ``errors``."""
+        checks and over the photos asked for that gave no frame, as the sensors said why: a
+        payload's faults; or "no photo taken") and the detector's ``errors``."""
         checks = [p["check"] for p in self.records if p.get("check") is not None]
         cost = [c["detect_s"] for c in checks]
         fit, fit_ids = fit_tally(self.records)  # read off the one verdict each record carries
@@ -102,8 +108,9 @@ class InspectionPhotos:
                 continue
             mine = [p for p in self.of(iid) if p.get("check") is not None]
             verdicts = [v for p in mine if (v := verdict_of_record(p)) is not None]
-            reasons = (Counter(r for v in verdicts for r in v.unfit_reasons) if mine
-                       else Counter({"no photo taken": 1}))
+            reasons = Counter(r for v in verdicts for r in v.unfit_reasons) + Counter(self.failures.get(iid, []))
+            if not mine and not reasons:
+                reasons = Counter({"no photo taken": 1})
             without.append({"insulator_id": iid, "photos": len(mine), "reasons": dict(reasons),
                             "errors": sorted({p["check"]["error"] for p in mine if p["check"].get("error")})})
         return {"photos": len(checks), "fit": fit,

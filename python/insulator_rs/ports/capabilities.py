@@ -130,6 +130,15 @@ class ReportsStreams(Protocol):
 
 
 @runtime_checkable
+class ExplainsMissingPhoto(Protocol):
+    """Sensors whose photo can fail for a reason of their own (a payload's faults: a capture never
+    answered, a download cut): why the newest ``photo`` gave no frame, in words for the report, or
+    None when it gave one (or cannot say)."""
+
+    def photo_failure(self) -> str | None: ...
+
+
+@runtime_checkable
 class Named(Protocol):
     """A detector with a name for the report (else its type's name is used)."""
 

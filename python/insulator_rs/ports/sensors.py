@@ -26,7 +26,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from insulator_rs._core import CameraModel
-from insulator_rs.ports.capabilities import ReportsStreams
+from insulator_rs.ports.capabilities import ExplainsMissingPhoto, ReportsStreams
 from insulator_rs.ports.capabilities import StreamStatus as StreamStatus  # re-exported: the streams capability's data
 
 
@@ -183,8 +183,8 @@ class SensorsDecorator:
     """A :class:`Sensors` adapter round ``inner`` that passes every call of the port on as it is: a
     decorator (the recording's, the fault matrix's) subclasses it and overrides what it watches or
     changes. Of the optional capabilities (:mod:`insulator_rs.ports.capabilities`) it offers
-    ``streams`` when ``inner`` has it, and only then, so the pre-flight gate finds the same through
-    it; ``name`` is ``inner``'s in words (:func:`sensors_name`), so the report names the sensor,
+    ``streams`` and ``photo_failure`` when ``inner`` has them, and only then, so the pre-flight gate
+    and the photo session find the same through it; ``name`` is ``inner``'s in words (:func:`sensors_name`), so the report names the sensor,
     never the decorator. Anything else of the adapter is ``inner``'s, reached there."""
 
     def __init__(self, inner: Sensors) -> None:
@@ -192,6 +192,8 @@ class SensorsDecorator:
         self.name = sensors_name(inner)
         if isinstance(inner, ReportsStreams):
             self.streams = inner.streams
+        if isinstance(inner, ExplainsMissingPhoto):
+            self.photo_failure = inner.photo_failure
 
     def detection_frame(self, now: float) -> CameraFrame | None:
         return self.inner.detection_frame(now)

@@ -183,8 +183,7 @@ class SimulatedPayload:
         self._camera_mav = M.MAVLink(_Writer(), srcSystem=system_id, srcComponent=CAMERA_COMPONENT)
         self._parser = M.MAVLink(None)
         self._parser.robust_parsing = True
-        lo, hi = inspection.gimbal.pitch
-        self.pitch_range = (lo if self.faults.pitch_stop is None else max(lo, self.faults.pitch_stop), hi)
+        self.pitch_range = self._pitch_range(self.faults)
         self.pitch = 0.0  # rad: the gimbal's true aim (ours: yaw counter-clockwise from the heading)
         self.yaw = 0.0
         self._target = (0.0, 0.0)
@@ -221,6 +220,20 @@ class SimulatedPayload:
         if self._http is not None:
             self._http.start()
         return self
+
+    def inject(self, faults: PayloadFaults) -> None:
+        """The payload's faults from now on (a fault that begins mid-flight): ``downloads_cut``
+        counts from now, a ``pitch_stop`` holds the gimbal's next aims."""
+        with self._lock:
+            self.faults = faults
+            self.pitch_range = self._pitch_range(faults)
+            self._downloads_cut = faults.downloads_cut
+
+    def _pitch_range(self, faults: PayloadFaults) -> tuple[float, float]:
+        """The pitch the gimbal can reach (rad): the advertised range, its lower end raised to a
+        mechanical stop's."""
+        lo, hi = self.inspection.gimbal.pitch
+        return (lo if faults.pitch_stop is None else max(lo, faults.pitch_stop), hi)
 
     def vanish(self) -> None:
         """The payload falls silent (a cable shaken loose, its power gone): nothing more is sent
