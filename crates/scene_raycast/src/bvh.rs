@@ -306,8 +306,11 @@ impl Bvh {
                 },
             };
             if count > 0 {
-                if ray.test_leaf(self.leaf(child, count), count, &self.exact, any) && any {
-                    return ray.best;
+                for (b, block) in self.leaf(child, count).iter().enumerate() {
+                    let block = LoadedBlock::new(block, lanes(count as usize, b));
+                    if ray.test_block(&block, &self.exact, any) && any {
+                        return ray.best;
+                    }
                 }
                 continue;
             }
@@ -329,6 +332,7 @@ impl Bvh {
                 if depth < STACK {
                     stack[depth] = (node.child[lane], node.count[lane], t);
                     depth += 1;
+                    self.prefetch(node.child[lane], node.count[lane]);
                 }
             }
             let nearest = order[n - 1].0;
@@ -380,10 +384,13 @@ impl Bvh {
                 },
             };
             if count > 0 {
-                let leaf = self.leaf(child, count);
-                for r in bits(mask) {
-                    if rays[r].test_leaf(leaf, count, &self.exact, any) && any {
-                        live &= !(1u64 << r);
+                // Each block loaded once for all the packet's rays that reach it.
+                for (b, block) in self.leaf(child, count).iter().enumerate() {
+                    let block = LoadedBlock::new(block, lanes(count as usize, b));
+                    for r in bits(mask & live) {
+                        if rays[r].test_block(&block, &self.exact, any) && any {
+                            live &= !(1u64 << r);
+                        }
                     }
                 }
                 if live == 0 {
@@ -420,6 +427,7 @@ impl Bvh {
                 if depth < STACK {
                     stack[depth] = (node.child[lane], node.count[lane], lane_rays[lane], t);
                     depth += 1;
+                    self.prefetch(node.child[lane], node.count[lane]);
                 }
             }
             let nearest = order[n - 1].0;
@@ -473,6 +481,37 @@ impl Bvh {
         ray.limit = ray.limit_of(max_range);
         ray.filter_limit = ray.filter_limit_of(max_range);
         Some(ray)
+    }
+
+    /// Asks the CPU to start loading the node (`count == 0`) or the first leaf
+    /// block at `child`, which the traversal pops later: a node's visit waits
+    /// mostly on memory, and the loads of the pushed siblings then overlap it.
+    #[inline(always)]
+    fn prefetch(&self, child: u32, count: u32) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            let line = if count == 0 {
+                self.nodes
+                    .get(child as usize)
+                    .map(|n| n as *const Node4 as *const i8)
+            } else {
+                self.blocks
+                    .get(child as usize)
+                    .map(|b| b as *const TriangleBlock as *const i8)
+            };
+            if let Some(p) = line {
+                // SAFETY: SSE is part of every x86_64 target, and a prefetch is only
+                // a hint: it never faults nor reads into the program (both lines
+                // lie within the node or the block, 128 and 160 bytes).
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(p);
+                    _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64));
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (child, count);
     }
 
     /// The blocks of the leaf of `count` triangles at block `first`.
@@ -690,39 +729,31 @@ impl RayQuery {
         ((t - self.enter) as f32).next_up().max(0.0)
     }
 
-    /// Tests the `count` triangles of a leaf (in `blocks`), keeping the nearest hit
-    /// within range; true when one of them became the nearest (with `any`, stops
-    /// there). The f32 filter drops the triangles that cannot be that hit; the
-    /// others are intersected exactly (`exact`).
+    /// Tests the triangles of a leaf's block, keeping the nearest hit within
+    /// range; true when one of them became the nearest (with `any`, stops there).
+    /// The f32 filter drops the triangles that cannot be that hit; the others are
+    /// intersected exactly (`exact`).
     #[inline(always)]
-    fn test_leaf(
-        &mut self,
-        blocks: &[TriangleBlock],
-        count: u32,
-        exact: &[ExactTriangle],
-        any: bool,
-    ) -> bool {
+    fn test_block(&mut self, block: &LoadedBlock, exact: &[ExactTriangle], any: bool) -> bool {
         let mut found = false;
-        for (b, block) in blocks.iter().enumerate() {
-            let mut candidates = lanes(count as usize, b) & !self.rejects(block);
-            while candidates != 0 {
-                let lane = candidates.trailing_zeros() as usize;
-                candidates &= candidates - 1;
-                let triangle = block.triangle[lane];
-                let Some(piece) = exact.get(triangle as usize) else {
-                    continue;
-                };
-                if let Some(t) = intersect(piece, &self.origin, &self.direction) {
-                    let hit = (t, triangle);
-                    if t <= self.max_range && self.best.is_none_or(|best| nearer(hit, best)) {
-                        self.best = Some(hit);
-                        found = true;
-                        if any {
-                            return true;
-                        }
-                        self.limit = self.limit_of(t);
-                        self.filter_limit = self.filter_limit_of(t);
+        let mut candidates = block.lanes & !self.rejects(block);
+        while candidates != 0 {
+            let lane = candidates.trailing_zeros() as usize;
+            candidates &= candidates - 1;
+            let triangle = block.triangle[lane];
+            let Some(piece) = exact.get(triangle as usize) else {
+                continue;
+            };
+            if let Some(t) = intersect(piece, &self.origin, &self.direction) {
+                let hit = (t, triangle);
+                if t <= self.max_range && self.best.is_none_or(|best| nearer(hit, best)) {
+                    self.best = Some(hit);
+                    found = true;
+                    if any {
+                        return true;
                     }
+                    self.limit = self.limit_of(t);
+                    self.filter_limit = self.filter_limit_of(t);
                 }
             }
         }
@@ -747,9 +778,8 @@ impl RayQuery {
     /// rejected, and neither is one with NaN or infinite terms (every comparison
     /// below is false for NaN).
     #[inline(always)]
-    fn rejects(&self, block: &TriangleBlock) -> u32 {
-        let v = |c: &[[f32; BLOCK]; 3]| c.map(f32x4::new);
-        let (a, e1, e2) = (v(&block.a), v(&block.e1), v(&block.e2));
+    fn rejects(&self, block: &LoadedBlock) -> u32 {
+        let (a, e1, e2) = (&block.a, &block.e1, &block.e2);
         let d = self.dir.map(f32x4::splat);
         let o = self.slab.origin.map(f32x4::splat);
         let s = [o[0] - a[0], o[1] - a[1], o[2] - a[2]];
@@ -761,24 +791,23 @@ impl RayQuery {
             ]
         };
         let dot = |x: &[f32x4; 3], y: &[f32x4; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
-        let norm1 = |x: &[f32x4; 3]| x[0].abs() + x[1].abs() + x[2].abs();
-        let p = cross(&d, &e2);
-        let q = cross(&s, &e1);
-        let det = dot(&e1, &p);
+        let p = cross(&d, e2);
+        let q = cross(&s, e1);
+        let det = dot(e1, &p);
         // The sign of det, moved onto U, V and T (as if det > 0).
         let sign = det & f32x4::splat(-0.0);
         let u = dot(&s, &p) ^ sign;
         let w = dot(&d, &q) ^ sign;
-        let t = dot(&e2, &q) ^ sign;
+        let t = dot(e2, &q) ^ sign;
         let det = det.abs();
-        let (n1, n2) = (norm1(&e1), norm1(&e2));
+        let (n1, n2) = (block.norm_e1, block.norm_e2);
         // |s|_1 <= |o'|_1 + |a|_1 for the computed and the exact s alike.
-        let ns = f32x4::splat(self.origin_norm) + norm1(&a);
+        let ns = f32x4::splat(self.origin_norm) + block.norm_a;
         let error_d = f32x4::splat(self.error_d);
-        let err_det = error_d * n1 * n2;
+        let err_det = error_d * block.norm_e1e2;
         let err_u = error_d * ns * n2;
         let err_v = error_d * ns * n1;
-        let err_t = f32x4::splat(FILTER_ERROR) * ns * n1 * n2;
+        let err_t = f32x4::splat(FILTER_ERROR) * ns * block.norm_e1e2;
         let known = det.cmp_gt(err_det);
         let out = u.cmp_lt(-err_u)
             | w.cmp_lt(-err_v)
@@ -786,6 +815,42 @@ impl RayQuery {
             | (t + err_t).cmp_lt(f32x4::splat(self.behind))
             | t.cmp_gt(f32x4::splat(self.filter_limit) * (det + err_det) + err_t);
         (known & out).move_mask() as u32
+    }
+}
+
+/// A [`TriangleBlock`] in registers, with the 1-norms of its vectors that the
+/// filter's error bounds need (the same for every ray that tests it).
+struct LoadedBlock {
+    a: [f32x4; 3],
+    e1: [f32x4; 3],
+    e2: [f32x4; 3],
+    norm_a: f32x4,
+    norm_e1: f32x4,
+    norm_e2: f32x4,
+    norm_e1e2: f32x4,
+    triangle: [u32; BLOCK],
+    /// The lanes in use (bits).
+    lanes: u32,
+}
+
+impl LoadedBlock {
+    #[inline(always)]
+    fn new(block: &TriangleBlock, lanes: u32) -> Self {
+        let v = |c: &[[f32; BLOCK]; 3]| c.map(f32x4::new);
+        let norm1 = |x: &[f32x4; 3]| x[0].abs() + x[1].abs() + x[2].abs();
+        let (a, e1, e2) = (v(&block.a), v(&block.e1), v(&block.e2));
+        let (norm_e1, norm_e2) = (norm1(&e1), norm1(&e2));
+        Self {
+            norm_a: norm1(&a),
+            norm_e1,
+            norm_e2,
+            norm_e1e2: norm_e1 * norm_e2,
+            a,
+            e1,
+            e2,
+            triangle: block.triangle,
+            lanes,
+        }
     }
 }
 
