@@ -201,6 +201,8 @@ pub(crate) struct Bvh {
     exact: Vec<ExactTriangle>,
     /// W coordinates of the origin of the f32 node frame.
     center: Vector3<f64>,
+    /// |center|_1, m (a term of the triangle filter's error bound).
+    center_norm: f32,
     /// The scene's bounds in W, padded (the root's box in f64).
     bounds_lo: Vector3<f64>,
     bounds_hi: Vector3<f64>,
@@ -267,6 +269,7 @@ impl Bvh {
             blocks,
             exact,
             center,
+            center_norm: center.abs().sum() as f32,
             bounds_lo: scene.lo - pad(&scene.lo),
             bounds_hi: scene.hi + pad(&scene.hi),
         }
@@ -437,7 +440,7 @@ impl Bvh {
 
     /// The traversal state of the ray from `origin` along the unit `direction`,
     /// hits within [0, `max_range`]; None when it cannot meet the scene.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn query(
         &self,
         origin: &Point3<f64>,
@@ -457,9 +460,9 @@ impl Bvh {
         let norm1 = |v: [f32; 3]| v[0].abs() + v[1].abs() + v[2].abs();
         // The filter's |s|_1 bound, less the vertex's share (see `rejects`), and the
         // f64 test's rounding on the unmoved origin, the centre and the move.
-        let reach = norm1(slab.origin)
+        let origin_norm = norm1(slab.origin)
             + F64_ROUNDING_WEIGHT
-                * (norm1(local_origin) + self.center.abs().sum() as f32 + enter as f32);
+                * (norm1(local_origin) + self.center_norm + enter as f32);
         let mut ray = RayQuery {
             origin: *origin,
             direction: *direction,
@@ -467,7 +470,7 @@ impl Bvh {
             slab,
             dir,
             error_d: FILTER_ERROR * norm1(dir),
-            origin_norm: reach,
+            origin_norm,
             // Every point of the scene lies ahead of a moved origin (it stops
             // BOX_MARGIN before the bounds): only an origin inside needs t >= 0.
             behind: if enter > 0.0 { f32::NEG_INFINITY } else { 0.0 },

@@ -14,7 +14,7 @@ use crate::error::RaycastError;
 pub const MIN_TRIANGLE_AREA: f64 = 1e-14;
 /// Rays handed to one rayon task at a time.
 const RAYS_PER_TASK: usize = 512;
-/// Rows one rayon task validates at least.
+/// Rows one rayon task validates at a time.
 const CHECK_ROWS_PER_TASK: usize = 16_384;
 /// A batch's consecutive rays that share their origin (a camera's pixels, a LiDAR's
 /// shots) are cast in packets of this many ([`Scene::cast_packet`]).
@@ -397,12 +397,7 @@ pub(crate) fn validate_max_range(max_range: f64) -> Result<(), RaycastError> {
 }
 
 pub(crate) fn check_finite_rows(name: &'static str, rows: &[[f64; 3]]) -> Result<(), RaycastError> {
-    // In parallel (a batch's serial share bounds its speed-up); still the first bad row.
-    match rows
-        .par_iter()
-        .with_min_len(CHECK_ROWS_PER_TASK)
-        .position_first(|r| !r.iter().all(|c| c.is_finite()))
-    {
+    match first_bad_row(rows, |r| !r.iter().all(|c| c.is_finite())) {
         Some(index) => Err(RaycastError::NonFiniteRay { name, index }),
         None => Ok(()),
     }
@@ -414,16 +409,24 @@ pub(crate) fn check_directions(
     directions: &[[f64; 3]],
 ) -> Result<(), RaycastError> {
     check_finite_rows(name, directions)?;
-    match directions
-        .par_iter()
-        .with_min_len(CHECK_ROWS_PER_TASK)
-        .position_first(|d| {
-            let norm = Vector3::new(d[0], d[1], d[2]).norm();
-            !(norm > 0.0 && norm.is_finite())
-        }) {
+    match first_bad_row(directions, |d| {
+        let norm = Vector3::new(d[0], d[1], d[2]).norm();
+        !(norm > 0.0 && norm.is_finite())
+    }) {
         Some(index) => Err(RaycastError::ZeroDirection { name, index }),
         None => Ok(()),
     }
+}
+
+/// The index of the first row for which `bad` holds. In parallel, chunk by
+/// chunk (a batch's serial share bounds its speed-up), each chunk scanned in
+/// one tight loop.
+fn first_bad_row(rows: &[[f64; 3]], bad: impl Fn(&[f64; 3]) -> bool + Sync) -> Option<usize> {
+    let chunk = rows
+        .par_chunks(CHECK_ROWS_PER_TASK)
+        .position_first(|chunk| chunk.iter().any(&bad))?;
+    let start = chunk * CHECK_ROWS_PER_TASK;
+    rows[start..].iter().position(&bad).map(|k| start + k)
 }
 
 /// The unit vector along a direction row that [`check_directions`] accepted.
