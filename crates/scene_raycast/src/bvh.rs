@@ -360,6 +360,12 @@ impl Bvh {
             (1u64 << n) - 1
         };
         let bounds = PacketBounds::new(rays);
+        // Rays that start at one point in the node frame (a camera inside the
+        // scene's bounds) share each box's corners relative to it.
+        let shared_origin = rays
+            .first()
+            .map(|r| r.slab.origin)
+            .filter(|o| rays.iter().all(|r| r.slab.origin == *o));
         // (child, count, rays, the nearest of their entry distances).
         let mut stack = [(0u32, 0u32, 0u64, 0.0f32); STACK];
         let mut depth = 0usize;
@@ -409,8 +415,11 @@ impl Bvh {
             // Per child: the rays that meet its box, and the nearest of their entries.
             let mut lane_rays = [0u64; 4];
             let mut lane_entry = f32x4::splat(f32::INFINITY);
+            let shared = shared_origin.map(|o| relative_corners(node, &o));
             for r in bits(mask) {
-                let (t_in, met) = rays[r].slab.entries(node, rays[r].limit);
+                let corners =
+                    shared.unwrap_or_else(|| relative_corners(node, &rays[r].slab.origin));
+                let (t_in, met) = rays[r].slab.entries_from(&corners, rays[r].limit);
                 lane_entry = lane_entry.fast_min(met.blend(t_in, f32x4::splat(f32::INFINITY)));
                 let m = met.move_mask() as u64;
                 for (lane, lane_mask) in lane_rays.iter_mut().enumerate() {
@@ -461,8 +470,7 @@ impl Bvh {
         // The filter's |s|_1 bound, less the vertex's share (see `rejects`), and the
         // f64 test's rounding on the unmoved origin, the centre and the move.
         let origin_norm = norm1(slab.origin)
-            + F64_ROUNDING_WEIGHT
-                * (norm1(local_origin) + self.center_norm + enter as f32);
+            + F64_ROUNDING_WEIGHT * (norm1(local_origin) + self.center_norm + enter as f32);
         let mut ray = RayQuery {
             origin: *origin,
             direction: *direction,
@@ -584,10 +592,18 @@ impl SlabRay {
     /// (all bits set in a lane met).
     #[inline(always)]
     fn entries(&self, node: &Node4, limit: f32) -> (f32x4, f32x4) {
+        self.entries_from(&relative_corners(node, &self.origin), limit)
+    }
+
+    /// [`SlabRay::entries`] from the boxes' corners relative to the ray's origin
+    /// ([`relative_corners`]).
+    #[inline(always)]
+    fn entries_from(&self, corners: &Corners, limit: f32) -> (f32x4, f32x4) {
+        let (lo, hi) = corners;
         let slab = |k: usize| {
-            let (origin, inv_dir) = (f32x4::splat(self.origin[k]), f32x4::splat(self.inv_dir[k]));
-            let t1 = (f32x4::new(node.lo[k]) - origin) * inv_dir;
-            let t2 = (f32x4::new(node.hi[k]) - origin) * inv_dir;
+            let inv_dir = f32x4::splat(self.inv_dir[k]);
+            let t1 = lo[k] * inv_dir;
+            let t2 = hi[k] * inv_dir;
             (t1.fast_min(t2), t1.fast_max(t2))
         };
         let (x_in, x_out) = slab(0);
@@ -598,6 +614,16 @@ impl SlabRay {
         let met = t_in.cmp_le(t_out) & t_in.cmp_le(f32x4::splat(limit));
         (t_in, met)
     }
+}
+
+/// The low and high corners of a node's four boxes, per axis, relative to a point.
+type Corners = ([f32x4; 3], [f32x4; 3]);
+
+/// The corners of `node`'s boxes relative to `origin` (node frame).
+#[inline(always)]
+fn relative_corners(node: &Node4, origin: &[f32; 3]) -> Corners {
+    let rel = |c: &[[f32; 4]; 3]| [0, 1, 2].map(|k| f32x4::new(c[k]) - f32x4::splat(origin[k]));
+    (rel(&node.lo), rel(&node.hi))
 }
 
 /// Absolute padding (m) of the boxes in [`PacketBounds::all_miss`], on top of
