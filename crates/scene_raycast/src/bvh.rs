@@ -72,7 +72,7 @@ const BLOCK: usize = 4;
 const FILTER_ERROR: f32 = 16.0 * f32::EPSILON;
 /// Weight of the f64 rounding terms (the unmoved origin's and the scene centre's
 /// magnitudes, m) in the filter's error bound: 2^-30 x [`FILTER_ERROR`] exceeds
-/// the f64 test's unit roundoff 2^-53 several times over.
+/// the f64 test's rounding of its triple products (about 8 x 2^-53) twice over.
 const F64_ROUNDING_WEIGHT: f32 = 1.0 / (1u64 << 30) as f32;
 /// Most rays in one packet of [`Bvh::cast_packet`] (one bit each of a mask).
 pub(crate) const MAX_PACKET: usize = 64;
