@@ -249,7 +249,7 @@ impl RaycastScene {
         let (origins, directions) = (origins.as_rows(), directions.as_rows());
         let hits = detach(py, || self.scene.cast(origins, directions, max_range))?;
         let n = hits.len();
-        let normal = Array2::from_shape_vec((n, 3), hits.normal.into_iter().flatten().collect())
+        let normal = Array2::from_shape_vec((n, 3), hits.normal.into_flattened())
             .map_err(|e| PyValueError::new_err(format!("normal: {e}")))?;
         Ok(RaycastHits {
             distance: frozen_array(hits.distance.into_pyarray(py))?,

@@ -12,12 +12,19 @@
 //! intersected in f64 from the original vertices, so the distances are those of
 //! an exact f64 Moeller-Trumbore over every triangle.
 //!
+//! Leaves hold their triangles four to a [`TriangleBlock`], in f32, tested four
+//! at once by a conservative Moeller-Trumbore filter ([`RayQuery::rejects`]):
+//! it drops a triangle only when a forward error bound proves that the exact f64
+//! test would miss it or find it beyond the nearest hit so far, so only the few
+//! candidates that can be the answer are fetched and intersected in f64. The
+//! answers are those of the f64 test over every triangle, bit for bit.
+//!
 //! Long thin triangles (the sides of diagonal lattice members) get one box per
 //! piece (see [`SPLIT_EDGE`]); the triangle itself is never cut, so the surface
 //! stays exactly the input's, without cracks.
 
 use nalgebra::{Point3, Vector3};
-use wide::{f32x4, CmpLe};
+use wide::{f32x4, CmpGt, CmpLe, CmpLt};
 
 /// Triangles get one BVH box per piece (longest edge halved, recursively) while
 /// their longest edge exceeds this many metres and is also more than
@@ -35,8 +42,10 @@ const BOX_RELATIVE_MARGIN: f64 = 2e-6;
 const PARALLEL_DETERMINANT: f64 = 1e-14;
 /// SAH bins per axis.
 const BINS: usize = 16;
-/// Cost of one node visit relative to one triangle test (the f64 triangle test
-/// costs about two f32 box pairs).
+/// Cost of one level of the binary tree (half a 4-wide node visit) relative to
+/// one [`TriangleBlock`] test: the SAH counts a leaf's cost in blocks, so leaves
+/// fill their blocks (0.25 to 2, and leaves of 8 or 16, timed within noise on
+/// the simulator's towers).
 const TRAVERSAL_COST: f64 = 0.5;
 /// Leaves never hold more pieces than this, whatever the SAH says.
 const MAX_LEAF: usize = 8;
@@ -49,12 +58,29 @@ const SAH_DEPTH: usize = 40;
 const STACK: usize = 3 * (SAH_DEPTH + 34) + 4;
 /// Relative slack on f32 slab distances (PBRT's 1 + 2 gamma(3) and more).
 const SLAB_SLACK: f32 = 1.0 + 1e-6;
+/// Triangles per [`TriangleBlock`] (one f32 lane each).
+const BLOCK: usize = 4;
+/// Error bound of the f32 triangle filter, per unit of the product of the 1-norms
+/// of its three factors (see [`RayQuery::rejects`]): 32 unit roundoffs of f32.
+/// Each of the filter's triple products x . (y x z) is computed from inputs
+/// rounded to f32 (the vertex and the ray's origin by one unit roundoff u each,
+/// their difference by one more, the edges and the direction by one each: 4u of
+/// perturbation) with five roundings of its own (gamma(5) ~ 5u), so it is within
+/// about 9u |x|_1 |y|_1 |z|_1 of the exact value; the f64 test's own error, the
+/// roundings of the filter's sums and of the bounds themselves add under 5u.
+/// 32u leaves more than twice that.
+const FILTER_ERROR: f32 = 16.0 * f32::EPSILON;
+/// Weight of the f64 rounding terms (the unmoved origin's and the scene centre's
+/// magnitudes, m) in the filter's error bound: 2^-30 x [`FILTER_ERROR`] exceeds
+/// the f64 test's rounding of its triple products (about 8 x 2^-53) twice over.
+const F64_ROUNDING_WEIGHT: f32 = 1.0 / (1u64 << 30) as f32;
 /// Most rays in one packet of [`Bvh::cast_packet`] (one bit each of a mask).
 pub(crate) const MAX_PACKET: usize = 64;
 
 /// A node of the binary tree the build makes: its box and either its children
-/// (`count == 0`: at `first` and `first + 1`) or its leaf pieces
-/// (`first..first + count` of [`Bvh::leaves`]).
+/// (`count == 0`: at `first` and `first + 1`) or its leaf's `count` pieces (in
+/// the blocks of [`Bvh::blocks`] from `first` on once the leaves are packed;
+/// `first..first + count` of the build's pieces before).
 #[derive(Clone, Copy, Debug)]
 struct Node {
     lo: [f32; 3],
@@ -65,7 +91,8 @@ struct Node {
 
 /// A node of the traversed 4-wide tree: the boxes of its (up to) four children,
 /// one lane each, and per child either a node (`count == 0`: `child` indexes
-/// [`Bvh::nodes`]) or a leaf (`child..child + count` of [`Bvh::leaves`]).
+/// [`Bvh::nodes`]) or a leaf (`count` triangles in the blocks of [`Bvh::blocks`]
+/// from `child` on).
 /// An unused lane has the box lo = hi = +inf, which every ray misses.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
@@ -85,15 +112,37 @@ impl Node4 {
     };
 }
 
-/// One leaf piece's triangle, ready for the f64 Moeller-Trumbore test.
+/// A triangle ready for the exact f64 Moeller-Trumbore test.
 #[derive(Clone, Copy, Debug)]
-struct LeafTriangle {
+struct ExactTriangle {
     a: Point3<f64>,
     e1: Vector3<f64>,
     e2: Vector3<f64>,
     /// |det| below this is a ray in the triangle's plane.
     parallel: f64,
-    triangle: u32,
+}
+
+/// Up to [`BLOCK`] triangles of a leaf in f32, one lane each, for the filter of
+/// [`RayQuery::rejects`]: the first vertex relative to the scene's centre and the
+/// two edges from it, each rounded to nearest from the f64 values that the exact
+/// test uses. A leaf's last block may have unused lanes (see [`lanes`]).
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct TriangleBlock {
+    a: [[f32; BLOCK]; 3],
+    e1: [[f32; BLOCK]; 3],
+    e2: [[f32; BLOCK]; 3],
+    /// Index of each lane's triangle (in [`Bvh::exact`]).
+    triangle: [u32; BLOCK],
+}
+
+impl TriangleBlock {
+    const EMPTY: Self = Self {
+        a: [[0.0; BLOCK]; 3],
+        e1: [[0.0; BLOCK]; 3],
+        e2: [[0.0; BLOCK]; 3],
+        triangle: [0; BLOCK],
+    };
 }
 
 /// A box-bounded piece of a triangle during the build.
@@ -146,9 +195,14 @@ impl Bounds {
 /// The BVH of a scene.
 pub(crate) struct Bvh {
     nodes: Vec<Node4>,
-    leaves: Vec<LeafTriangle>,
+    /// The leaves' triangles in f32, each leaf's in consecutive blocks.
+    blocks: Vec<TriangleBlock>,
+    /// Every triangle of the scene, by index, for the exact test.
+    exact: Vec<ExactTriangle>,
     /// W coordinates of the origin of the f32 node frame.
     center: Vector3<f64>,
+    /// |center|_1, m (a term of the triangle filter's error bound).
+    center_norm: f32,
     /// The scene's bounds in W, padded (the root's box in f64).
     bounds_lo: Vector3<f64>,
     bounds_hi: Vector3<f64>,
@@ -205,15 +259,17 @@ impl Bvh {
                 }
             }
         }
-        let leaves = pieces
-            .iter()
-            .map(|piece| leaf_triangle(points, triangles, piece.triangle))
+        let exact: Vec<ExactTriangle> = (0..triangles.len())
+            .map(|t| exact_triangle(points, triangles, t))
             .collect();
+        let blocks = pack_leaves(&mut nodes, &pieces, &exact, &center);
         let pad = |v: &Vector3<f64>| v.map(|x| BOX_MARGIN + BOX_RELATIVE_MARGIN * x.abs());
         Self {
             nodes: collapse(&nodes),
-            leaves,
+            blocks,
+            exact,
             center,
+            center_norm: center.abs().sum() as f32,
             bounds_lo: scene.lo - pad(&scene.lo),
             bounds_hi: scene.hi + pad(&scene.hi),
         }
@@ -253,8 +309,11 @@ impl Bvh {
                 },
             };
             if count > 0 {
-                if ray.test_leaf(self.leaf(child, count), any) && any {
-                    return ray.best;
+                for (b, block) in self.leaf(child, count).iter().enumerate() {
+                    let block = LoadedBlock::new(block, lanes(count as usize, b));
+                    if ray.test_block(&block, &self.exact, any) && any {
+                        return ray.best;
+                    }
                 }
                 continue;
             }
@@ -276,6 +335,7 @@ impl Bvh {
                 if depth < STACK {
                     stack[depth] = (node.child[lane], node.count[lane], t);
                     depth += 1;
+                    self.prefetch(node.child[lane], node.count[lane]);
                 }
             }
             let nearest = order[n - 1].0;
@@ -300,6 +360,12 @@ impl Bvh {
             (1u64 << n) - 1
         };
         let bounds = PacketBounds::new(rays);
+        // Rays that start at one point in the node frame (a camera inside the
+        // scene's bounds) share each box's corners relative to it.
+        let shared_origin = rays
+            .first()
+            .map(|r| r.slab.origin)
+            .filter(|o| rays.iter().all(|r| r.slab.origin == *o));
         // (child, count, rays, the nearest of their entry distances).
         let mut stack = [(0u32, 0u32, 0u64, 0.0f32); STACK];
         let mut depth = 0usize;
@@ -327,10 +393,13 @@ impl Bvh {
                 },
             };
             if count > 0 {
-                let leaf = self.leaf(child, count);
-                for r in bits(mask) {
-                    if rays[r].test_leaf(leaf, any) && any {
-                        live &= !(1u64 << r);
+                // Each block loaded once for all the packet's rays that reach it.
+                for (b, block) in self.leaf(child, count).iter().enumerate() {
+                    let block = LoadedBlock::new(block, lanes(count as usize, b));
+                    for r in bits(mask & live) {
+                        if rays[r].test_block(&block, &self.exact, any) && any {
+                            live &= !(1u64 << r);
+                        }
                     }
                 }
                 if live == 0 {
@@ -346,8 +415,11 @@ impl Bvh {
             // Per child: the rays that meet its box, and the nearest of their entries.
             let mut lane_rays = [0u64; 4];
             let mut lane_entry = f32x4::splat(f32::INFINITY);
+            let shared = shared_origin.map(|o| relative_corners(node, &o));
             for r in bits(mask) {
-                let (t_in, met) = rays[r].slab.entries(node, rays[r].limit);
+                let corners =
+                    shared.unwrap_or_else(|| relative_corners(node, &rays[r].slab.origin));
+                let (t_in, met) = rays[r].slab.entries_from(&corners, rays[r].limit);
                 lane_entry = lane_entry.fast_min(met.blend(t_in, f32x4::splat(f32::INFINITY)));
                 let m = met.move_mask() as u64;
                 for (lane, lane_mask) in lane_rays.iter_mut().enumerate() {
@@ -367,6 +439,7 @@ impl Bvh {
                 if depth < STACK {
                     stack[depth] = (node.child[lane], node.count[lane], lane_rays[lane], t);
                     depth += 1;
+                    self.prefetch(node.child[lane], node.count[lane]);
                 }
             }
             let nearest = order[n - 1].0;
@@ -376,7 +449,7 @@ impl Bvh {
 
     /// The traversal state of the ray from `origin` along the unit `direction`,
     /// hits within [0, `max_range`]; None when it cannot meet the scene.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn query(
         &self,
         origin: &Point3<f64>,
@@ -391,26 +464,73 @@ impl Bvh {
             &(origin.coords + direction * enter - self.center),
             direction,
         );
+        let local_origin = [0, 1, 2].map(|k| (origin[k] - self.center[k]) as f32);
+        let dir = [0, 1, 2].map(|k| direction[k] as f32);
+        let norm1 = |v: [f32; 3]| v[0].abs() + v[1].abs() + v[2].abs();
+        // The filter's |s|_1 bound, less the vertex's share (see `rejects`), and the
+        // f64 test's rounding on the unmoved origin, the centre and the move.
+        let origin_norm = norm1(slab.origin)
+            + F64_ROUNDING_WEIGHT * (norm1(local_origin) + self.center_norm + enter as f32);
         let mut ray = RayQuery {
             origin: *origin,
             direction: *direction,
             max_range,
             slab,
-            local_origin: [0, 1, 2].map(|k| (origin[k] - self.center[k]) as f32),
+            dir,
+            error_d: FILTER_ERROR * norm1(dir),
+            origin_norm,
+            // Every point of the scene lies ahead of a moved origin (it stops
+            // BOX_MARGIN before the bounds): only an origin inside needs t >= 0.
+            behind: if enter > 0.0 { f32::NEG_INFINITY } else { 0.0 },
+            local_origin,
             enter,
             exit,
             limit: 0.0,
+            filter_limit: 0.0,
             best: None,
         };
         ray.limit = ray.limit_of(max_range);
+        ray.filter_limit = ray.filter_limit_of(max_range);
         Some(ray)
     }
 
-    /// The pieces of the leaf at `first`, `count` of them.
+    /// Asks the CPU to start loading the node (`count == 0`) or the first leaf
+    /// block at `child`, which the traversal pops later: a node's visit waits
+    /// mostly on memory, and the loads of the pushed siblings then overlap it.
     #[inline(always)]
-    fn leaf(&self, first: u32, count: u32) -> &[LeafTriangle] {
+    fn prefetch(&self, child: u32, count: u32) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            let line = if count == 0 {
+                self.nodes
+                    .get(child as usize)
+                    .map(|n| n as *const Node4 as *const i8)
+            } else {
+                self.blocks
+                    .get(child as usize)
+                    .map(|b| b as *const TriangleBlock as *const i8)
+            };
+            if let Some(p) = line {
+                // SAFETY: SSE is part of every x86_64 target, and a prefetch is only
+                // a hint: it never faults nor reads into the program (both lines
+                // lie within the node or the block, 128 and 160 bytes).
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(p);
+                    _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64));
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (child, count);
+    }
+
+    /// The blocks of the leaf of `count` triangles at block `first`.
+    #[inline(always)]
+    fn leaf(&self, first: u32, count: u32) -> &[TriangleBlock] {
         let first = first as usize;
-        &self.leaves[first..first + count as usize]
+        let end = (first + blocks_of(count as usize)).min(self.blocks.len());
+        self.blocks.get(first..end).unwrap_or(&[])
     }
 
     /// Where the ray enters and leaves the scene's (padded) bounds, in f64:
@@ -472,10 +592,18 @@ impl SlabRay {
     /// (all bits set in a lane met).
     #[inline(always)]
     fn entries(&self, node: &Node4, limit: f32) -> (f32x4, f32x4) {
+        self.entries_from(&relative_corners(node, &self.origin), limit)
+    }
+
+    /// [`SlabRay::entries`] from the boxes' corners relative to the ray's origin
+    /// ([`relative_corners`]).
+    #[inline(always)]
+    fn entries_from(&self, corners: &Corners, limit: f32) -> (f32x4, f32x4) {
+        let (lo, hi) = corners;
         let slab = |k: usize| {
-            let (origin, inv_dir) = (f32x4::splat(self.origin[k]), f32x4::splat(self.inv_dir[k]));
-            let t1 = (f32x4::new(node.lo[k]) - origin) * inv_dir;
-            let t2 = (f32x4::new(node.hi[k]) - origin) * inv_dir;
+            let inv_dir = f32x4::splat(self.inv_dir[k]);
+            let t1 = lo[k] * inv_dir;
+            let t2 = hi[k] * inv_dir;
             (t1.fast_min(t2), t1.fast_max(t2))
         };
         let (x_in, x_out) = slab(0);
@@ -486,6 +614,16 @@ impl SlabRay {
         let met = t_in.cmp_le(t_out) & t_in.cmp_le(f32x4::splat(limit));
         (t_in, met)
     }
+}
+
+/// The low and high corners of a node's four boxes, per axis, relative to a point.
+type Corners = ([f32x4; 3], [f32x4; 3]);
+
+/// The corners of `node`'s boxes relative to `origin` (node frame).
+#[inline(always)]
+fn relative_corners(node: &Node4, origin: &[f32; 3]) -> Corners {
+    let rel = |c: &[[f32; 4]; 3]| [0, 1, 2].map(|k| f32x4::new(c[k]) - f32x4::splat(origin[k]));
+    (rel(&node.lo), rel(&node.hi))
 }
 
 /// Absolute padding (m) of the boxes in [`PacketBounds::all_miss`], on top of
@@ -576,6 +714,17 @@ pub(crate) struct RayQuery {
     direction: Vector3<f64>,
     max_range: f64,
     slab: SlabRay,
+    /// The unit direction in f32, for the triangle filter.
+    dir: [f32; 3],
+    /// [`FILTER_ERROR`] times |dir|_1.
+    error_d: f32,
+    /// |slab.origin|_1 plus the f64 rounding terms: with a vertex's |a|_1, a bound
+    /// on |s|_1 of the filter (see [`RayQuery::rejects`]).
+    origin_norm: f32,
+    /// The least T (t det) in the node frame that the filter keeps: 0 for a ray
+    /// starting inside the scene's bounds (hits at t < 0 do not count), minus
+    /// infinity for a moved origin (nothing of the scene lies behind it).
+    behind: f32,
     /// The ray's origin in the f32 node frame (before the move to the scene's bounds).
     local_origin: [f32; 3],
     /// The f32 frame's origin sits this far along the ray (where it enters the
@@ -585,6 +734,8 @@ pub(crate) struct RayQuery {
     exit: f64,
     /// Node boxes entered farther than this (f32 frame) hold no nearer hit.
     limit: f32,
+    /// Triangles met farther than this (f32 frame, rounded up) are no nearer hit.
+    filter_limit: f32,
     best: Option<(f64, u32)>,
 }
 
@@ -600,14 +751,30 @@ impl RayQuery {
         ((t.min(self.exit) - self.enter) as f32 + 1e-4) * SLAB_SLACK
     }
 
-    /// Tests the pieces of a leaf, keeping the nearest hit within range; true when
-    /// one of them became the nearest (with `any`, stops there).
+    /// The filter's limit of a hit at distance `t`: t - enter in f32, rounded up,
+    /// and never below 0 (no triangle the exact test keeps lies nearer).
     #[inline(always)]
-    fn test_leaf(&mut self, leaf: &[LeafTriangle], any: bool) -> bool {
+    fn filter_limit_of(&self, t: f64) -> f32 {
+        ((t - self.enter) as f32).next_up().max(0.0)
+    }
+
+    /// Tests the triangles of a leaf's block, keeping the nearest hit within
+    /// range; true when one of them became the nearest (with `any`, stops there).
+    /// The f32 filter drops the triangles that cannot be that hit; the others are
+    /// intersected exactly (`exact`).
+    #[inline(always)]
+    fn test_block(&mut self, block: &LoadedBlock, exact: &[ExactTriangle], any: bool) -> bool {
         let mut found = false;
-        for piece in leaf {
+        let mut candidates = block.lanes & !self.rejects(block);
+        while candidates != 0 {
+            let lane = candidates.trailing_zeros() as usize;
+            candidates &= candidates - 1;
+            let triangle = block.triangle[lane];
+            let Some(piece) = exact.get(triangle as usize) else {
+                continue;
+            };
             if let Some(t) = intersect(piece, &self.origin, &self.direction) {
-                let hit = (t, piece.triangle);
+                let hit = (t, triangle);
                 if t <= self.max_range && self.best.is_none_or(|best| nearer(hit, best)) {
                     self.best = Some(hit);
                     found = true;
@@ -615,11 +782,118 @@ impl RayQuery {
                         return true;
                     }
                     self.limit = self.limit_of(t);
+                    self.filter_limit = self.filter_limit_of(t);
                 }
             }
         }
         found
     }
+
+    /// The lanes of `block` (bits) whose triangle the exact test
+    /// ([`intersect`]) surely misses, or meets behind the ray's start or beyond
+    /// [`RayQuery::filter_limit`]; the others are candidates.
+    ///
+    /// Moeller-Trumbore in f32 without the division, from the moved origin o'
+    /// (node frame): s = o' - a, det = e1 . (d x e2), U = s . (d x e2),
+    /// V = d . (s x e1), T = e2 . (s x e1); the exact test meets the triangle
+    /// when U, V >= 0 and U + V <= det (det > 0, signs flipped otherwise), at
+    /// t = T / det + enter. Moving the origin along d changes only T (by
+    /// -enter det). Each computed triple product is within [`FILTER_ERROR`] times
+    /// the product of its factors' 1-norms of what the exact test computes, so a
+    /// lane is rejected only where a condition fails by more than that bound: Embree
+    /// tests watertight in f32 and decides; this test only decides what is
+    /// surely out, and the f64 test decides the rest, the answers staying exact.
+    /// A lane whose det is within its bound of 0 (sign unknown) is never
+    /// rejected, and neither is one with NaN or infinite terms (every comparison
+    /// below is false for NaN).
+    #[inline(always)]
+    fn rejects(&self, block: &LoadedBlock) -> u32 {
+        let (a, e1, e2) = (&block.a, &block.e1, &block.e2);
+        let d = self.dir.map(f32x4::splat);
+        let o = self.slab.origin.map(f32x4::splat);
+        let s = [o[0] - a[0], o[1] - a[1], o[2] - a[2]];
+        let cross = |x: &[f32x4; 3], y: &[f32x4; 3]| {
+            [
+                x[1] * y[2] - x[2] * y[1],
+                x[2] * y[0] - x[0] * y[2],
+                x[0] * y[1] - x[1] * y[0],
+            ]
+        };
+        let dot = |x: &[f32x4; 3], y: &[f32x4; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+        let p = cross(&d, e2);
+        let q = cross(&s, e1);
+        let det = dot(e1, &p);
+        // The sign of det, moved onto U, V and T (as if det > 0).
+        let sign = det & f32x4::splat(-0.0);
+        let u = dot(&s, &p) ^ sign;
+        let w = dot(&d, &q) ^ sign;
+        let t = dot(e2, &q) ^ sign;
+        let det = det.abs();
+        let (n1, n2) = (block.norm_e1, block.norm_e2);
+        // |s|_1 <= |o'|_1 + |a|_1 for the computed and the exact s alike.
+        let ns = f32x4::splat(self.origin_norm) + block.norm_a;
+        let error_d = f32x4::splat(self.error_d);
+        let err_det = error_d * block.norm_e1e2;
+        let err_u = error_d * ns * n2;
+        let err_v = error_d * ns * n1;
+        let err_t = f32x4::splat(FILTER_ERROR) * ns * block.norm_e1e2;
+        let known = det.cmp_gt(err_det);
+        let out = u.cmp_lt(-err_u)
+            | w.cmp_lt(-err_v)
+            | (u + w).cmp_gt(det + err_u + err_v + err_det)
+            | (t + err_t).cmp_lt(f32x4::splat(self.behind))
+            | t.cmp_gt(f32x4::splat(self.filter_limit) * (det + err_det) + err_t);
+        (known & out).move_mask() as u32
+    }
+}
+
+/// A [`TriangleBlock`] in registers, with the 1-norms of its vectors that the
+/// filter's error bounds need (the same for every ray that tests it).
+struct LoadedBlock {
+    a: [f32x4; 3],
+    e1: [f32x4; 3],
+    e2: [f32x4; 3],
+    norm_a: f32x4,
+    norm_e1: f32x4,
+    norm_e2: f32x4,
+    norm_e1e2: f32x4,
+    triangle: [u32; BLOCK],
+    /// The lanes in use (bits).
+    lanes: u32,
+}
+
+impl LoadedBlock {
+    #[inline(always)]
+    fn new(block: &TriangleBlock, lanes: u32) -> Self {
+        let v = |c: &[[f32; BLOCK]; 3]| c.map(f32x4::new);
+        let norm1 = |x: &[f32x4; 3]| x[0].abs() + x[1].abs() + x[2].abs();
+        let (a, e1, e2) = (v(&block.a), v(&block.e1), v(&block.e2));
+        let (norm_e1, norm_e2) = (norm1(&e1), norm1(&e2));
+        Self {
+            norm_a: norm1(&a),
+            norm_e1,
+            norm_e2,
+            norm_e1e2: norm_e1 * norm_e2,
+            a,
+            e1,
+            e2,
+            triangle: block.triangle,
+            lanes,
+        }
+    }
+}
+
+/// Blocks holding `count` triangles.
+#[inline(always)]
+fn blocks_of(count: usize) -> usize {
+    count.div_ceil(BLOCK)
+}
+
+/// The used lanes (bits) of block `b` of a leaf of `count` triangles.
+#[inline(always)]
+fn lanes(count: usize, b: usize) -> u32 {
+    let used = count.saturating_sub(b * BLOCK).min(BLOCK);
+    (1u32 << used) - 1
 }
 
 /// Whether hit `a` (distance, triangle) is nearer than `b`; at the same distance
@@ -666,7 +940,7 @@ fn bits(mut mask: u64) -> impl Iterator<Item = usize> {
 /// Distance along the unit `direction` at which the ray meets `leaf`'s triangle
 /// (either side), f64 Moeller-Trumbore; None if it does not.
 #[inline(always)]
-fn intersect(leaf: &LeafTriangle, origin: &Point3<f64>, direction: &Vector3<f64>) -> Option<f64> {
+fn intersect(leaf: &ExactTriangle, origin: &Point3<f64>, direction: &Vector3<f64>) -> Option<f64> {
     let p = direction.cross(&leaf.e2);
     let det = leaf.e1.dot(&p);
     if det.abs() < leaf.parallel {
@@ -742,18 +1016,56 @@ fn half_area(node: &Node) -> f32 {
     d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 }
 
-fn leaf_triangle(points: &[Point3<f64>], triangles: &[[u32; 3]], t: u32) -> LeafTriangle {
-    let [ia, ib, ic] = triangles[t as usize];
+fn exact_triangle(points: &[Point3<f64>], triangles: &[[u32; 3]], t: usize) -> ExactTriangle {
+    let [ia, ib, ic] = triangles[t];
     let a = points[ia as usize];
     let e1 = points[ib as usize] - a;
     let e2 = points[ic as usize] - a;
-    LeafTriangle {
+    ExactTriangle {
         a,
         e1,
         e2,
         parallel: PARALLEL_DETERMINANT * e1.norm() * e2.norm(),
-        triangle: t,
     }
+}
+
+/// Packs each leaf's pieces (`first..first + count` of `pieces`) into blocks of
+/// [`BLOCK`] triangles and points the leaf at its first block.
+fn pack_leaves(
+    nodes: &mut [Node],
+    pieces: &[Piece],
+    exact: &[ExactTriangle],
+    center: &Vector3<f64>,
+) -> Vec<TriangleBlock> {
+    let mut blocks = Vec::with_capacity(pieces.len() / 2);
+    let mut triangles: Vec<u32> = Vec::with_capacity(MAX_LEAF);
+    for node in nodes.iter_mut().filter(|n| n.count > 0) {
+        let first = node.first as usize;
+        // Pieces of one long triangle often share a leaf: the triangle once is enough.
+        triangles.clear();
+        for piece in &pieces[first..first + node.count as usize] {
+            if !triangles.contains(&piece.triangle) {
+                triangles.push(piece.triangle);
+            }
+        }
+        node.first = blocks.len() as u32;
+        node.count = triangles.len() as u32;
+        for chunk in triangles.chunks(BLOCK) {
+            let mut block = TriangleBlock::EMPTY;
+            for (lane, &triangle) in chunk.iter().enumerate() {
+                let tri = &exact[triangle as usize];
+                let a = tri.a.coords - center;
+                for k in 0..3 {
+                    block.a[k][lane] = a[k] as f32;
+                    block.e1[k][lane] = tri.e1[k] as f32;
+                    block.e2[k][lane] = tri.e2[k] as f32;
+                }
+                block.triangle[lane] = triangle;
+            }
+            blocks.push(block);
+        }
+    }
+    blocks
 }
 
 /// The f32 box of `bounds` relative to `center`, padded outward.
@@ -788,7 +1100,7 @@ fn split(pieces: &mut [Piece], bounds: &Bounds, depth: usize) -> Option<usize> {
     if depth >= SAH_DEPTH {
         return Some(median_split(pieces, axis));
     }
-    let leaf_cost = n as f64;
+    let leaf_cost = blocks_of(n) as f64;
     let parent_area = bounds.half_area();
     let mut best: Option<(f64, usize, f64)> = None; // (cost, axis, plane)
     for axis in 0..3 {
@@ -826,7 +1138,7 @@ fn split(pieces: &mut [Piece], bounds: &Bounds, depth: usize) -> Option<usize> {
                 continue;
             }
             let cost = TRAVERSAL_COST
-                + (acc.half_area() * count as f64 + ra * rc as f64)
+                + (acc.half_area() * blocks_of(count) as f64 + ra * blocks_of(rc) as f64)
                     / parent_area.max(f64::MIN_POSITIVE);
             if best.is_none_or(|(c, _, _)| cost < c) {
                 best = Some((cost, axis, lo + (b + 1) as f64 / scale));

@@ -14,6 +14,8 @@ use crate::error::RaycastError;
 pub const MIN_TRIANGLE_AREA: f64 = 1e-14;
 /// Rays handed to one rayon task at a time.
 const RAYS_PER_TASK: usize = 512;
+/// Rows one rayon task validates at a time.
+const CHECK_ROWS_PER_TASK: usize = 16_384;
 /// A batch's consecutive rays that share their origin (a camera's pixels, a LiDAR's
 /// shots) are cast in packets of this many ([`Scene::cast_packet`]).
 const BATCH_PACKET: usize = 64;
@@ -298,10 +300,12 @@ impl Scene {
         check_directions("directions", directions)?;
         check_finite_rows("origins", origins)?;
         let n = origins.len();
+        // Zeroed allocations (pages mapped lazily, then written by the parallel
+        // tasks, misses included): no serial pass over the outputs.
         let mut out = Hits {
-            distance: vec![f64::INFINITY; n],
-            instance_id: vec![-1; n],
-            triangle: vec![-1; n],
+            distance: vec![0.0; n],
+            instance_id: vec![0; n],
+            triangle: vec![0; n],
             normal: vec![[0.0; 3]; n],
         };
         // Written in place, chunk by chunk: no per-ray result list to gather.
@@ -340,12 +344,19 @@ impl Scene {
                         }
                     }
                     for (k, hit) in hits.iter().enumerate() {
-                        if let Some(hit) = hit {
-                            let k = first + k;
-                            distance[k] = hit.distance;
-                            instance_id[k] = hit.instance_id;
-                            triangle[k] = i64::from(hit.triangle);
-                            normal[k] = [hit.normal.x, hit.normal.y, hit.normal.z];
+                        let k = first + k;
+                        match hit {
+                            Some(hit) => {
+                                distance[k] = hit.distance;
+                                instance_id[k] = hit.instance_id;
+                                triangle[k] = i64::from(hit.triangle);
+                                normal[k] = [hit.normal.x, hit.normal.y, hit.normal.z];
+                            }
+                            None => {
+                                distance[k] = f64::INFINITY;
+                                instance_id[k] = -1;
+                                triangle[k] = -1;
+                            }
                         }
                     }
                 }
@@ -386,7 +397,7 @@ pub(crate) fn validate_max_range(max_range: f64) -> Result<(), RaycastError> {
 }
 
 pub(crate) fn check_finite_rows(name: &'static str, rows: &[[f64; 3]]) -> Result<(), RaycastError> {
-    match rows.iter().position(|r| !r.iter().all(|c| c.is_finite())) {
+    match first_bad_row(rows, |r| !r.iter().all(|c| c.is_finite())) {
         Some(index) => Err(RaycastError::NonFiniteRay { name, index }),
         None => Ok(()),
     }
@@ -398,13 +409,24 @@ pub(crate) fn check_directions(
     directions: &[[f64; 3]],
 ) -> Result<(), RaycastError> {
     check_finite_rows(name, directions)?;
-    match directions.iter().position(|d| {
+    match first_bad_row(directions, |d| {
         let norm = Vector3::new(d[0], d[1], d[2]).norm();
         !(norm > 0.0 && norm.is_finite())
     }) {
         Some(index) => Err(RaycastError::ZeroDirection { name, index }),
         None => Ok(()),
     }
+}
+
+/// The index of the first row for which `bad` holds. In parallel, chunk by
+/// chunk (a batch's serial share bounds its speed-up), each chunk scanned in
+/// one tight loop.
+fn first_bad_row(rows: &[[f64; 3]], bad: impl Fn(&[f64; 3]) -> bool + Sync) -> Option<usize> {
+    let chunk = rows
+        .par_chunks(CHECK_ROWS_PER_TASK)
+        .position_first(|chunk| chunk.iter().any(&bad))?;
+    let start = chunk * CHECK_ROWS_PER_TASK;
+    rows[start..].iter().position(&bad).map(|k| start + k)
 }
 
 /// The unit vector along a direction row that [`check_directions`] accepted.
