@@ -117,3 +117,31 @@ def test_one_small_scene_cell_flies_end_to_end(tmp_path):
     assert (tmp_path / "out" / "degraded_camera.png").stat().st_size > 0
     table = (tmp_path / "out" / "degraded_camera.md").read_text(encoding="utf-8")
     assert f"| {cell.found}/2 | {cell.photographed}/2 | {cell.false_finds} |" in table
+
+
+def _cell(tower, condition, cue, found):
+    from insulator_rs.evaluation.degraded_camera_study import DegradedCell
+
+    return DegradedCell(tower=tower, condition=condition, cue=cue, strings=4, found=found, photographed=found,
+                        false_finds=0, flight_time_s=700.0, status="finished", detector="net", true_boxes=10,
+                        dropped_boxes=8, lidar_looks=0, wall_s=1.0)
+
+
+def test_resume_keeps_the_cells_flown_and_refuses_another_seed(tmp_path, monkeypatch):
+    from insulator_rs.evaluation import degraded_camera_study as study
+
+    flown = [_cell("B", "drop80", "camera only", 3), _cell("B", "drop80", "camera + LiDAR", 4),
+             _cell("A", "haze", "camera only", 9)]
+    study.write_results(tmp_path, flown, seed=5)
+
+    def no_flight(*args, **kwargs):
+        raise AssertionError("a kept cell was flown again")
+
+    monkeypatch.setattr(study, "fly_cell", no_flight)
+    cells = study.run_study(tmp_path, ["B"], ["drop80"], seed=5, resume=True, say=lambda _: None)
+    assert cells == flown[:2]
+    assert study.flown_cells(tmp_path) == flown  # the cell of another tower stays in the table
+    table = (tmp_path / "degraded_camera.md").read_text(encoding="utf-8")
+    assert "| B | 80 % of true boxes dropped | 3/4 | 3/4 | 0 | 700 | 4/4 | 4/4 | 0 | 700 |" in table
+    with pytest.raises(ValueError, match="seed"):
+        study.run_study(tmp_path, ["B"], ["drop80"], seed=6, resume=True, say=lambda _: None)

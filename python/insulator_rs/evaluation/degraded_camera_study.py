@@ -229,22 +229,45 @@ def write_results(out: Path, cells: Sequence[DegradedCell], seed: int) -> None:
     plot(cells, out / "degraded_camera.png")
 
 
-def run_study(out: Path, towers: Sequence[str], conditions: Sequence[str], *, seed: int = 0,
+def flown_cells(out: Path) -> list[DegradedCell]:
+    """The cells ``degraded_camera.json`` in ``out`` already holds ([] when there is none)."""
+    import json
+
+    path = out / "degraded_camera.json"
+    if not path.is_file():
+        return []
+    return [DegradedCell(**c) for c in json.loads(path.read_text(encoding="utf-8"))["cells"]]
+
+
+def run_study(out: Path, towers: Sequence[str], conditions: Sequence[str], *, seed: int = 0, resume: bool = False,
               say: Callable[[str], None] = print) -> list[DegradedCell]:
     """Every cell, one flight at a time (tower, then condition, cue off then on); the results are
-    rewritten after each flight, so a study cut short keeps what it flew."""
+    rewritten after each flight, so a study cut short keeps what it flew, and ``resume`` takes the
+    cells ``out`` already holds (same seed) instead of flying them again."""
+    kept = flown_cells(out) if resume else []
+    if kept and resume:
+        import json
+
+        flown_seed = json.loads((out / "degraded_camera.json").read_text(encoding="utf-8"))["seed"]
+        if flown_seed != seed:
+            raise ValueError(f"--resume: {out} holds a study flown with seed {flown_seed}, not {seed}")
     cells: list[DegradedCell] = []
     for tower in towers:
         for cond in conditions:
-            for cue in CUES:
-                cell = fly_cell(tower, cond, cue, out / f"tower_{tower}" / cond / ("cue" if cue else "camera"),
-                                seed=seed)
+            for cue, cue_name in CUES.items():
+                cell = next((c for c in kept if (c.tower, c.condition, c.cue) == (tower, cond, cue_name)), None)
+                if cell is None:
+                    cell = fly_cell(tower, cond, cue, out / f"tower_{tower}" / cond / ("cue" if cue else "camera"),
+                                    seed=seed)
+                    say(f"tower {tower}, {CONDITIONS[cond].label}, {cell.cue}: {cell.status}, found "
+                        f"{cell.found}/{cell.strings}, photographed {cell.photographed}, false {cell.false_finds}, "
+                        f"flight {cell.flight_time_s:.0f} s, dropped {cell.dropped_boxes}/{cell.true_boxes} true "
+                        f"boxes, {cell.lidar_looks} LiDAR looks (wall {cell.wall_s:.0f} s)")
                 cells.append(cell)
-                say(f"tower {tower}, {CONDITIONS[cond].label}, {cell.cue}: {cell.status}, found "
-                    f"{cell.found}/{cell.strings}, photographed {cell.photographed}, false {cell.false_finds}, "
-                    f"flight {cell.flight_time_s:.0f} s, dropped {cell.dropped_boxes}/{cell.true_boxes} true boxes, "
-                    f"{cell.lidar_looks} LiDAR looks (wall {cell.wall_s:.0f} s)")
-                write_results(out, cells, seed)
+                # the cells flown so far, and those kept that this run does not fly
+                rest = [c for c in kept if (c.tower, c.condition, c.cue) not in
+                        {(x.tower, x.condition, x.cue) for x in cells}]
+                write_results(out, cells + rest, seed)
     return cells
 
 
@@ -259,11 +282,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seed of the simulator and of the dropped boxes (integer, 0 to 2^32-1)")
     parser.add_argument("--out", type=parse_out_folder, default=Path("results/degraded_camera"),
                         help="folder for the table, the figure and each flight's report (created)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the cells --out already holds (its degraded_camera.json, the same seed) and fly "
+                             "only the others")
 
 
 def run(args: argparse.Namespace) -> int:
     """Entry point: flies the cells, prints a line per flight and the table."""
-    cells = run_study(args.out, args.towers, args.conditions, seed=args.seed,
-                      say=lambda line: print(line, file=sys.stderr, flush=True))
+    try:
+        cells = run_study(args.out, args.towers, args.conditions, seed=args.seed, resume=args.resume,
+                          say=lambda line: print(line, file=sys.stderr, flush=True))
+    except ValueError as exc:
+        print(f"insulator-rs eval degraded-camera: error: {exc}", file=sys.stderr)
+        return 2
     print(markdown(cells, args.seed))
     return 0
