@@ -180,40 +180,57 @@ def markdown(cells: Sequence[DegradedCell], seed: int) -> str:
 
 
 def plot(cells: Sequence[DegradedCell], path: Path) -> None:
-    """Grouped bars: per tower (a panel) and condition, strings found and photographed (share of
-    the tower's) and false finds, camera only beside camera + LiDAR. Agg backend."""
+    """Grouped bars, a column of panels per tower: above, strings found and photographed per
+    condition (false finds written on the found bars); below, the flight time; camera only beside
+    camera + LiDAR. Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    towers = list(dict.fromkeys(c.tower for c in cells))
-    fig, axes = plt.subplots(1, len(towers), figsize=(6.5 * len(towers), 4.5), squeeze=False)
-    bars = [("found", "camera only", "tab:blue", None), ("photographed", "camera only", "tab:blue", "//"),
-            ("found", "camera + LiDAR", "tab:orange", None), ("photographed", "camera + LiDAR", "tab:orange", "//")]
-    for ax, tower in zip(axes[0], towers):
-        conds = list(dict.fromkeys(c.condition for c in cells if c.tower == tower))
+    towers = sorted(dict.fromkeys(c.tower for c in cells))
+    fig, axes = plt.subplots(2, len(towers), figsize=(6.5 * len(towers), 7.5), squeeze=False,
+                             gridspec_kw={"height_ratios": [2, 1]})
+    colors = {"camera only": "tab:blue", "camera + LiDAR": "tab:orange"}
+    bars = [(what, cue, hatch) for cue in CUES.values() for what, hatch in (("found", None), ("photographed", "//"))]
+    for col, tower in enumerate(towers):
+        ax, ax_time = axes[0][col], axes[1][col]
+        conds = [k for k in CONDITIONS if any(c.tower == tower and c.condition == k for c in cells)]
         width = 0.8 / len(bars)
-        for bi, (what, cue, color, hatch) in enumerate(bars):
-            for ci, cond in enumerate(conds):
+        for ci, cond in enumerate(conds):
+            for bi, (what, cue, hatch) in enumerate(bars):
                 c = next((x for x in cells if (x.tower, x.condition, x.cue) == (tower, cond, cue)), None)
                 if c is None:
                     continue
                 value = getattr(c, what)
                 x = ci - 0.4 + (bi + 0.5) * width
-                ax.bar(x, value, width, color=color, hatch=hatch, edgecolor="black",
+                ax.bar(x, value, width, color=colors[cue], hatch=hatch, edgecolor="black",
                        label=f"{what}, {cue}" if ci == 0 else None)
-                ax.text(x, value + 0.1, f"{value}" + (f"\n{c.false_finds} false" if what == "found" and c.false_finds
-                                                       else ""), ha="center", va="bottom", fontsize=7)
+                note = f"\n{c.false_finds} false" if what == "found" else ""
+                ax.text(x, value + 0.05, f"{value}{note}", ha="center", va="bottom", fontsize=7)
+            for k, cue in enumerate(CUES.values()):
+                c = next((x for x in cells if (x.tower, x.condition, x.cue) == (tower, cond, cue)), None)
+                if c is None:
+                    continue
+                x = ci - 0.2 + k * 0.4
+                ax_time.bar(x, c.flight_time_s / 60, 0.4, color=colors[cue], edgecolor="black",
+                            label=cue if ci == 0 else None)
+                ax_time.text(x, c.flight_time_s / 60, f"{c.flight_time_s / 60:.1f}", ha="center", va="bottom",
+                             fontsize=7)
         strings = max(c.strings for c in cells if c.tower == tower)
         ax.axhline(strings, color="grey", lw=0.8, ls="--")
-        ax.set_xticks(range(len(conds)), [CONDITIONS[k].label.replace(" of true boxes", "\nof true boxes")
-                                          for k in conds], fontsize=8)
-        ax.set_ylim(0, strings * 1.25)
+        labels = [CONDITIONS[k].label.replace(" of true boxes", "\nof true boxes") for k in conds]
+        for a in (ax, ax_time):
+            a.set_xticks(range(len(conds)), labels, fontsize=8)
+            a.set_xlim(-0.5, len(conds) - 0.5)
+        ax.set_ylim(0, strings * 1.3)
         ax.set_ylabel("strings")
         ax.set_title(f"tower {tower}: {strings} strings")
         ax.legend(fontsize=7, loc="lower left")
-    fig.suptitle("Degraded detection camera: camera only vs camera + LiDAR cue")
+        ax_time.set_ylabel("flight time [min]")
+        ax_time.set_ylim(0, max(c.flight_time_s for c in cells if c.tower == tower) / 60 * 1.25)
+        ax_time.legend(fontsize=7, loc="lower left")
+    fig.suptitle("Degraded detection camera: camera only vs camera + LiDAR cue (insulator-rs eval degraded-camera)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
