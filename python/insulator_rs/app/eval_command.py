@@ -21,6 +21,8 @@ STUDIES: tuple[tuple[str, str, str], ...] = (
      "the fault matrix: every fault at every moment of the flight, clearance to the true tower"),
     ("photo-check", "insulator_rs.evaluation.photo_check_study",
      "the photo check against the ground truth: good photos called unfit, gimbal/zoom/blur ones fit"),
+    ("degraded-camera", "insulator_rs.evaluation.degraded_camera_study",
+     "whole flights with a hazed camera or most true boxes dropped: camera only vs camera + LiDAR cue"),
 )
 
 
