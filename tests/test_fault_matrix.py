@@ -320,6 +320,8 @@ def test_a_descent_in_place_is_measured_down_its_whole_column():
     slack = structure.bound + FM.DESCENT_STEP / 2 + 1e-9
     assert np.all(got <= truth + 1e-9) and np.all(got >= truth - slack), (got, truth)
     assert list(kinds) == ["conductor"] * 5  # the ground is not structure
+    far, kind = FM.descent_clearances(structure, np.array([[0.0, 40.0, 20.0]]), ground_z=0.0)
+    assert far[0] == FM.DESCENT_RANGE and kind[0] == ""  # beyond the search: reported as the range
 
 
 def test_the_descent_exposure_of_each_phase(tmp_path):

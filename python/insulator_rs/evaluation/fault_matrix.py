@@ -166,31 +166,37 @@ class Structure:
         j = int(np.argmin(d))
         return float(d[j]), str(kinds[j])
 
-    def clearances(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def clearances(self, positions: np.ndarray, upto: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
         """The clearance (m, never more than the truth) of each of ``positions`` (N, 3), and the
-        kind of structure nearest each."""
-        d, k = self.tree.query(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
-        return np.maximum(0.0, d - self.bound), self.labels[k]
+        kind of structure nearest each; with ``upto`` (m), a position farther than that from every
+        sample gets inf and the kind "" (the search stops there: a dense mesh is slow to search
+        from far away)."""
+        d, k = self.tree.query(np.asarray(positions, dtype=np.float64).reshape(-1, 3), distance_upper_bound=upto)
+        found = k < len(self.labels)
+        kinds = np.full(len(k), "", dtype=self.labels.dtype)
+        kinds[found] = self.labels[k[found]]
+        return np.maximum(0.0, d - self.bound), kinds
 
 
 # -- a descent in place from every moment ---------------------------------------------------------
 DESCENT_STEP = 0.1  # m between the points sampled down a descent column (half of it is subtracted)
 DESCENT_EVERY = 0.5  # s of the clean flight between the descents measured
+DESCENT_RANGE = 10.0  # m: a descent farther than this from the structure is reported as this far
 
 
 def descent_clearances(structure: Structure, positions: np.ndarray, ground_z: float) -> tuple[np.ndarray, np.ndarray]:
     """For each W position (N, 3): the clearance of a vertical descent from there down to
     ``ground_z`` (what PX4 flies when the position estimate is lost: its LAND/Descend in place),
     i.e. the least distance from that column to the structure, less half the column's sampling
-    step (a point of the column is at most that far from a sample: never more than the truth);
-    and the kind of structure nearest each column."""
+    step (a point of the column is at most that far from a sample: never more than the truth),
+    at most DESCENT_RANGE; and the kind of structure nearest each column ("" beyond that range)."""
     p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     columns = [np.column_stack([np.full(len(z), x), np.full(len(z), y), z])
                for x, y, z in ((q[0], q[1], np.append(np.arange(q[2], ground_z, -DESCENT_STEP), ground_z))
                                for q in p)]
     starts = np.cumsum([0] + [len(c) for c in columns[:-1]])
-    d, kinds = structure.clearances(np.concatenate(columns))
-    d = np.maximum(0.0, d - DESCENT_STEP / 2)
+    d, kinds = structure.clearances(np.concatenate(columns), upto=DESCENT_RANGE + structure.bound + DESCENT_STEP)
+    d = np.minimum(np.maximum(0.0, d - DESCENT_STEP / 2), DESCENT_RANGE)
     nearest = np.array([kinds[a + int(np.argmin(d[a:a + len(c)]))] for a, c in zip(starts, columns)])
     return np.minimum.reduceat(d, starts), nearest
 
@@ -619,8 +625,9 @@ def markdown(result: dict[str, Any]) -> str:
                   "| phase | s | descent within the margin | least clearance |", "| --- | --- | --- | --- |"]
         for state, e in descent.items():
             flag = "" if e["min_clearance_m"] >= result["margin_m"] else " **BELOW**"
-            lines.append(f"| {state} | {e['seconds']:.0f} | {e['within_margin_s']:.1f} s | {e['min_clearance_m']:.2f} m "
-                         f"({e['nearest']}, {e['at_s']:.0f} s){flag} |")
+            least = (f"{e['min_clearance_m']:.2f} m ({e['nearest']}, {e['at_s']:.0f} s)" if e["nearest"]
+                     else f">= {DESCENT_RANGE:g} m")
+            lines.append(f"| {state} | {e['seconds']:.0f} | {e['within_margin_s']:.1f} s | {least}{flag} |")
     return "\n".join(lines) + "\n"
 
 
