@@ -60,6 +60,7 @@ REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), 
                 "detector error": ("detector",), "low battery": ("battery",), "GPS loss": ("position",),
                 "operator abort": ("operator",), "client killed": ("running",), "process killed": ("running",)}
 SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
+SAMPLE_CELL = 0.01  # m: the samples are kept one a cube of this side (its centre; the bound grows by its half-diagonal)
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
 LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landing) bring it down
@@ -155,10 +156,15 @@ class Structure:
             w1, w2 = u[sel] / n, v[sel] / n
             points.append(a + np.outer(w1, b - a) + np.outer(w2, c - a))
             labels.extend([kind] * int(sel.sum()))
-        self.points = np.concatenate(points)
-        self.labels = np.array(labels)
+        # one sample per SAMPLE_CELL cube, at its centre: tower B's conductors (2.2 cm across) and
+        # sheds give 6.4 M samples in 0.76 M such cells, and the crowd made each search ~0.8 ms
+        cells, first = np.unique(np.floor(np.concatenate(points) / SAMPLE_CELL).astype(np.int64), axis=0,
+                                 return_index=True)
+        self.points = (cells + 0.5) * SAMPLE_CELL
+        self.labels = np.array(labels)[first]
         self.tree = cKDTree(self.points)
-        self.bound = SURFACE_STEP / math.sqrt(3.0)  # a point of a grid cell to its nearest corner
+        # a point of a grid cell to its nearest corner, and that corner to its cube's centre
+        self.bound = SURFACE_STEP / math.sqrt(3.0) + SAMPLE_CELL * math.sqrt(3.0) / 2
 
     def clearance(self, positions: np.ndarray) -> tuple[float, str]:
         """(minimum clearance in m, the kind of structure nearest there) along ``positions``."""
