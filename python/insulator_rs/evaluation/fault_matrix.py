@@ -27,7 +27,9 @@ conductors; not the mission's boxes) and the airframe's TRUE trajectory (the sim
 the landing, whoever flew it): the minimum clearance, against the mission's ``safety_margin``;
 how the flight ended (landed by our route, by PX4's, or still flying); what ``summary.json`` says;
 whether the recording (``--record``, MCAP) holds every message written to it (the client killed: every
-message flushed before the kill, the recorder flushing every second). Writes
+message flushed before the kill, the recorder flushing every second). The GPS loss row samples one
+moment of each phase; :func:`descent_exposure` measures PX4's descent in place (its answer to a lost
+position) from every 0.5 s of the clean flight, per phase, against the same mesh and margin. Writes
 ``fault_matrix.md`` (the table), ``fault_matrix.json`` and ``fault_matrix.png`` (cells coloured by
 clearance) in ``--out``, one line per cell as it goes.
 """
