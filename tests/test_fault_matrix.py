@@ -289,3 +289,61 @@ def test_the_restore_stops_asking_an_autopilot_that_no_longer_answers():
     assert store.asked == ["A"]
     assert setup.restore_status == "restore failed for A, B, C"
     assert setup.records[1].error == "not tried: the autopilot did not answer for A"
+
+
+# -- a descent in place from every moment of the clean flight ---------------------------------------
+
+class _Kind:
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+
+
+class _Wire:
+    """A mesh of one horizontal conductor: a thin ribbon 10 m up along x (-20..20 m) at y = 0,
+    and a ground triangle (left out of the structure, as the scene's)."""
+
+    vertices = np.array([[-20.0, -0.01, 10.0], [20.0, -0.01, 10.0], [20.0, 0.01, 10.0], [-20.0, 0.01, 10.0],
+                         [-50.0, -50.0, 0.0], [50.0, -50.0, 0.0], [0.0, 50.0, 0.0]])
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]])
+    instance_ids = np.array([1, 1, 2])
+    instances = {1: _Kind("conductor"), 2: _Kind("ground")}
+
+
+def test_a_descent_in_place_is_measured_down_its_whole_column():
+    """Reference: the distance from a vertical segment (x, y, 0..z) to the wire (y = 0, z = 10,
+    along x): |y| when the segment reaches down past 10 m, else the height gap as well. The
+    measure never exceeds it and is within twice the samplings' bounds of it."""
+    structure = FM.Structure(_Wire())
+    positions = np.array([[0.0, 1.0, 20.0], [3.0, -4.0, 30.0], [0.0, 0.0, 6.0], [0.0, 3.0, 7.0], [30.0, 0.0, 15.0]])
+    truth = np.array([1.0, 4.0, 4.0, math.hypot(3.0, 3.0), 10.0]) - 0.01  # the ribbon's half-width
+    got, kinds = FM.descent_clearances(structure, positions, ground_z=0.0)
+    # the nearest samples are each up to their bound off the truth, and that much is subtracted again
+    slack = 2 * (structure.bound + FM.DESCENT_STEP / 2) + 1e-9
+    assert np.all(got <= truth + 1e-9) and np.all(got >= truth - slack), (got, truth)
+    assert list(kinds) == ["conductor"] * 5  # the ground is not structure
+    far, kind = FM.descent_clearances(structure, np.array([[0.0, 40.0, 20.0]]), ground_z=0.0)
+    assert far[0] == FM.DESCENT_RANGE and kind[0] == ""  # beyond the search: reported as the range
+
+
+def test_the_descent_exposure_of_each_phase(tmp_path):
+    """A flight that explores 8 m beside the wire and crosses over it: the crossing's descents
+    come within the margin while it is within 2 m of the wire's line, the pass's never."""
+    log = tmp_path / "trajectory.csv"
+    rows = ["time_s,x_m,y_m,z_m,yaw_rad,state", "0.000,-10.0,-8.0,0.0,0.0,idle"]  # on the ground first
+    t = 0.05
+    for x in np.arange(-10.0, 10.0, 0.05):  # 20 s along x at 1 m/s, 8 m off the wire
+        rows.append(f"{t:.3f},{x:.3f},-8.0,15.0,0.0,explore")
+        t += 0.05
+    for y in np.arange(-8.0, 8.0, 0.05):  # 16 s across it at 1 m/s, 15 m up
+        rows.append(f"{t:.3f},10.0,{y:.3f},15.0,0.0,cross")
+        t += 0.05
+    log.write_text("\n".join(rows) + "\n")
+    exposure = FM.descent_exposure(log, FM.Structure(_Wire()), margin=2.0)
+    assert list(exposure) == ["idle", "explore", "cross"]
+    assert exposure["explore"]["within_margin_s"] == 0.0 and exposure["explore"]["min_clearance_m"] > 7.5
+    cross = exposure["cross"]
+    assert cross["seconds"] == pytest.approx(16.0, abs=0.6)
+    assert cross["within_margin_s"] == pytest.approx(4.0, abs=1.1)  # |y| < 2 m: 4 s at 1 m/s
+    assert cross["min_clearance_m"] < 0.3 and cross["nearest"] == "conductor"
+    md = FM.markdown({"cells": [], "moments_s": {}, "margin_m": 2.0, "descent_in_place": exposure})
+    assert "| cross | 16 |" in md and "**BELOW**" in md

@@ -182,3 +182,41 @@ def test_with_takeoff_home_the_same_vehicle_flies_the_small_scene_to_the_end(tmp
     assert np.linalg.norm(np.array(rows[0][:2]) - where[:2]) < 0.5  # took off where it stood
     assert np.linalg.norm(np.array(rows[-1][:2]) - where[:2]) < 0.5 and rows[-1][2] < where[2] + 0.1  # landed there
     assert sims[0].with_vehicle(lambda v: v.landed)
+
+
+@pytest.mark.slow
+def test_a_home_takeoff_flight_replays_from_where_it_took_off(tmp_path, monkeypatch):
+    """Record -> replay with ``takeoff = "home"``: the in-process vehicle set down 13 m from the
+    mission's default take-off point flies a short recorded flight (its home is where it stands);
+    the replay, from the recorded mission and from the same mission file given again, plans from
+    that point, not from the default one. Reference: the position the vehicle was set down at."""
+    from insulator_rs.recording.metadata import read_metadata
+    from insulator_rs.replay import run as replay_run
+    from insulator_rs.replay.batch import ReplayOptions, replay_one
+
+    scene, mission_path = small_scene(tmp_path)
+    home_mission = _with_home_takeoff(mission_path)
+    where, _, loops = _standing_away(monkeypatch, mission_path)
+    recording = tmp_path / "flight.mcap"
+    rc = main(["inspect", "--scene", str(scene), "--mission", str(home_mission), "--out", str(tmp_path / "report"),
+               "--record", str(recording), "--max-flight-time", "20", *ARGS])
+    assert rc in (0, 1)
+    (loop,) = loops
+    assert np.allclose(loop.geom.takeoff, where, atol=0.01)  # the flight planned from where it stood
+    default = MissionGeometry.from_mission(load_mission(mission_path)).takeoff
+    assert np.linalg.norm(default - where) == pytest.approx(AWAY, abs=0.01)
+    meta = read_metadata(recording)
+    recorded = meta.mission(recording)
+    assert recorded is not None and np.allclose(recorded.takeoff_enu(), where, atol=0.01)
+    planned: list[np.ndarray] = []
+
+    class Watched(replay_run.ReplayRun):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            planned.append(self.geom.takeoff)
+
+    monkeypatch.setattr(replay_run, "ReplayRun", Watched)
+    for name, options in (("recorded", ReplayOptions()), ("given", ReplayOptions(mission=str(home_mission)))):
+        summary = replay_one(recording, tmp_path / f"replay_{name}", options)
+        assert not summary["status"].startswith("failed"), summary["status"]
+    assert len(planned) == 2 and all(np.allclose(p, where, atol=0.01) for p in planned)

@@ -7,6 +7,7 @@ Reference: the same rig file loaded directly (``insulator_rs.rig.load_rig``)."""
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import insulator_rs
@@ -64,3 +65,51 @@ def test_a_rig_found_nowhere_is_refused_by_name(tmp_path):
     shutil.rmtree(tmp_path / "flight")
     with pytest.raises(ConfigError, match=r"vehicle\.rig.*airframe\.toml"):
         meta.mission(tmp_path / "archive" / "flight.mcap")
+
+
+# -- takeoff = "home": the recording keeps where the flight took off -------------------------------
+
+def _home_mission_text() -> str:
+    return 'takeoff = "home"\n' + MISSION.read_text()
+
+
+def test_a_home_takeoff_survives_the_mcap_record_and_moves_the_replays_mission(tmp_path):
+    """Reference: the home point itself (a GeoPoint 13 m out from the default take-off point,
+    converted with pymap3d by the mission), written by McapRecorder and read back by read_metadata."""
+    from insulator_rs.geodesy import enu_to_gps, gps_to_enu
+    from insulator_rs.mission.config import parse_mission
+    from insulator_rs.recording.metadata import RECORD_NAME, read_metadata, takeoff_record
+    from insulator_rs.recording.writer import McapRecorder
+    from insulator_rs._toml import tomllib
+
+    text = _home_mission_text()
+    planned = parse_mission(tomllib.loads(text), "home.toml")
+    default = planned.takeoff_enu()
+    where = default + np.array([3.0, -12.0, 0.4])
+    flown = planned.with_takeoff(enu_to_gps(where, planned.tower))
+    recording = tmp_path / "flight.mcap"
+    recorder = McapRecorder(recording)
+    recorder.metadata(RECORD_NAME, FlightMetadata(mission_text=text, mission_suffix=".toml",
+                                                  mission_source=str(MISSION), takeoff=takeoff_record(flown)).as_record())
+    recorder.close()
+    meta = read_metadata(recording)
+    assert meta.flown_takeoff() == flown.takeoff  # every digit kept
+    replayed = meta.mission(recording)
+    assert replayed is not None and replayed.takeoff == flown.takeoff
+    assert np.allclose(replayed.takeoff_enu(), where, atol=1e-6)
+    assert np.allclose(gps_to_enu(replayed.takeoff, replayed.tower), where, atol=1e-6)
+    # --mission: a home mission given for the replay takes off there too; one naming its own does not
+    assert meta.at_flown_takeoff(planned).takeoff == flown.takeoff
+    plain = parse_mission(tomllib.loads(MISSION.read_text()), "plain.toml")
+    assert meta.at_flown_takeoff(plain) is plain
+    assert takeoff_record(plain) == "" and takeoff_record(planned) == ""  # no home to keep
+
+
+def test_a_recording_without_the_home_plans_from_the_default_point_and_a_bad_one_is_named(tmp_path):
+    old = FlightMetadata(mission_text=_home_mission_text(), mission_suffix=".toml", mission_source=str(MISSION))
+    mission = old.mission(tmp_path / "flight.mcap")
+    assert mission is not None and mission.takeoff_home and mission.takeoff is None
+    bad = FlightMetadata(mission_text=_home_mission_text(), mission_suffix=".toml", mission_source=str(MISSION),
+                         takeoff="49.5,15.0")
+    with pytest.raises(ConfigError, match=r"the recording's takeoff: expected 'lat,lon,alt', got '49.5,15.0'"):
+        bad.mission(tmp_path / "flight.mcap")

@@ -367,7 +367,7 @@ def run(args: argparse.Namespace) -> int:
     recorder = None
     stall_watch = None
     if args.record is not None:  # recording wraps the ports: the flight does not know it is recorded
-        from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata
+        from insulator_rs.recording.metadata import RECORD_NAME, FlightMetadata, takeoff_record
         from insulator_rs.recording.writer import McapRecorder
 
         recorder = McapRecorder(args.record, image_format=args.record_images)
@@ -376,7 +376,8 @@ def run(args: argparse.Namespace) -> int:
             mission_source=str(Path(mission_path).resolve()),  # absolute: a replay resolves its rig from there
             scene=str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene,
             # what the frames' stamps already carry: a replay applies a later calibration's difference
-            camera_latency_s=repr(rig.camera_latency_s if live else 0.0)).as_record())
+            camera_latency_s=repr(rig.camera_latency_s if live else 0.0),
+            takeoff=takeoff_record(mission)).as_record())  # takeoff = "home": where the vehicle stood
     try:
         # the photo check reads the network's pieces of a close-up, low scores included, only where
         # the geometry puts the string (perception/photo_check.py PHOTO_DETECT_CONF)

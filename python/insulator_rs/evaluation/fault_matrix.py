@@ -32,7 +32,9 @@ conductors; not the mission's boxes) and the airframe's TRUE trajectory (the sim
 the landing, whoever flew it): the minimum clearance, against the mission's ``safety_margin``;
 how the flight ended (landed by our route, by PX4's, or still flying); what ``summary.json`` says;
 whether the recording (``--record``, MCAP) holds every message written to it (the client killed: every
-message flushed before the kill, the recorder flushing every second). Writes
+message flushed before the kill, the recorder flushing every second). The GPS loss row samples one
+moment of each phase; :func:`descent_exposure` measures PX4's descent in place (its answer to a lost
+position) from every 0.5 s of the clean flight, per phase, against the same mesh and margin. Writes
 ``fault_matrix.md`` (the table), ``fault_matrix.json`` and ``fault_matrix.png`` (cells coloured by
 clearance) in ``--out``, one line per cell as it goes.
 """
@@ -68,6 +70,7 @@ REPORT_WORDS = {"link loss": ("heartbeat", "link"), "LiDAR silent": ("lidar",), 
                 # the payload's: the insulators without a photo, and the fault each attempt met
                 **{name: (fault.value,) for name, fault in PAYLOAD_FAULTS.items()}}
 SURFACE_STEP = 0.05  # m between the points sampled on the scene's surfaces (the clearance's resolution)
+SAMPLE_CELL = 0.01  # m: the samples are kept one a cube of this side (its centre; the bound grows by its half-diagonal)
 LOW_BATTERY_ABOVE_RESERVE = 0.01  # the pack drops to 1 % above the mission's reserve
 TIME_SCALE = 4.0  # the simulated PX4's speed-up (the client's limit)
 LANDING_WAIT = 300.0  # s of vehicle time to watch PX4 (or the autopilot's landing) bring it down
@@ -165,16 +168,87 @@ class Structure:
             w1, w2 = u[sel] / n, v[sel] / n
             points.append(a + np.outer(w1, b - a) + np.outer(w2, c - a))
             labels.extend([kind] * int(sel.sum()))
-        self.points = np.concatenate(points)
-        self.labels = np.array(labels)
+        # one sample per SAMPLE_CELL cube, at its centre: tower B's conductors (2.2 cm across) and
+        # sheds give 6.4 M samples in 0.76 M such cells, and the crowd made each search ~0.8 ms
+        cells, first = np.unique(np.floor(np.concatenate(points) / SAMPLE_CELL).astype(np.int64), axis=0,
+                                 return_index=True)
+        self.points = (cells + 0.5) * SAMPLE_CELL
+        self.labels = np.array(labels)[first]
         self.tree = cKDTree(self.points)
-        self.bound = SURFACE_STEP / math.sqrt(3.0)  # a point of a grid cell to its nearest corner
+        # a point of a grid cell to its nearest corner, and that corner to its cube's centre
+        self.bound = SURFACE_STEP / math.sqrt(3.0) + SAMPLE_CELL * math.sqrt(3.0) / 2
 
     def clearance(self, positions: np.ndarray) -> tuple[float, str]:
         """(minimum clearance in m, the kind of structure nearest there) along ``positions``."""
-        d, k = self.tree.query(np.asarray(positions, dtype=np.float64))
+        d, kinds = self.clearances(positions)
         j = int(np.argmin(d))
-        return max(0.0, float(d[j]) - self.bound), str(self.labels[k[j]])
+        return float(d[j]), str(kinds[j])
+
+    def clearances(self, positions: np.ndarray, upto: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+        """The clearance (m, never more than the truth) of each of ``positions`` (N, 3), and the
+        kind of structure nearest each; with ``upto`` (m), a position farther than that from every
+        sample gets inf and the kind "" (the search stops there: a dense mesh is slow to search
+        from far away)."""
+        d, k = self.tree.query(np.asarray(positions, dtype=np.float64).reshape(-1, 3), distance_upper_bound=upto)
+        found = k < len(self.labels)
+        kinds = np.full(len(k), "", dtype=self.labels.dtype)
+        kinds[found] = self.labels[k[found]]
+        return np.maximum(0.0, d - self.bound), kinds
+
+
+# -- a descent in place from every moment ---------------------------------------------------------
+DESCENT_STEP = 0.1  # m between the points sampled down a descent column (half of it is subtracted)
+DESCENT_EVERY = 0.5  # s of the clean flight between the descents measured
+DESCENT_RANGE = 10.0  # m: a descent farther than this from the structure is reported as this far
+
+
+def descent_clearances(structure: Structure, positions: np.ndarray, ground_z: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each W position (N, 3): the clearance of a vertical descent from there down to
+    ``ground_z`` (what PX4 flies when the position estimate is lost: its LAND/Descend in place),
+    i.e. the least distance from that column to the structure, less half the column's sampling
+    step (a point of the column is at most that far from a sample: never more than the truth),
+    at most DESCENT_RANGE; and the kind of structure nearest each column ("" beyond that range)."""
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    columns = [np.column_stack([np.full(len(z), x), np.full(len(z), y), z])
+               for x, y, z in ((q[0], q[1], np.append(np.arange(q[2], ground_z, -DESCENT_STEP), ground_z))
+                               for q in p)]
+    starts = np.cumsum([0] + [len(c) for c in columns[:-1]])
+    d, kinds = structure.clearances(np.concatenate(columns), upto=DESCENT_RANGE + structure.bound + DESCENT_STEP)
+    d = np.minimum(np.maximum(0.0, d - DESCENT_STEP / 2), DESCENT_RANGE)
+    nearest = np.array([kinds[a + int(np.argmin(d[a:a + len(c)]))] for a, c in zip(starts, columns)])
+    return np.minimum.reduceat(d, starts), nearest
+
+
+def descent_exposure(trajectory_csv: Path, structure: Structure, margin: float) -> dict[str, dict[str, Any]]:
+    """Per phase of a clean flight (its state log's states, in order of first appearance): how
+    long it lasted (s), for how long a descent in place from where the vehicle was would come
+    within ``margin`` of the structure (s, sampled every DESCENT_EVERY s), and the least such
+    descent's clearance, the structure nearest it and when (s after arming). The matrix's GPS
+    loss row samples one moment of each phase; this is every moment of it. The positions are the
+    state log's (the vehicle's estimate: the in-process airframe's odometry, cm from the truth)."""
+    import csv
+
+    with trajectory_csv.open(encoding="utf-8") as f:
+        rows = [(float(r["time_s"]), float(r["x_m"]), float(r["y_m"]), float(r["z_m"]), r["state"])
+                for r in csv.DictReader(f)]
+    if not rows:
+        raise ValueError(f"{trajectory_csv}: the clean flight's state log is empty")
+    ground_z = rows[0][3]
+    picked, next_t = [], -math.inf
+    for row in rows:
+        if row[0] >= next_t:
+            picked.append(row)
+            next_t = row[0] + DESCENT_EVERY
+    d, kinds = descent_clearances(structure, np.array([r[1:4] for r in picked]), ground_z)
+    out: dict[str, dict[str, Any]] = {}
+    for (t, *_, state), c, kind in zip(picked, d, kinds):
+        e = out.setdefault(state, {"seconds": 0.0, "within_margin_s": 0.0, "min_clearance_m": math.inf,
+                                   "nearest": "", "at_s": 0.0})
+        e["seconds"] += DESCENT_EVERY
+        e["within_margin_s"] += DESCENT_EVERY if c < margin else 0.0
+        if c < e["min_clearance_m"]:
+            e.update(min_clearance_m=round(float(c), 2), nearest=str(kind), at_s=round(t, 1))
+    return out
 
 
 # -- the moments ----------------------------------------------------------------------------------
@@ -537,10 +611,14 @@ def run_matrix(out: Path, faults: Sequence[str] = FAULTS, moments: Sequence[str]
     clean = fly_cell(setup, None, "clean", math.inf, flights / "clean", say)
     moments_s = moments_from(flights / "clean" / "report" / "trajectory.csv")
     say(f"moments (s after arming): {moments_s}")
+    descent = descent_exposure(flights / "clean" / "report" / "trajectory.csv", setup.structure, setup.margin)
+    say("a descent in place from each phase (within the margin / phase): "
+        + ", ".join(f"{k} {v['within_margin_s']:.0f}/{v['seconds']:.0f} s" for k, v in descent.items()))
     cells = [fly_cell(setup, f, m, moments_s[m], flights / f"{f.replace(' ', '_')}-{m}", say)
              for f in faults for m in moments]
     result = {"scene": SCENES[scene_name], "margin_m": setup.margin,
               "surface_step_m": SURFACE_STEP, "moments_s": moments_s, "clean": asdict(clean),
+              "descent_in_place": descent,
               "cells": [asdict(c) for c in cells], "below_margin": sum(c.clearance_m < setup.margin for c in cells),
               "not_landed": sum(not c.ended.startswith("landed") for c in cells),
               "wall_s": round(wallclock.perf_counter() - wall0, 1)}
@@ -575,6 +653,16 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(f"| {c['fault']} @ {c['moment']} | {c['status']} | {'yes' if c['report_names_fault'] else 'no'} "
                      f"| {c['recording']} |")
     lines += payload_table(cells)
+    descent = result.get("descent_in_place")
+    if descent:  # every moment of the clean flight, not the five the cells sample
+        lines += ["", f"A descent in place (PX4's landing when the position is lost) from every {DESCENT_EVERY:g} s of "
+                  "the clean flight:", "",
+                  "| phase | s | descent within the margin | least clearance |", "| --- | --- | --- | --- |"]
+        for state, e in descent.items():
+            flag = "" if e["min_clearance_m"] >= result["margin_m"] else " **BELOW**"
+            least = (f"{e['min_clearance_m']:.2f} m ({e['nearest']}, {e['at_s']:.0f} s)" if e["nearest"]
+                     else f">= {DESCENT_RANGE:g} m")
+            lines.append(f"| {state} | {e['seconds']:.0f} | {e['within_margin_s']:.1f} s | {least}{flag} |")
     return "\n".join(lines) + "\n"
 
 

@@ -2,7 +2,10 @@
 metadata record named ``insulator_rs`` (other tools ignore it; Foxglove lists it).
 
 A replay takes the mission from there unless ``--mission`` is given; a recording without it
-(any bag from another recorder) needs ``--mission``.
+(any bag from another recorder) needs ``--mission``. A mission that says ``takeoff = "home"`` took
+off from the vehicle's home, read from the autopilot before planning (:mod:`insulator_rs.flight.home`):
+the record keeps that point (``takeoff``), and the replay's mission takes off from it, from the
+recorded mission or from ``--mission`` alike.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import yaml
 
 from insulator_rs._toml import tomllib
 from insulator_rs.exceptions import ConfigError
+from insulator_rs.geodesy import GeoPoint
 from insulator_rs.mission.config import Mission, parse_mission
 
 RECORD_NAME = "insulator_rs"
@@ -27,18 +31,43 @@ class FlightMetadata:
     flight's scene name, for scoring against its ground truth; "" for a real flight),
     ``camera_latency_s`` (the latency, s, the flight's camera subtracted from its frames' arrival
     stamps: the rig's ``[camera] latency_s`` for a live camera, 0 for the simulator's, which
-    stamps the exposure; "" in recordings from before it was kept: not known)."""
+    stamps the exposure; "" in recordings from before it was kept: not known), ``takeoff`` (the
+    take-off point of a ``takeoff = "home"`` mission, the vehicle's home as the flight read it:
+    :func:`takeoff_record`; "" for a mission that names its own, and in recordings from before it
+    was kept)."""
 
     mission_text: str = ""
     mission_suffix: str = ".toml"
     mission_source: str = ""
     scene: str = ""
     camera_latency_s: str = ""
+    takeoff: str = ""
 
     def as_record(self) -> dict[str, str]:
         return {"mission_text": self.mission_text, "mission_suffix": self.mission_suffix,
                 "mission_source": self.mission_source, "scene": self.scene,
-                "camera_latency_s": self.camera_latency_s}
+                "camera_latency_s": self.camera_latency_s, "takeoff": self.takeoff}
+
+    def flown_takeoff(self) -> GeoPoint | None:
+        """The home a ``takeoff = "home"`` flight took off from (WGS-84); None when not recorded.
+        ConfigError naming ``takeoff`` when the record holds something else than three numbers."""
+        if not self.takeoff:
+            return None
+        try:
+            lat, lon, alt = (float(x) for x in self.takeoff.split(","))
+        except ValueError as exc:
+            raise ConfigError(f"the recording's takeoff: expected 'lat,lon,alt', got {self.takeoff!r}") from exc
+        return GeoPoint(lat, lon, alt)
+
+    def at_flown_takeoff(self, mission: Mission) -> Mission:
+        """``mission`` taking off where the recorded flight did, when it says ``takeoff = "home"``
+        and the recording kept that home (as :func:`insulator_rs.flight.home.at_vehicle_home` put it
+        there for the flight); as it is otherwise (a recording from before the home was kept plans
+        from the mission's default take-off point)."""
+        point = self.flown_takeoff()
+        if not mission.takeoff_home or mission.takeoff is not None or point is None:
+            return mission
+        return mission.with_takeoff(point)
 
     def recorded_camera_latency(self) -> float | None:
         """The latency the recorded frames' stamps already carry (s); None when not recorded."""
@@ -59,7 +88,7 @@ class FlightMetadata:
                          else yaml.safe_load(self.mission_text))
         except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
             raise ConfigError(f"{source}: cannot parse: {exc}") from exc
-        return parse_mission(data, source, base=self.mission_folder(recording))
+        return self.at_flown_takeoff(parse_mission(data, source, base=self.mission_folder(recording)))
 
     def mission_folder(self, recording: Path) -> Path:
         """Where the recorded mission's relative paths (its rig file, and the rig's calibration
@@ -113,4 +142,14 @@ def read_metadata(path: Path) -> FlightMetadata:
         return FlightMetadata()
     m = dict(records[0].metadata)
     return FlightMetadata(m.get("mission_text", ""), m.get("mission_suffix", ".toml"), m.get("mission_source", ""),
-                          m.get("scene", ""), m.get("camera_latency_s", ""))
+                          m.get("scene", ""), m.get("camera_latency_s", ""), m.get("takeoff", ""))
+
+
+def takeoff_record(mission: Mission) -> str:
+    """What the record keeps of ``mission``'s take-off point: "lat,lon,alt" (repr: every digit, so
+    the replay plans from the very point) when the point came from the vehicle's home
+    (``takeoff = "home"``, resolved), else "" (the mission file names its own)."""
+    if not mission.takeoff_home or mission.takeoff is None:
+        return ""
+    t = mission.takeoff
+    return f"{t.lat!r},{t.lon!r},{t.alt!r}"

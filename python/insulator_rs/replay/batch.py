@@ -59,8 +59,8 @@ def replay_one(path: str | Path, out: str | Path, options: ReplayOptions) -> dic
     try:
         bag_paths(path)  # a missing or foreign file is named before anything else
         meta = read_metadata(path)
-        if options.mission is not None:
-            mission = load_mission(options.mission)
+        if options.mission is not None:  # takeoff = "home" there too: from where the flight took off
+            mission = meta.at_flown_takeoff(load_mission(options.mission))
         else:
             recorded = meta.mission(path)
             if recorded is None:
