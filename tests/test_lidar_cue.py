@@ -9,7 +9,6 @@ where the cloud is dense and no string is within 2 m).
 from __future__ import annotations
 
 import json
-import tomllib
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -19,6 +18,7 @@ from helpers.exploration_clouds import exploration_cloud
 from scipy.spatial import cKDTree
 
 import insulator_rs as ir
+from insulator_rs._toml import tomllib
 from insulator_rs.exceptions import ConfigError
 from insulator_rs.evaluation.track_evidence import judge, read_run
 from insulator_rs.flight.lidar_cue import (CLOUD_VOXEL, CONTRADICTED, COVER_MIN_POINTS, COVER_RADIUS, SUPPORT_REACH,
