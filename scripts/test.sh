@@ -49,15 +49,20 @@ if [ "$tier" != "slow" ]; then
   cargo test --quiet --release -p fusion_core -p scene_raycast -p livox_mid360 >"$cargo_log" 2>&1 &
   cargo_pid=$!
 fi
-cargo_wait() {
-  [ -n "$cargo_pid" ] || return 0
-  local rc=0
-  wait "$cargo_pid" || rc=$?
-  cargo_pid=""
-  step "cargo test: exit $rc"
-  grep -E "^test result|FAILED|panicked|error(\[|:)" "$cargo_log" || true
-  if [ "$rc" -ne 0 ]; then tail -60 "$cargo_log"; fi
-  rm -f "$cargo_log"
+# beside_wait LABEL PID LOG [SUMMARY]: wait for a job run beside pytest and print its log (with
+# SUMMARY, an extended regex: only those lines, and the log's tail if it failed); its exit status.
+beside_wait() {
+  local label=$1 pid=$2 log=$3 summary=${4:-} rc=0
+  [ -n "$pid" ] || return 0
+  wait "$pid" || rc=$?
+  step "$label: exit $rc"
+  if [ -z "$summary" ]; then
+    cat "$log"
+  else
+    grep -E "$summary" "$log" || true
+    if [ "$rc" -ne 0 ]; then tail -60 "$log"; fi
+  fi
+  rm -f "$log"
   return "$rc"
 }
 # a failure below still reports (and stops) cargo's run
@@ -86,16 +91,6 @@ if [ "$tier" != "slow" ]; then
   ) >"$typing_log" 2>&1 &
   typing_pid=$!
 fi
-typing_wait() {
-  [ -n "$typing_pid" ] || return 0
-  local rc=0
-  wait "$typing_pid" || rc=$?
-  typing_pid=""
-  step "stub check and mypy: exit $rc"
-  cat "$typing_log"
-  rm -f "$typing_log"
-  return "$rc"
-}
 step "pytest, the ${tier} tier (hypothesis profile: ${HYPOTHESIS_PROFILE:-ci}; workers: ${workers})"
 # The gate draws the same examples on every run (tests/conftest.py, profile "ci");
 # HYPOTHESIS_PROFILE=dev explores new ones.
@@ -119,9 +114,11 @@ if [ "$own_marker" = "0" ]; then
   if [ "$alone_rc" -ne 5 ] && [ "$alone_rc" -ne 0 ]; then pytest_rc=$alone_rc; fi
 fi
 typing_rc=0
-typing_wait || typing_rc=$?
+beside_wait "stub check and mypy" "$typing_pid" "$typing_log" || typing_rc=$?
+typing_pid=""
 cargo_rc=0
-cargo_wait || cargo_rc=$?
+beside_wait "cargo test" "$cargo_pid" "$cargo_log" "^test result|FAILED|panicked|error(\[|:)" || cargo_rc=$?
+cargo_pid=""
 if [ "$pytest_rc" -ne 0 ] || [ "$cargo_rc" -ne 0 ] || [ "$typing_rc" -ne 0 ]; then
   step "failed: pytest exit $pytest_rc, cargo test exit $cargo_rc, stub check and mypy exit $typing_rc"
   exit 1
